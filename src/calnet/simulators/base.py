@@ -1,0 +1,62 @@
+"""The small protocol every simulator speaks: inputs dict -> :class:`SimResult`.
+
+Built-in simulators, Python callables, external commands and UM-Bridge servers are all
+adapted to this shape by :mod:`calnet.campaign.runners`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any, Literal, Protocol
+
+Status = Literal["ok", "failed", "timeout", "nonconverged"]
+STATUSES: tuple[str, ...] = ("ok", "failed", "timeout", "nonconverged")
+
+
+@dataclass(frozen=True)
+class SimResult:
+    """Outcome of one simulator run.
+
+    Attributes
+    ----------
+    outputs : dict of str to float
+        Output values in the model's declared units. May be empty or hold NaN when
+        ``status`` is not ``"ok"``.
+    status : {"ok", "failed", "timeout", "nonconverged"}
+        ``"ok"`` only when every output is finite and the simulator trusts its answer.
+    message : str
+        Why a run is not ``"ok"`` (empty otherwise).
+    diagnostics : dict
+        Free-form numbers (iterations, residual, mesh size, ...), JSON-serialisable.
+    """
+
+    outputs: dict[str, float]
+    status: Status = "ok"
+    message: str = ""
+    diagnostics: dict[str, Any] = field(default_factory=dict)
+
+    def checked(self, expected: tuple[str, ...] = ()) -> SimResult:
+        """Return a copy marked ``failed`` if an expected output is missing or not finite."""
+        if self.status != "ok":
+            return self
+        missing = [k for k in expected if k not in self.outputs]
+        if missing:
+            return SimResult(self.outputs, "failed", f"missing outputs {missing}",
+                             self.diagnostics)
+        bad = [k for k, v in self.outputs.items()
+               if not isinstance(v, (int, float)) or not math.isfinite(float(v))]
+        if bad:
+            return SimResult(self.outputs, "failed", f"non-finite outputs {bad}",
+                             self.diagnostics)
+        return self
+
+
+class Simulator(Protocol):
+    """Anything that maps one input dict (control inputs and parameters) to a result."""
+
+    name: str
+    version: str
+
+    def __call__(self, inputs: Mapping[str, float]) -> SimResult: ...
