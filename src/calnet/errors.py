@@ -1,0 +1,56 @@
+"""Exceptions and warnings raised by calnet.
+
+Every error a user can trigger with bad input is a :class:`CalnetError` whose message is
+one line naming what was wrong and how to fix it; the CLI prints it without a traceback.
+"""
+
+from __future__ import annotations
+
+
+class CalnetError(Exception):
+    """Base class of calnet's user-facing errors."""
+
+
+class SpecError(CalnetError):
+    """A network spec (YAML or Python) is malformed or inconsistent.
+
+    Parameters
+    ----------
+    message : str
+        What is wrong and how to fix it.
+    file : str, optional
+        The spec or data file concerned.
+    field : str, optional
+        Dotted path of the offending field (``models.melt_pool.parameters.K_S.lower``).
+    """
+
+    def __init__(self, message: str, *, file: str | None = None, field: str | None = None):
+        self.file = file
+        self.field = field
+        self.reason = message
+        where = ": ".join(p for p in (file, field) if p)
+        super().__init__(f"{where}: {message}" if where else message)
+
+
+class CampaignError(CalnetError):
+    """A simulation campaign cannot be run or resumed."""
+
+
+class SurrogateError(CalnetError):
+    """A surrogate cannot be fitted or loaded."""
+
+
+class CalibrationError(CalnetError):
+    """A calibration cannot be set up or run."""
+
+
+class SpecWarning(UserWarning):
+    """A spec is usable but suspicious (e.g. data outside the input bounds)."""
+
+
+class CalibrationWarning(UserWarning):
+    """Sampler diagnostics are poor (R-hat, ESS, divergences) or data are scarce."""
+
+
+class SurrogateWarning(UserWarning):
+    """A surrogate was fitted with caveats (runs excluded, nugget raised)."""
