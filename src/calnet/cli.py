@@ -1,0 +1,172 @@
+"""The ``calnet`` command line: thin Typer commands over the stage verbs.
+
+Every user error (:class:`calnet.errors.CalnetError`) is printed as one line, without a
+traceback; spec errors exit with code 2, other errors with code 1.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import os
+import sys
+import warnings
+from collections.abc import Callable
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+from rich.console import Console
+
+from calnet.errors import CalnetError, SpecError
+
+app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
+                  help="Bayesian calibration of networks of coupled simulation models.")
+console = Console(stderr=False, highlight=False)
+err_console = Console(stderr=True, highlight=False)
+
+SpecArg = Annotated[Path, typer.Argument(help="network YAML, or a folder holding network.yaml")]
+
+
+def user_errors(func: Callable[..., Any]) -> Callable[..., Any]:
+    """Turn calnet errors into one-line messages with exit codes; show warnings briefly."""
+
+    @functools.wraps(func)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            try:
+                result = func(*args, **kwargs)
+            except SpecError as err:
+                _show_warnings(caught)
+                err_console.print(f"[bold red]error:[/] {err}", soft_wrap=True)
+                raise typer.Exit(2) from None
+            except CalnetError as err:
+                _show_warnings(caught)
+                err_console.print(f"[bold red]error:[/] {err}", soft_wrap=True)
+                raise typer.Exit(1) from None
+            except typer.Exit:
+                _show_warnings(caught)
+                raise
+            except KeyboardInterrupt:
+                _show_warnings(caught)
+                err_console.print("[bold red]interrupted[/]: finished work is kept; run the "
+                                  "same command again to resume")
+                raise typer.Exit(130) from None
+            except Exception as err:
+                if os.environ.get("CALNET_DEBUG"):
+                    raise
+                _show_warnings(caught)
+                err_console.print(f"[bold red]internal error:[/] {type(err).__name__}: {err}\n"
+                                  "This is a bug in calnet; set CALNET_DEBUG=1 for the "
+                                  "traceback and report it.", soft_wrap=True)
+                raise typer.Exit(3) from None
+        _show_warnings(caught)
+        return result
+
+    return wrapper
+
+
+def _show_warnings(caught: list[warnings.WarningMessage]) -> None:
+    seen = set()
+    for w in caught:
+        text = str(w.message)
+        if text in seen or issubclass(w.category, DeprecationWarning):
+            continue
+        seen.add(text)
+        err_console.print(f"[yellow]warning:[/] {text}", soft_wrap=True)
+
+
+@app.command()
+@user_errors
+def check(spec: SpecArg) -> None:
+    """Load and validate a spec, then print the network."""
+    from calnet.spec import load_spec
+    from calnet.spec.describe import describe_network
+
+    network = load_spec(spec)
+    describe_network(network, console)
+
+
+def _parse_sets(values: list[str]) -> dict[str, float]:
+    out = {}
+    for item in values:
+        key, sep, val = item.partition("=")
+        if not sep or not key:
+            raise CalnetError(f"--set expects NAME=VALUE, got '{item}'")
+        try:
+            out[key.strip()] = float(val)
+        except ValueError:
+            raise CalnetError(f"--set {key}: '{val}' is not a number") from None
+    return out
+
+
+def _parse_options(values: list[str]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for item in values:
+        key, sep, val = item.partition("=")
+        if not sep:
+            raise CalnetError(f"--option expects NAME=VALUE, got '{item}'")
+        try:
+            out[key] = json.loads(val)
+        except json.JSONDecodeError:
+            out[key] = val
+    return out
+
+
+@app.command()
+@user_errors
+def simulate(
+    name: Annotated[str, typer.Argument(help="built-in simulator: melt_pool or solidification")],
+    set_: Annotated[list[str], typer.Option("--set", help="NAME=VALUE input or parameter")] = [],  # noqa: B006
+    option: Annotated[list[str], typer.Option(help="NAME=VALUE simulator option")] = [],  # noqa: B006
+) -> None:
+    """Run one built-in simulation and print its outputs as JSON.
+
+    Parameters not given default to the middle of their bounds.
+    """
+    from calnet.simulators.registry import builtin_info
+
+    info = builtin_info(name)
+    values = _parse_sets(set_)
+    unknown = [k for k in values if k not in info.inputs + info.parameters]
+    if unknown:
+        raise CalnetError(f"'{name}' has no input or parameter {unknown}; it takes "
+                          f"{list(info.inputs + info.parameters)}")
+    inputs = {**info.defaults(), **values}
+    result = info.simulate(inputs, **_parse_options(option))
+    doc = {"simulator": name, "version": info.version, "inputs": inputs,
+           "status": result.status, "message": result.message, "outputs": result.outputs,
+           "diagnostics": result.diagnostics}
+    print(json.dumps(doc, indent=2, default=_json_default))
+    if result.status != "ok":
+        raise typer.Exit(1)
+
+
+def _json_default(obj: Any) -> Any:
+    try:
+        return obj.item()
+    except AttributeError:
+        return str(obj)
+
+
+@app.command()
+@user_errors
+def run(
+    spec: SpecArg,
+    out: Annotated[Path, typer.Option(help="output folder for the report")] = Path("out"),
+    fresh: Annotated[bool, typer.Option(help="re-simulate instead of using shipped runs")] = False,
+    quick: Annotated[bool, typer.Option(help="fewer draws, for a fast look")] = False,
+) -> None:
+    """Run every stage on SPEC and write the report to OUT."""
+    from calnet.pipeline import run_pipeline
+
+    run_pipeline(spec, out=out, fresh=fresh, quick=quick, console=console)
+
+
+def main() -> None:  # pragma: no cover - console script entry
+    app()
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(app())

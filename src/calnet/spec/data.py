@@ -1,0 +1,158 @@
+"""Experimental data sets: read, check and hand out as arrays."""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+
+from calnet.errors import SpecError, SpecWarning
+from calnet.spec.models import Dataset
+from calnet.spec.network import Network
+
+
+@dataclass(frozen=True)
+class ExperimentalData:
+    """One data set as arrays.
+
+    Attributes
+    ----------
+    name : str
+    observes : str
+        ``model.output`` observed.
+    input_keys : tuple of str
+        ``model.input`` of each column of ``x`` (the process inputs, topological order).
+    x : ndarray, shape (n_points, n_inputs)
+        Process inputs in their declared units.
+    y : ndarray, shape (n_points,)
+        Observations in the output's declared unit.
+    is_test : ndarray of bool, shape (n_points,)
+        True for rows held out by the split column.
+    labels : tuple of str
+        Row labels (the CSV's first column, or the row number).
+    """
+
+    name: str
+    observes: str
+    input_keys: tuple[str, ...]
+    x: np.ndarray
+    y: np.ndarray
+    is_test: np.ndarray
+    labels: tuple[str, ...]
+
+    @property
+    def train(self) -> ExperimentalData:
+        return self.subset(~self.is_test)
+
+    @property
+    def test(self) -> ExperimentalData:
+        return self.subset(self.is_test)
+
+    def subset(self, mask: np.ndarray) -> ExperimentalData:
+        """Rows selected by a boolean mask or an index array."""
+        idx = np.arange(len(self.y))[mask]
+        return ExperimentalData(self.name, self.observes, self.input_keys, self.x[idx],
+                                self.y[idx], self.is_test[idx],
+                                tuple(self.labels[i] for i in idx))
+
+
+def read_dataset(network: Network, ds: Dataset) -> ExperimentalData:
+    """Read and check one data set of ``network``; raise :class:`SpecError` on bad data.
+
+    Points outside the models' input bounds give a :class:`SpecWarning` with their count,
+    or a :class:`SpecError` when ``strict`` (data set or settings) is on.
+    """
+    import pandas as pd
+
+    path = network.path(ds.path)
+    field = f"data.{ds.name}"
+    if not path.is_file():
+        raise SpecError(f"data file '{path}' not found; fix 'path' (relative paths are "
+                        "resolved against the spec's folder)", file=network.source or None,
+                        field=f"{field}.path")
+    try:
+        frame = pd.read_csv(path)
+    except Exception as err:  # pandas raises many kinds; all mean an unreadable CSV
+        raise SpecError(f"cannot read '{path}' as CSV ({err})", file=str(path),
+                        field=field) from None
+    wanted = [f"{m}.{v}" for m, v in network.process_inputs(ds.observed_model)]
+    resolved = {network.resolve_column_key(ds, k, wanted + [ds.observes]): col
+                for k, col in ds.columns.items()}
+    columns = {key: _numeric_column(frame, resolved[key], path, field)
+               for key in (*wanted, ds.observes)}
+    x = np.column_stack([columns[k] for k in wanted]) if wanted else np.empty((len(frame), 0))
+    y = columns[ds.observes]
+    is_test = _split_mask(frame, ds, path, field)
+    _check_bounds(network, ds, wanted, x, path, field)
+    labels = tuple(str(v) for v in frame.iloc[:, 0]) if len(frame.columns) else ()
+    return ExperimentalData(ds.name, ds.observes, tuple(wanted), x, y, is_test, labels)
+
+
+def _numeric_column(frame, column: str, path, field: str) -> np.ndarray:
+    if column not in frame.columns:
+        raise SpecError(f"column '{column}' is not in the CSV (it has {list(frame.columns)}); "
+                        "fix the 'columns' mapping", file=str(path), field=f"{field}.columns")
+    values = frame[column]
+    numeric = __import__("pandas").to_numeric(values, errors="coerce")
+    bad = numeric.isna() & values.notna()
+    if bad.any():
+        row = int(np.flatnonzero(bad.to_numpy())[0]) + 2
+        raise SpecError(f"column '{column}' is not numeric ('{values[bad].iloc[0]}' on line "
+                        f"{row}); fix the value", file=str(path), field=f"{field}.columns")
+    arr = numeric.to_numpy(dtype=float)
+    if not np.all(np.isfinite(arr)):
+        rows = (np.flatnonzero(~np.isfinite(arr)) + 2).tolist()
+        raise SpecError(f"column '{column}' has {len(rows)} missing/NaN/infinite value(s) "
+                        f"on line(s) {rows[:10]}; fill or remove those rows",
+                        file=str(path), field=f"{field}.columns")
+    return arr
+
+
+def _split_mask(frame, ds: Dataset, path, field: str) -> np.ndarray:
+    if ds.split is None:
+        return np.zeros(len(frame), dtype=bool)
+    col = ds.split.column
+    if col not in frame.columns:
+        raise SpecError(f"split column '{col}' is not in the CSV (it has "
+                        f"{list(frame.columns)}); fix 'split'", file=str(path),
+                        field=f"{field}.split")
+    values = frame[col].astype(str).str.strip()
+    allowed = {ds.split.train, ds.split.test}
+    unknown = sorted(set(values) - allowed)
+    if unknown:
+        raise SpecError(f"split column '{col}' has values {unknown}; only "
+                        f"'{ds.split.train}' and '{ds.split.test}' are allowed",
+                        file=str(path), field=f"{field}.split")
+    mask = (values == ds.split.test).to_numpy()
+    if mask.all():
+        raise SpecError("every row is in the test split; keep some rows for calibration",
+                        file=str(path), field=f"{field}.split")
+    return mask
+
+
+def _check_bounds(network: Network, ds: Dataset, keys: list[str], x: np.ndarray, path,
+                  field: str) -> None:
+    outside = np.zeros(len(x), dtype=bool)
+    detail = []
+    for j, key in enumerate(keys):
+        model, name = key.split(".")
+        var = network.model(model).variable(name)
+        out = (x[:, j] < var.lower) | (x[:, j] > var.upper)
+        if out.any():
+            detail.append(f"{key} in [{x[out, j].min():g}, {x[out, j].max():g}] vs bounds "
+                          f"[{var.lower:g}, {var.upper:g}]")
+        outside |= out
+    if not outside.any():
+        return
+    strict = ds.strict if ds.strict is not None else network.settings.strict
+    msg = (f"{int(outside.sum())} of {len(x)} point(s) lie outside the model's input bounds "
+           f"({'; '.join(detail)}); widen the bounds so the simulations cover the experiments")
+    if strict:
+        raise SpecError(msg, file=str(path), field=field)
+    warnings.warn(f"{path}: {field}: {msg}", SpecWarning, stacklevel=3)
+
+
+def read_all(network: Network) -> dict[str, ExperimentalData]:
+    """Read every data set of ``network``, keyed by name."""
+    return {ds.name: read_dataset(network, ds) for ds in network.data}

@@ -1,0 +1,74 @@
+"""A readable rendering of a network for ``calnet check``."""
+
+from __future__ import annotations
+
+from rich.console import Console
+from rich.table import Table
+
+from calnet.spec.network import Network
+
+
+def describe_network(network: Network, console: Console) -> None:
+    """Print the models in topological order with their inputs, parameters and outputs."""
+    console.print(f"[bold]network[/] {network.name}  ({network.source or 'built in Python'})")
+    console.print(f"order: {' -> '.join(network.order)}")
+    for i, name in enumerate(network.order, 1):
+        model = network.model(name)
+        table = Table(title=f"{i}. {name}  [dim]({_simulator(model.simulator)})[/]",
+                      title_justify="left", show_edge=False, pad_edge=False)
+        for col in ("variable", "kind", "unit", "range / role"):
+            table.add_column(col)
+        for var in model.inputs:
+            link = network.link_into(name, var.name)
+            role = (f"<- {link.source}" + (" (identity)" if _identity(network, link) else "")
+                    if link else "free (set by experiment)")
+            table.add_row(var.name, "input", var.unit, f"[{var.lower:g}, {var.upper:g}]  {role}")
+        for var in model.parameters:
+            table.add_row(var.name, "parameter", var.unit,
+                          f"[{var.lower:g}, {var.upper:g}]  prior {_prior(var.prior)}")
+        needed = {o.name for o in network.needed_outputs(name)}
+        for var in model.outputs:
+            table.add_row(var.name, "output", var.unit, _output_role(network, name, var, needed))
+        console.print(table)
+    if network.data:
+        console.print("[bold]data sets[/]")
+        from calnet.spec.data import read_dataset
+
+        for ds in network.data:
+            data = read_dataset(network, ds)
+            console.print(f"  {ds.name}: {ds.path} observes {ds.observes}; "
+                          f"{len(data.y)} points ({int((~data.is_test).sum())} train, "
+                          f"{int(data.is_test.sum())} test); inputs {list(data.input_keys)}")
+
+
+def _simulator(sim) -> str:
+    detail = {"builtin": sim.name, "python": sim.target, "command": " ".join(sim.argv),
+              "umbridge": f"{sim.url} {sim.model}"}[sim.kind]
+    return f"{sim.kind}: {detail}"
+
+
+def _identity(network: Network, link) -> bool:
+    return link.source_var in network.model(link.source_model).input_names
+
+
+def _prior(prior) -> str:
+    args = {k: v for k, v in prior.model_dump().items() if k != "dist"}
+    return f"{prior.dist}({', '.join(f'{k}={v:g}' for k, v in args.items())})"
+
+
+def _output_role(network: Network, model: str, var, needed: set[str]) -> str:
+    parts = []
+    observed = [d.name for d in network.datasets_for(model) if d.observed_output == var.name]
+    if var.measurable:
+        parts.append("measurable" + (f", observed by {', '.join(observed)}" if observed
+                                     else ", no data set"))
+    else:
+        parts.append("unmeasurable")
+    links = [ln.target for ln in network.links if ln.source == f"{model}.{var.name}"]
+    if links:
+        parts.append(f"-> {', '.join(links)}")
+    if var.transform:
+        parts.append(f"surrogate on {var.transform} scale")
+    if var.name in needed:
+        parts.append("[green]surrogate[/]")
+    return "; ".join(parts)

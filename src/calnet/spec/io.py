@@ -1,0 +1,221 @@
+"""Reading a network spec from YAML, with one-line errors that name file, field and fix."""
+
+from __future__ import annotations
+
+import types
+import typing
+import warnings
+from pathlib import Path
+from typing import Any
+
+import yaml
+from pydantic import BaseModel, ValidationError
+
+from calnet.errors import CalnetError, SpecError, SpecWarning
+from calnet.spec.network import Network, norm_unit
+
+SPEC_FILENAME = "network.yaml"
+
+
+def resolve_spec_path(spec: str | Path) -> Path:
+    """Return the YAML file of ``spec``: the file itself or ``<folder>/network.yaml``."""
+    path = Path(spec)
+    if path.is_dir():
+        path = path / SPEC_FILENAME
+        if not path.is_file():
+            raise SpecError(f"folder has no {SPEC_FILENAME}; pass the YAML file itself or add "
+                            f"{SPEC_FILENAME}", file=str(path.parent))
+    elif not path.is_file():
+        raise SpecError("no such file or folder; pass a YAML file or a folder holding "
+                        f"{SPEC_FILENAME}", file=str(path))
+    return path
+
+
+def load_spec(spec: str | Path, *, read_data: bool = True) -> Network:
+    """Load and validate a network spec.
+
+    Parameters
+    ----------
+    spec : str or Path
+        A YAML file, or a folder holding ``network.yaml``.
+    read_data : bool
+        Also read every data set and check its columns, values and bounds.
+
+    Returns
+    -------
+    Network
+        The frozen, validated network; relative paths resolve against the YAML's folder.
+
+    Raises
+    ------
+    SpecError
+        With a one-line message naming the file, the field and the fix.
+    """
+    path = resolve_spec_path(spec)
+    raw = _read_yaml(path)
+    network = parse_spec(raw, root=path.parent, source=str(path))
+    check_simulators(network)
+    if read_data:
+        from calnet.spec.data import read_all
+
+        read_all(network)
+    return network
+
+
+def parse_spec(raw: Any, *, root: str | Path = ".", source: str = "<spec>") -> Network:
+    """Build a :class:`Network` from already-parsed YAML (a mapping)."""
+    if not isinstance(raw, dict):
+        raise SpecError(f"the spec must be a YAML mapping with 'models', got "
+                        f"{type(raw).__name__}", file=source)
+    for key in ("root", "source"):
+        if key in raw:
+            raise SpecError(f"unknown key '{key}'", file=source, field=key)
+    try:
+        return Network.model_validate({**raw, "root": str(root), "source": source})
+    except ValidationError as err:
+        raise _to_spec_error(err, raw, source) from None
+
+
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """A safe YAML loader that rejects duplicate mapping keys (PyYAML keeps the last)."""
+
+
+def _construct_mapping(loader: _UniqueKeyLoader, node: yaml.MappingNode, deep: bool = False):
+    seen: dict[Any, int] = {}
+    for key_node, _ in node.value:
+        key = loader.construct_object(key_node, deep=deep)
+        if key in seen:
+            raise yaml.constructor.ConstructorError(
+                None, None, f"duplicate key '{key}' (first on line {seen[key]}); "
+                "names must be unique, rename or remove one", key_node.start_mark)
+        seen[key] = key_node.start_mark.line + 1
+    return loader.construct_mapping(node, deep=deep)
+
+
+_UniqueKeyLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG,
+                                 _construct_mapping)
+
+
+def _read_yaml(path: Path) -> Any:
+    try:
+        with open(path, encoding="utf-8") as fh:
+            return yaml.load(fh, Loader=_UniqueKeyLoader)  # noqa: S506 (safe loader subclass)
+    except yaml.YAMLError as err:
+        mark = getattr(err, "problem_mark", None)
+        line = f"line {mark.line + 1}" if mark else None
+        problem = getattr(err, "problem", None) or str(err)
+        raise SpecError(f"invalid YAML: {problem}", file=str(path), field=line) from None
+
+
+def _to_spec_error(err: ValidationError, raw: Any, source: str) -> SpecError:
+    first = err.errors()[0]
+    loc = tuple(first["loc"])
+    field, cls = _readable_loc(loc, raw)
+    msg = first["msg"].removeprefix("Value error, ")
+    if first["type"] == "extra_forbidden":
+        cls = _readable_loc(loc[:-1], raw)[1]
+        allowed = sorted(info.alias or a for a, info in cls.model_fields.items()
+                         if a not in ("root", "source")) if cls else []
+        msg = (f"unknown key '{loc[-1]}'; allowed keys here: {allowed}" if allowed
+               else f"unknown key '{loc[-1]}'")
+        field = field.rpartition(".")[0] or field
+    elif first["type"] == "missing":
+        msg = f"required field '{loc[-1]}' is missing; add it"
+    elif first["type"] == "string_pattern_mismatch":
+        msg = (f"'{first.get('input')}' is not a valid name; use letters, digits and "
+               "underscores, starting with a letter")
+    elif first["type"] in ("float_parsing", "float_type", "int_parsing", "int_type"):
+        msg = f"expected a number, got {first.get('input')!r}"
+    more = len(err.errors()) - 1
+    if more:
+        msg += f" (and {more} more problem{'s' if more > 1 else ''})"
+    return SpecError(msg, file=source, field=field or None)
+
+
+def _readable_loc(loc: tuple, raw: Any) -> tuple[str, type[BaseModel] | None]:
+    """Dotted field path with item names instead of list indices, and the model class."""
+    parts: list[str] = []
+    node: Any = raw
+    cls: type[BaseModel] | None = Network
+    for item in loc:
+        if isinstance(item, int):
+            if isinstance(node, dict):
+                key = list(node)[item] if item < len(node) else item
+                parts.append(str(key))
+                node = node.get(key) if key in node else None
+            else:
+                parts.append(f"[{item}]")
+                node = node[item] if isinstance(node, list) and item < len(node) else None
+            cls = _element_model(cls)
+        else:
+            parts.append(str(item))
+            node = node.get(item) if isinstance(node, dict) else None
+            cls = _field_model(cls, str(item))
+    return ".".join(parts).replace(".[", "["), cls
+
+
+def _unwrap(tp: Any) -> Any:
+    """The pydantic model class inside Optional[...] / tuple[...] / Annotated[...], if any."""
+    origin = typing.get_origin(tp)
+    if origin is typing.Annotated:
+        return _unwrap(typing.get_args(tp)[0])
+    if origin in (typing.Union, types.UnionType, tuple, list):
+        for arg in typing.get_args(tp):
+            found = _unwrap(arg)
+            if found is not None:
+                return found
+        return None
+    return tp if isinstance(tp, type) and issubclass(tp, BaseModel) else None
+
+
+def _field_model(cls: type[BaseModel] | None, name: str) -> type[BaseModel] | None:
+    if cls is None:
+        return None
+    for fname, info in cls.model_fields.items():
+        if name in (fname, info.alias):
+            return _unwrap(info.annotation) or cls
+    return None
+
+
+def _element_model(cls: type[BaseModel] | None) -> type[BaseModel] | None:
+    return cls
+
+
+def check_simulators(network: Network) -> None:
+    """Check that built-in simulators know every declared input, parameter and output."""
+    from calnet.simulators.registry import builtin_names, builtin_info
+
+    for model in network.models:
+        sim = model.simulator
+        if sim.kind != "builtin":
+            continue
+        field = f"models.{model.name}.simulator"
+        if sim.name not in builtin_names():
+            raise SpecError(f"unknown built-in simulator '{sim.name}'; choose one of "
+                            f"{builtin_names()}", file=network.source, field=field)
+        try:
+            info = builtin_info(sim.name)
+        except CalnetError as err:
+            raise SpecError(str(err), file=network.source, field=field) from None
+        for group, known in (("inputs", info.inputs), ("parameters", info.parameters),
+                             ("outputs", info.outputs)):
+            unknown = [v.name for v in getattr(model, group) if v.name not in known]
+            if unknown:
+                raise SpecError(f"built-in '{sim.name}' has no {group} {unknown}; its "
+                                f"{group} are {list(known)}", file=network.source,
+                                field=f"models.{model.name}.{group}")
+        for var in (*model.inputs, *model.parameters, *model.outputs):
+            expected = info.units.get(var.name)
+            if expected is not None and norm_unit(var.unit) != norm_unit(expected):
+                raise SpecError(f"'{var.name}' is declared in '{var.unit}' but built-in "
+                                f"'{sim.name}' works in '{expected}'; declare '{expected}'",
+                                file=network.source, field=f"models.{model.name}.{var.name}")
+        missing = [n for n in info.inputs if n not in model.input_names]
+        if missing:
+            raise SpecError(f"built-in '{sim.name}' needs inputs {missing}; declare them",
+                            file=network.source, field=f"models.{model.name}.inputs")
+        undeclared = [n for n in info.parameters if n not in model.parameter_names]
+        if undeclared:
+            warnings.warn(f"{network.source}: models.{model.name}: parameters {undeclared} "
+                          "are not declared and stay at the simulator's defaults",
+                          SpecWarning, stacklevel=3)

@@ -1,0 +1,294 @@
+"""Models, simulator references, links, data sets and settings of a network spec."""
+
+from __future__ import annotations
+
+from typing import Any, Literal
+
+from pydantic import Field, PositiveInt, field_validator, model_validator
+
+from calnet.spec.variables import (
+    Frozen,
+    InverseGammaPrior,
+    LogNormalPrior,
+    Name,
+    Input,
+    Output,
+    Parameter,
+)
+
+SIMULATOR_KINDS = ("builtin", "python", "command", "umbridge")
+
+
+class SimulatorRef(Frozen):
+    """Where a model's runs come from.
+
+    Shorthand strings are accepted in YAML: ``builtin:melt_pool``,
+    ``python:package.module:function``, ``umbridge:http://host:port/model_name``.
+
+    Attributes
+    ----------
+    kind : {"builtin", "python", "command", "umbridge"}
+    name : str
+        Built-in simulator name (``melt_pool``, ``solidification``).
+    target : str
+        ``module:function`` of a Python callable taking a dict and returning a dict.
+    argv : tuple of str
+        Argument template of an external command (never run through a shell).
+        ``{input_json}``, ``{output_json}``, ``{workdir}`` and ``{<variable>}`` are
+        substituted per run.
+    input_mode, output_mode
+        How a command receives its inputs (``json-file`` or ``args``) and returns outputs
+        (``json-file`` or ``stdout``, a JSON object).
+    url, model
+        UM-Bridge server address and model name.
+    timeout : float, optional
+        Seconds after which a run is recorded as ``timeout``.
+    options : dict
+        Keyword options passed to a built-in simulator or Python callable.
+    """
+
+    kind: Literal["builtin", "python", "command", "umbridge"]
+    name: str = ""
+    target: str = ""
+    argv: tuple[str, ...] = ()
+    input_mode: Literal["json-file", "args"] = "json-file"
+    output_mode: Literal["json-file", "stdout"] = "json-file"
+    url: str = ""
+    model: str = "forward"
+    timeout: float | None = Field(None, gt=0)
+    options: dict[str, Any] = Field(default_factory=dict)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _shorthand(cls, value: Any) -> Any:
+        if not isinstance(value, str):
+            return value
+        kind, sep, rest = value.partition(":")
+        if not sep or kind not in SIMULATOR_KINDS or kind == "command":
+            raise ValueError(
+                f"cannot read simulator '{value}'; write builtin:NAME, python:module:function, "
+                "umbridge:URL/MODEL, or a mapping with kind: command and argv: [...]"
+            )
+        if kind == "builtin":
+            return {"kind": kind, "name": rest}
+        if kind == "python":
+            return {"kind": kind, "target": rest}
+        url, _, model = rest.rstrip("/").rpartition("/")
+        return {"kind": kind, "url": url, "model": model}
+
+    @model_validator(mode="after")
+    def _complete(self) -> SimulatorRef:
+        need = {"builtin": "name", "python": "target", "command": "argv", "umbridge": "url"}
+        if not getattr(self, need[self.kind]):
+            raise ValueError(f"a '{self.kind}' simulator needs '{need[self.kind]}'")
+        if self.kind == "python" and ":" not in self.target:
+            raise ValueError(f"python target '{self.target}' must look like 'module:function'")
+        return self
+
+
+class CampaignSettings(Frozen):
+    """Simulation campaign of one model (method.md section 2)."""
+
+    runs: PositiveInt = 100
+    timeout: float | None = Field(None, gt=0, description="seconds per run")
+
+
+class SurrogateSettings(Frozen):
+    """GP surrogate fitting (method.md section 2)."""
+
+    cv_folds: int = Field(10, ge=2)
+    restarts: int = Field(5, ge=1)
+
+
+class Model(Frozen):
+    """One node of the network: control inputs ``x``, parameters ``theta``, outputs ``y``."""
+
+    name: Name
+    simulator: SimulatorRef
+    inputs: tuple[Input, ...] = Field(min_length=1)
+    parameters: tuple[Parameter, ...] = ()
+    outputs: tuple[Output, ...] = Field(min_length=1)
+    campaign: CampaignSettings | None = None
+    surrogate: SurrogateSettings | None = None
+    description: str = ""
+
+    @field_validator("inputs", "parameters", "outputs", mode="before")
+    @classmethod
+    def _named_mapping(cls, value: Any) -> Any:
+        return named_mapping_to_list(value)
+
+    @model_validator(mode="after")
+    def _unique_names(self) -> Model:
+        seen: dict[str, str] = {}
+        for group in ("inputs", "parameters", "outputs"):
+            for var in getattr(self, group):
+                if var.name in seen:
+                    raise ValueError(
+                        f"duplicate variable name '{var.name}' (in {seen[var.name]} and "
+                        f"{group}); rename one of them"
+                    )
+                seen[var.name] = group
+        return self
+
+    # ------------------------------------------------------------ look-ups
+    @property
+    def input_names(self) -> tuple[str, ...]:
+        return tuple(v.name for v in self.inputs)
+
+    @property
+    def parameter_names(self) -> tuple[str, ...]:
+        return tuple(v.name for v in self.parameters)
+
+    @property
+    def output_names(self) -> tuple[str, ...]:
+        return tuple(v.name for v in self.outputs)
+
+    def variable(self, name: str) -> Input | Parameter | Output:
+        """Return the input, parameter or output called ``name`` (KeyError otherwise)."""
+        for var in (*self.inputs, *self.parameters, *self.outputs):
+            if var.name == name:
+                return var
+        raise KeyError(name)
+
+    def output(self, name: str) -> Output:
+        for var in self.outputs:
+            if var.name == name:
+                return var
+        raise KeyError(name)
+
+
+class Link(Frozen):
+    """``source`` (``model.output`` or ``model.input`` for an identity link) feeds ``target``
+    (``model.input``)."""
+
+    source: str = Field(alias="from")
+    target: str = Field(alias="to")
+
+    @field_validator("source", "target")
+    @classmethod
+    def _qualified(cls, value: str) -> str:
+        parts = value.split(".")
+        if len(parts) != 2 or not all(parts):
+            raise ValueError(f"'{value}' must be written 'model.variable'")
+        return value
+
+    @property
+    def source_model(self) -> str:
+        return self.source.split(".")[0]
+
+    @property
+    def source_var(self) -> str:
+        return self.source.split(".")[1]
+
+    @property
+    def target_model(self) -> str:
+        return self.target.split(".")[0]
+
+    @property
+    def target_var(self) -> str:
+        return self.target.split(".")[1]
+
+
+class Split(Frozen):
+    """Which rows of a data set are for calibration and which are held out."""
+
+    column: str
+    train: str = "train"
+    test: str = "test"
+
+
+class DiscrepancySettings(Frozen):
+    """Priors of the KOH discrepancy and noise of one data set (method.md section 3)."""
+
+    length_scale_prior: LogNormalPrior = Field(default_factory=LogNormalPrior)
+    variance_prior: InverseGammaPrior = Field(default_factory=InverseGammaPrior)
+    noise_prior: InverseGammaPrior = Field(default_factory=InverseGammaPrior)
+
+
+class Dataset(Frozen):
+    """Experimental data observing one measurable output.
+
+    ``columns`` maps variables to CSV columns: the observed output and every free
+    (unlinked) input of the observed model and of its ancestors. Keys are
+    ``model.variable`` or a bare variable name when that name is unambiguous.
+    """
+
+    name: Name
+    path: str
+    observes: str
+    columns: dict[str, str]
+    split: Split | None = None
+    strict: bool | None = None
+    discrepancy: DiscrepancySettings = Field(default_factory=DiscrepancySettings)
+    description: str = ""
+
+    @field_validator("split", mode="before")
+    @classmethod
+    def _split_shorthand(cls, value: Any) -> Any:
+        return {"column": value} if isinstance(value, str) else value
+
+    @field_validator("observes")
+    @classmethod
+    def _qualified(cls, value: str) -> str:
+        return Link._qualified(value)
+
+    @property
+    def observed_model(self) -> str:
+        return self.observes.split(".")[0]
+
+    @property
+    def observed_output(self) -> str:
+        return self.observes.split(".")[1]
+
+
+class SamplerSettings(Frozen):
+    """NUTS settings (reference: 1000 burn-in draws, thinning 10)."""
+
+    chains: int = Field(4, ge=1)
+    warmup: int = Field(1000, ge=10)
+    draws: int = Field(1000, ge=10)
+    thin: int = Field(1, ge=1)
+    target_accept: float = Field(0.8, gt=0, lt=1)
+
+
+class CalibrationSettings(Frozen):
+    """How the network is calibrated (method.md section 4)."""
+
+    mode: Literal["segmented", "joint"] = "segmented"
+    plug: Literal["mode", "posterior"] = "posterior"
+    emulator_variance: bool = True
+    upstream_draws: int = Field(50, ge=1, description="upstream draws propagated downstream")
+
+
+class Settings(Frozen):
+    """Network-wide settings; every field has a documented default."""
+
+    seed: int = Field(0, ge=0)
+    strict: bool = False
+    campaign: CampaignSettings = Field(default_factory=CampaignSettings)
+    surrogate: SurrogateSettings = Field(default_factory=SurrogateSettings)
+    sampler: SamplerSettings = Field(default_factory=SamplerSettings)
+    calibration: CalibrationSettings = Field(default_factory=CalibrationSettings)
+
+
+def named_mapping_to_list(value: Any) -> Any:
+    """Accept ``{name: {...}}`` as well as ``[{name: ..., ...}]`` for named items."""
+    if isinstance(value, dict):
+        items = []
+        for key, body in value.items():
+            body = {} if body is None else body
+            if isinstance(body, dict):
+                if "name" in body and body["name"] != key:
+                    raise ValueError(f"item '{key}' has a different name '{body['name']}'")
+                items.append({**body, "name": key})
+            else:
+                items.append(body)
+        return items
+    return value
+
+
+__all__ = [
+    "CalibrationSettings", "CampaignSettings", "Dataset", "DiscrepancySettings", "Link",
+    "Model", "Name", "SamplerSettings", "Settings", "SimulatorRef", "Split",
+    "SurrogateSettings",
+]

@@ -1,0 +1,105 @@
+"""Graph queries on general DAGs and the Python API building the same objects as YAML."""
+
+from __future__ import annotations
+
+import pytest
+import yaml
+from typer.testing import CliRunner
+
+from calnet.cli import app
+from calnet.errors import SpecError
+from calnet.spec import Input, Link, Model, Network, Output, SimulatorRef, parse_spec
+
+SIM = SimulatorRef(kind="python", target="toy:f")
+
+
+def _model(name: str, inputs: list[str], outputs: list[str]) -> Model:
+    return Model(name=name, simulator=SIM,
+                 inputs=[Input(name=i, lower=0, upper=1) for i in inputs],
+                 outputs=[Output(name=o) for o in outputs])
+
+
+def branch_network() -> Network:
+    """thermal feeds micro and stress; micro and stress both feed property (4 models)."""
+    models = [
+        _model("property", ["lam", "sig"], ["y"]),  # declared first on purpose
+        _model("thermal", ["P", "v"], ["G", "T"]),
+        _model("micro", ["G", "S"], ["lam"]),
+        _model("stress", ["T"], ["sig"]),
+    ]
+    links = [Link(**{"from": a, "to": b}) for a, b in [
+        ("thermal.G", "micro.G"), ("thermal.v", "micro.S"), ("thermal.T", "stress.T"),
+        ("micro.lam", "property.lam"), ("stress.sig", "property.sig")]]
+    return Network(name="branch", models=models, links=links)
+
+
+def test_branching_dag_order_and_queries():
+    net = branch_network()
+    order = net.order
+    assert order[0] == "thermal" and order[-1] == "property"
+    assert order.index("micro") < order.index("property") > order.index("stress")
+    assert net.children("thermal") == ("micro", "stress")
+    assert set(net.parents("property")) == {"micro", "stress"}
+    assert net.ancestors("property") == ("thermal", "micro", "stress")
+    assert net.process_inputs("property") == (("thermal", "P"), ("thermal", "v"))
+    assert [v.name for v in net.free_inputs("micro")] == []
+    assert [o.name for o in net.needed_outputs("thermal")] == ["G", "T"]
+
+
+def test_yaml_and_python_api_build_equal_objects():
+    raw = {"name": "branch", "models": [m.model_dump(by_alias=True) for m in
+                                        branch_network().models],
+           "links": [ln.model_dump(by_alias=True) for ln in branch_network().links]}
+    assert parse_spec(raw, root=".", source="") == branch_network()
+
+
+def test_spec_objects_are_frozen():
+    net = branch_network()
+    with pytest.raises(Exception, match="frozen"):
+        net.name = "other"  # type: ignore[misc]
+
+
+def test_two_links_into_one_input_rejected():
+    models = [_model("a", ["x"], ["y"]), _model("b", ["x"], ["y"]), _model("c", ["u"], ["z"])]
+    links = [Link(**{"from": "a.y", "to": "c.u"}), Link(**{"from": "b.y", "to": "c.u"})]
+    with pytest.raises(ValueError, match="fed by 2 links"):
+        Network(models=models, links=links)
+
+
+def test_self_link_is_a_cycle():
+    with pytest.raises(ValueError, match="cycle"):
+        Network(models=[_model("a", ["x"], ["y"])], links=[Link(**{"from": "a.y", "to": "a.x"})])
+
+
+# ---------------------------------------------------------------- the CLI
+runner = CliRunner()
+
+
+def test_cli_check_prints_branch_order(tmp_path):
+    raw = {"name": "branch", "models": [m.model_dump(by_alias=True, exclude_defaults=True)
+                                        for m in branch_network().models],
+           "links": [ln.model_dump(by_alias=True) for ln in branch_network().links]}
+    path = tmp_path / "net.yaml"
+    path.write_text(yaml.safe_dump(raw))
+    result = runner.invoke(app, ["check", str(path)])
+    assert result.exit_code == 0, result.output
+    order_line = next(line for line in result.output.splitlines() if line.startswith("order:"))
+    assert order_line.startswith("order: thermal -> micro")
+    assert order_line.endswith("property")
+    assert "<- thermal.v (identity)" in result.output
+
+
+def test_cli_check_error_is_one_line_exit_2(tmp_path):
+    path = tmp_path / "net.yaml"
+    path.write_text("models:\n  a: {simulator: 'python:m:f', inputs: {x: {lower: 2, upper: 1}},"
+                    " outputs: {y: {}}}\n")
+    result = runner.invoke(app, ["check", str(path)])
+    assert result.exit_code == 2
+    lines = [line for line in result.output.splitlines() if line.strip()]
+    assert len(lines) == 1 and "Traceback" not in result.output
+    assert "models.a.inputs.x" in lines[0] and "lower (2) must be smaller" in lines[0]
+
+
+def test_spec_error_attributes():
+    err = SpecError("fix it", file="f.yaml", field="models.a")
+    assert str(err) == "f.yaml: models.a: fix it" and err.reason == "fix it"

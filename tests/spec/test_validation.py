@@ -1,0 +1,178 @@
+"""Each malformed spec is rejected with a one-line error naming file, field and fix."""
+
+from __future__ import annotations
+
+import pytest
+
+from calnet.errors import SpecError, SpecWarning
+from calnet.spec import load_spec
+
+
+def _error(path) -> SpecError:
+    with pytest.raises(SpecError) as info:
+        load_spec(path)
+    message = str(info.value)
+    assert "\n" not in message
+    assert str(path.parent) in message  # the spec or the data file at fault
+    return info.value
+
+
+def test_valid_spec_loads(base_spec, write_spec):
+    network = load_spec(write_spec(base_spec))
+    assert network.order == ("heat", "micro")
+    assert network.process_inputs("micro") == (("heat", "P"), ("heat", "v"))
+    assert [o.name for o in network.needed_outputs("heat")] == ["W", "G"]
+
+
+def test_folder_accepted(base_spec, write_spec):
+    path = write_spec(base_spec)
+    assert load_spec(path.parent).name == "toy"
+
+
+def test_unknown_key(base_spec, write_spec):
+    base_spec["models"]["heat"]["parameters"]["k"]["lowr"] = 1
+    err = _error(write_spec(base_spec))
+    assert "unknown key 'lowr'" in str(err) and "lower" in str(err)
+    assert err.field == "models.heat.parameters.k"
+
+
+def test_unknown_top_level_key(base_spec, write_spec):
+    base_spec["modles"] = {}
+    assert "unknown key 'modles'" in str(_error(write_spec(base_spec)))
+
+
+def test_duplicate_model_name_in_yaml(base_spec, write_spec):
+    text = ("models:\n  a: {simulator: 'python:m:f', inputs: {x: {lower: 0, upper: 1}}, "
+            "outputs: {y: {}}}\n  a: {simulator: 'python:m:f', inputs: {x: {lower: 0, "
+            "upper: 1}}, outputs: {y: {}}}\n")
+    err = _error(write_spec(base_spec, text=text))
+    assert "duplicate key 'a'" in str(err)
+
+
+def test_duplicate_model_name_in_list(base_spec, write_spec):
+    heat = base_spec["models"]["heat"]
+    base_spec["models"] = [{"name": "heat", **heat}, {"name": "heat", **heat}]
+    base_spec["links"], base_spec["data"] = [], {}
+    assert "duplicate model name" in str(_error(write_spec(base_spec)))
+
+
+def test_duplicate_variable_across_groups(base_spec, write_spec):
+    base_spec["models"]["heat"]["parameters"]["P"] = {"lower": 0, "upper": 1}
+    assert "duplicate variable name 'P'" in str(_error(write_spec(base_spec)))
+
+
+def test_cycle(base_spec, write_spec):
+    base_spec["models"]["heat"]["inputs"]["lam"] = {"unit": "um", "lower": 0, "upper": 1}
+    base_spec["links"].append({"from": "micro.lam", "to": "heat.lam"})
+    err = _error(write_spec(base_spec))
+    assert "cycle" in str(err) and "heat" in str(err) and "micro" in str(err)
+
+
+def test_link_to_missing_model(base_spec, write_spec):
+    base_spec["links"][0]["to"] = "mikro.G"
+    err = _error(write_spec(base_spec))
+    assert "no model named 'mikro'" in str(err) and err.field is None or "links" in str(err)
+
+
+def test_link_to_missing_variable(base_spec, write_spec):
+    base_spec["links"][0]["from"] = "heat.G0"
+    err = _error(write_spec(base_spec))
+    assert "no output or input 'G0'" in str(err) and "links[0].from" in str(err)
+
+
+def test_link_into_parameter_rejected(base_spec, write_spec):
+    base_spec["links"][0]["to"] = "micro.s"
+    assert "no control input 's'" in str(_error(write_spec(base_spec)))
+
+
+def test_unit_mismatch_across_link(base_spec, write_spec):
+    base_spec["models"]["micro"]["inputs"]["G"]["unit"] = "K/mm"
+    err = _error(write_spec(base_spec))
+    assert "unit mismatch" in str(err) and "K/mm" in str(err)
+
+
+@pytest.mark.parametrize("lower,upper", [(30, 10), (10, 10)])
+def test_bounds_order(base_spec, write_spec, lower, upper):
+    base_spec["models"]["heat"]["parameters"]["k"].update(lower=lower, upper=upper)
+    err = _error(write_spec(base_spec))
+    assert "must be smaller than upper" in str(err)
+    assert err.field == "models.heat.parameters.k"
+
+
+def test_missing_data_file(base_spec, write_spec):
+    base_spec["data"]["width"]["path"] = "nowhere.csv"
+    err = _error(write_spec(base_spec))
+    assert "not found" in str(err) and err.field == "data.width.path"
+
+
+def test_missing_column(base_spec, write_spec):
+    base_spec["data"]["width"]["columns"]["W"] = "wdth"
+    err = _error(write_spec(base_spec))
+    assert "column 'wdth' is not in the CSV" in str(err)
+
+
+def test_unmapped_variable(base_spec, write_spec):
+    del base_spec["data"]["spacing"]["columns"]["v"]
+    assert "no column given for ['heat.v']" in str(_error(write_spec(base_spec)))
+
+
+def test_non_numeric_column(base_spec, write_spec):
+    bad = "id,power,speed,width,split\n1,100,fast,90,train\n2,150,1.0,80,test\n"
+    err = _error(write_spec(base_spec, width=bad))
+    assert "not numeric ('fast' on line 2)" in str(err)
+
+
+def test_nan_in_data(base_spec, write_spec):
+    bad = "id,power,speed,width,split\n1,100,0.5,,train\n2,150,1.0,nan,test\n3,1,1,1,train\n"
+    err = _error(write_spec(base_spec, width=bad))
+    assert "2 missing/NaN" in str(err) and "[2, 3]" in str(err)
+
+
+def test_out_of_bounds_warns_with_count(base_spec, write_spec):
+    wide = "id,power,speed,width,split\n1,300,0.5,90,train\n2,20,3.0,80,train\n3,100,1,80,test\n"
+    with pytest.warns(SpecWarning, match="2 of 3 point"):
+        load_spec(write_spec(base_spec, width=wide))
+
+
+def test_out_of_bounds_strict_errors(base_spec, write_spec):
+    base_spec["settings"] = {"strict": True}
+    wide = "id,power,speed,width,split\n1,300,0.5,90,train\n2,150,1.0,80,test\n"
+    assert "1 of 2 point(s) lie outside" in str(_error(write_spec(base_spec, width=wide)))
+
+
+def test_observing_unmeasurable_output(base_spec, write_spec):
+    base_spec["data"]["width"]["observes"] = "heat.G"
+    base_spec["data"]["width"]["columns"] = {"P": "power", "v": "speed", "G": "width"}
+    assert "is not measurable" in str(_error(write_spec(base_spec)))
+
+
+def test_bad_split_value(base_spec, write_spec):
+    bad = "id,power,speed,width,split\n1,100,0.5,90,train\n2,150,1.0,80,holdout\n"
+    assert "'holdout'" in str(_error(write_spec(base_spec, width=bad)))
+
+
+def test_invalid_yaml(base_spec, write_spec):
+    err = _error(write_spec(base_spec, text="models: [unclosed\n"))
+    assert "invalid YAML" in str(err)
+
+
+def test_not_a_number(base_spec, write_spec):
+    base_spec["models"]["heat"]["inputs"]["P"]["lower"] = "low"
+    assert "expected a number" in str(_error(write_spec(base_spec)))
+
+
+def test_bad_simulator_shorthand(base_spec, write_spec):
+    base_spec["models"]["heat"]["simulator"] = "fortran:heat"
+    assert "cannot read simulator" in str(_error(write_spec(base_spec)))
+
+
+def test_unknown_builtin(base_spec, write_spec):
+    base_spec["models"]["heat"]["simulator"] = "builtin:nosuch"
+    assert "unknown built-in simulator 'nosuch'" in str(_error(write_spec(base_spec)))
+
+
+def test_missing_spec_path(tmp_path):
+    with pytest.raises(SpecError, match="no such file"):
+        load_spec(tmp_path / "absent.yaml")
+    with pytest.raises(SpecError, match="no network.yaml"):
+        load_spec(tmp_path)
