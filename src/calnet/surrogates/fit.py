@@ -1,0 +1,225 @@
+"""Fit a GP surrogate: validate the data, maximise the log marginal likelihood, condition.
+
+The optimiser is SciPy's L-BFGS-B on the closed-form value and gradient of
+:func:`calnet.surrogates.likelihood.nlml_value_and_grad`, jitted once per data size (JAX
+caches the compiled function by array shape, so restarts and CV folds of equal size
+reuse it). method.md section 2.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import warnings
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+from scipy.optimize import minimize  # noqa: E402
+
+from calnet.errors import SurrogateError, SurrogateWarning  # noqa: E402
+from calnet.surrogates.gp import FittedGP, condition  # noqa: E402
+from calnet.surrogates.likelihood import (  # noqa: E402
+    neg_log_marginal_likelihood,
+    nlml_value_and_grad,
+)
+
+LENGTHSCALE_BOUNDS = (1e-2, 1e2)  # unit-cube units
+SIGNAL_VAR_BOUNDS = (1e-3, 1e3)  # standardised-output units
+NUGGET_BOUNDS = (1e-8, 1e-1)  # standardised-output units; the lower end is the floor
+TRANSFORMS = (None, "log")
+_PENALTY = 1e10  # objective value reported to L-BFGS-B where K is not positive definite
+_NUGGET_RETRIES = 3
+
+_value_and_grad = jax.jit(nlml_value_and_grad)
+
+
+def _label(name: str) -> str:
+    return f"output {name!r}" if name else "output"
+
+
+def validate_training_data(
+    x, y, *, lower, upper, transform: str | None = None, name: str = "", min_points: int = 0
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Check training data at the edge and return float64 copies ``(x, y, lower, upper)``.
+
+    Raises
+    ------
+    SurrogateError
+        One line naming the output and the fix, for: wrong shapes or bounds, non-finite
+        values, too few points (``n < d + 2`` or ``n < min_points``), a constant output,
+        non-positive outputs with ``transform="log"``, an unknown transform.
+    """
+    lab = _label(name)
+    x = np.asarray(x, dtype=np.float64)
+    y = np.asarray(y, dtype=np.float64)
+    if x.ndim != 2:
+        raise SurrogateError(f"{lab}: X must have shape (n, d), got {x.shape}; "
+                             "use X.reshape(-1, 1) for a single input")
+    n, d = x.shape
+    if y.shape != (n,):
+        raise SurrogateError(f"{lab}: y must have shape ({n},) to match X, got {y.shape}")
+    lower = np.asarray(lower, dtype=np.float64)
+    upper = np.asarray(upper, dtype=np.float64)
+    if lower.shape != (d,) or upper.shape != (d,):
+        raise SurrogateError(f"{lab}: lower and upper must have shape ({d},), got "
+                             f"{lower.shape} and {upper.shape}")
+    if not (np.all(np.isfinite(lower)) and np.all(np.isfinite(upper)) and np.all(upper > lower)):
+        raise SurrogateError(f"{lab}: input bounds must be finite with upper > lower, got "
+                             f"lower={lower.tolist()} upper={upper.tolist()}")
+    if transform not in TRANSFORMS:
+        raise SurrogateError(f"{lab}: transform must be None or 'log', got {transform!r}")
+    bad = ~(np.all(np.isfinite(x), axis=1) & np.isfinite(y))
+    if bad.any():
+        raise SurrogateError(f"{lab}: {int(bad.sum())} of {n} training points have non-finite "
+                             "inputs or outputs; drop failed runs before fitting")
+    need = max(d + 2, min_points)
+    if n < need:
+        why = f"d + 2 = {d + 2}" if need == d + 2 else f"{min_points} for {min_points}-fold CV"
+        raise SurrogateError(f"{lab}: {n} training points for {d} inputs, need at least "
+                             f"{why}; run a larger campaign")
+    if transform == "log" and np.any(y <= 0):
+        raise SurrogateError(f"{lab}: transform='log' needs positive outputs, got "
+                             f"{int(np.sum(y <= 0))} values <= 0; use transform=None")
+    z = np.log(y) if transform == "log" else y
+    if np.ptp(z) <= 1e-12 * max(1.0, float(np.max(np.abs(z)))):
+        raise SurrogateError(f"{lab} is constant (value {y[0]!r} at all {n} points); a GP "
+                             "cannot be fitted, model it as a constant or drop it")
+    return x, y, lower, upper
+
+
+def _starts(d, n_restarts, rng, ell_b, s2_b, nug_b) -> np.ndarray:
+    """Default start plus ``n_restarts`` random starts, log-uniform in central boxes."""
+    lo = np.log([*[max(ell_b[0], 0.1)] * d, max(s2_b[0], 0.3), nug_b[0]])
+    hi = np.log([*[min(ell_b[1], 10.0)] * d, min(s2_b[1], 3.0), min(nug_b[1], 1e-2)])
+    hi = np.maximum(hi, lo)
+    default = np.log([*[np.clip(0.5, *ell_b)] * d, np.clip(1.0, *s2_b),
+                      np.clip(np.sqrt(nug_b[0] * min(nug_b[1], 1e-2)), *nug_b)])
+    return np.vstack([default, rng.uniform(lo, hi, size=(n_restarts, d + 2))])
+
+
+def _optimise(xs, ys, starts, bounds):
+    """Run L-BFGS-B from each start; return (best log_params, best value)."""
+    def fun(p):
+        v, g = _value_and_grad(jnp.asarray(p), xs, ys)
+        v = float(v)
+        if not np.isfinite(v):
+            return _PENALTY, np.zeros_like(p)
+        return v, np.asarray(g, dtype=np.float64)
+
+    best_p, best_v = starts[0], np.inf
+    for p0 in starts:
+        res = minimize(fun, p0, jac=True, method="L-BFGS-B", bounds=bounds,
+                       options={"maxiter": 1000})
+        if res.fun < best_v:
+            best_p, best_v = np.asarray(res.x), float(res.fun)
+    return best_p, best_v
+
+
+def fit_gp(
+    X,
+    y,
+    *,
+    lower,
+    upper,
+    transform: str | None = None,
+    n_restarts: int = 5,
+    seed: int = 0,
+    lengthscale_bounds: tuple[float, float] = LENGTHSCALE_BOUNDS,
+    signal_var_bounds: tuple[float, float] = SIGNAL_VAR_BOUNDS,
+    nugget_bounds: tuple[float, float] = NUGGET_BOUNDS,
+    name: str = "",
+    min_points: int = 0,
+) -> FittedGP:
+    """Fit a Matern 3/2 ARD GP surrogate to one output by maximum marginal likelihood.
+
+    Inputs are scaled to the unit cube with ``lower``/``upper``; outputs are transformed
+    (``transform``) and standardised. Hyperparameters maximise the log marginal
+    likelihood with L-BFGS-B from a default start plus ``n_restarts`` seeded random ones.
+
+    Parameters
+    ----------
+    X : array, shape (n, d)
+        Training inputs, physical units.
+    y : array, shape (n,)
+        Training outputs, natural scale.
+    lower, upper : array, shape (d,)
+        Input bounds, physical units (the design space of the campaign).
+    transform : {None, "log"}, default None
+        ``"log"`` models ``log(y)``; ``y`` must then be positive.
+    n_restarts : int, default 5
+        Random starts in addition to the default start (scikit-learn's
+        ``n_restarts_optimizer``).
+    seed : int, default 0
+        Seed of the random starts.
+    lengthscale_bounds : (float, float), default (1e-2, 1e2)
+        Bounds on every length scale, unit-cube units.
+    signal_var_bounds : (float, float), default (1e-3, 1e3)
+        Bounds on the signal variance, standardised-output units.
+    nugget_bounds : (float, float), default (1e-8, 1e-1)
+        Bounds on the nugget, standardised-output units; the lower end is the floor that
+        keeps ``K`` well conditioned.
+    name : str
+        Output name for messages and for the result.
+    min_points : int, default 0
+        Extra minimum on ``n`` (cross-validation passes its ``k``).
+
+    Returns
+    -------
+    FittedGP
+
+    Raises
+    ------
+    SurrogateError
+        Bad data (see :func:`validate_training_data`), or ``K`` not positive definite
+        even after raising the nugget tenfold ``3`` times.
+
+    Warns
+    -----
+    SurrogateWarning
+        When the nugget had to be raised above the optimum to factorise ``K``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from calnet.surrogates import fit_gp
+    >>> X = np.random.default_rng(0).uniform(0, 2, (20, 1))
+    >>> gp = fit_gp(X, np.sin(X[:, 0]), lower=[0.0], upper=[2.0], n_restarts=1)
+    >>> mean, var = gp.predict(np.array([[1.0]]))
+    >>> bool(abs(mean[0] - np.sin(1.0)) < 1e-2)
+    True
+    """
+    x, y, lower, upper = validate_training_data(X, y, lower=lower, upper=upper,
+                                                transform=transform, name=name,
+                                                min_points=min_points)
+    d = x.shape[1]
+    xs = jnp.asarray((x - lower) / (upper - lower))
+    z = np.log(y) if transform == "log" else y
+    ys = jnp.asarray((z - z.mean()) / z.std())
+    bounds = [tuple(np.log(lengthscale_bounds))] * d + [tuple(np.log(signal_var_bounds)),
+                                                         tuple(np.log(nugget_bounds))]
+    starts = _starts(d, n_restarts, np.random.default_rng(seed), lengthscale_bounds,
+                     signal_var_bounds, nugget_bounds)
+    p, _ = _optimise(xs, ys, starts, bounds)
+    return _condition_with_retries(x, y, xs, ys, p, lower=lower, upper=upper,
+                                   transform=transform, name=name)
+
+
+def _condition_with_retries(x, y, xs, ys, p, *, lower, upper, transform, name) -> FittedGP:
+    """Condition at ``p``; if ``K`` will not factorise, raise the nugget tenfold and retry."""
+    ell, s2, nugget = np.exp(p[:-2]), float(np.exp(p[-2])), float(np.exp(p[-1]))
+    for attempt in range(_NUGGET_RETRIES + 1):
+        gp = condition(x, y, lower=lower, upper=upper, lengthscales=ell, signal_var=s2,
+                       nugget=nugget, transform=transform, name=name)
+        if bool(jnp.all(jnp.isfinite(gp.alpha))):
+            if attempt:
+                warnings.warn(f"{_label(name)}: nugget raised to {nugget:.3g} to factorise K",
+                              SurrogateWarning, stacklevel=3)
+            nlml = neg_log_marginal_likelihood(gp.log_params, xs, ys)
+            return dataclasses.replace(gp, nlml=nlml)
+        nugget *= 10.0
+    raise SurrogateError(f"{_label(name)}: the covariance matrix is not positive definite "
+                         f"even with nugget {nugget / 10:.3g}; remove duplicate or "
+                         "near-duplicate training inputs or raise nugget_bounds")

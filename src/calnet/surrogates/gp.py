@@ -1,0 +1,320 @@
+"""The fitted Gaussian-process surrogate: an immutable pytree with pure predict functions.
+
+:func:`condition` builds a :class:`FittedGP` from data and given hyperparameters (the low
+level); :func:`calnet.surrogates.fit_gp` chooses the hyperparameters and calls it.
+
+Scales: inputs are given in physical units and scaled to the unit cube with the
+``lower``/``upper`` bounds; outputs are transformed (``log`` or not) to the *modelled*
+scale, then standardised. ``predict`` returns mean and variance on the modelled scale;
+:meth:`FittedGP.to_natural` maps them back.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+
+from calnet.surrogates.kernels import matern32, matern32_from_sqdist, scaled_sqdist  # noqa: E402
+from calnet.surrogates.likelihood import neg_log_marginal_likelihood, predictive_solve  # noqa: E402
+
+ARRAY_FIELDS = ("x_train", "alpha", "chol", "lengthscales", "signal_var", "nugget",
+                "lower", "upper", "y_mean", "y_std", "nlml")
+META_FIELDS = ("transform", "name")
+
+
+@dataclass(frozen=True)
+class FittedGP:
+    """A Matern 3/2 ARD GP conditioned on training data. Build with :func:`fit_gp`.
+
+    Attributes
+    ----------
+    x_train : array, shape (n_train, d)
+        Training inputs scaled to the unit cube.
+    alpha : array, shape (n_train,)
+        ``K^-1 y_s``, with ``y_s`` the standardised training outputs.
+    chol : array, shape (n_train, n_train)
+        Lower Cholesky factor of ``K = s2 * Matern(x_train) + nugget * I``.
+    lengthscales : array, shape (d,)
+        ARD length scales in unit-cube units.
+    signal_var, nugget : scalar arrays
+        Signal variance and nugget in standardised-output units.
+    lower, upper : array, shape (d,)
+        Input bounds in physical units that define the unit cube.
+    y_mean, y_std : scalar arrays
+        Standardisation of the modelled-scale output.
+    nlml : scalar array
+        Negative log marginal likelihood of the standardised outputs at these
+        hyperparameters (``nan`` if the hyperparameters were given, not fitted).
+    transform : {None, "log"}
+        Output transform: the modelled scale is ``log(y)`` when ``"log"``.
+    name : str
+        Output name, used in messages and by the integrator.
+    """
+
+    x_train: jax.Array
+    alpha: jax.Array
+    chol: jax.Array
+    lengthscales: jax.Array
+    signal_var: jax.Array
+    nugget: jax.Array
+    lower: jax.Array
+    upper: jax.Array
+    y_mean: jax.Array
+    y_std: jax.Array
+    nlml: jax.Array
+    transform: str | None = None
+    name: str = ""
+
+    @property
+    def n_train(self) -> int:
+        """Number of training points."""
+        return int(self.x_train.shape[0])
+
+    @property
+    def n_inputs(self) -> int:
+        """Number of inputs ``d``."""
+        return int(self.x_train.shape[1])
+
+    def scale_inputs(self, z: jax.Array) -> jax.Array:
+        """Map physical inputs (..., d) to unit-cube units."""
+        return (jnp.asarray(z) - self.lower) / (self.upper - self.lower)
+
+    def predict(self, z: jax.Array, *, include_nugget: bool = False) -> tuple[jax.Array, jax.Array]:
+        """Predictive mean and variance at new inputs, on the modelled scale.
+
+        Pure and jit-able (``jax.jit(gp.predict)``, or pass ``gp`` as a pytree argument).
+
+        Parameters
+        ----------
+        z : array, shape (m, d)
+            Inputs in physical units.
+        include_nugget : bool, default False
+            Add the nugget to the variance: the variance of a new *simulator run* rather
+            than of the latent smooth function.
+
+        Returns
+        -------
+        mean : array, shape (m,)
+            Modelled-scale mean (``log`` units when ``transform == "log"``).
+        var : array, shape (m,)
+            Modelled-scale variance, >= 0.
+        """
+        zs = self.scale_inputs(jnp.atleast_2d(z))
+        k_star = matern32(zs, self.x_train, self.lengthscales, self.signal_var)
+        return self._moments(k_star, include_nugget)
+
+    def predict_split(
+        self, x: jax.Array, theta: jax.Array, *, include_nugget: bool = False
+    ) -> tuple[jax.Array, jax.Array]:
+        """:meth:`predict` with control inputs and calibration parameters given apart.
+
+        Parameters
+        ----------
+        x : array, shape (m, d_x)
+            Control inputs (the first ``d_x`` columns of the GP's inputs), physical units.
+        theta : array, shape (d_theta,) or (m, d_theta)
+            Calibration parameters (the remaining columns); a vector is used for every row.
+        """
+        x = jnp.atleast_2d(jnp.asarray(x))
+        theta = jnp.broadcast_to(jnp.asarray(theta), (x.shape[0], self.n_inputs - x.shape[1]))
+        return self.predict(jnp.concatenate([x, theta], axis=1), include_nugget=include_nugget)
+
+    def mean_fn_at(self, x: jax.Array) -> Callable[[jax.Array], jax.Array]:
+        """Fast mean ``theta -> mean(x, theta)`` at fixed control inputs.
+
+        The control-input part of the scaled squared distances to the training points is
+        computed once here; each call then costs ``O(n_train * (d_theta + m))``. The
+        returned closure is pure JAX: jit-, grad- and vmap-able.
+
+        Parameters
+        ----------
+        x : array, shape (m, d_x)
+            Control inputs in physical units.
+
+        Returns
+        -------
+        callable
+            ``f(theta)`` with theta shape (d_theta,) returning the modelled-scale mean,
+            shape (m,).
+        """
+        r2_x, to_r2 = self._split_distances(x)
+        coef = self.y_std * self.signal_var * self.alpha
+        y_mean = self.y_mean
+
+        def mean(theta: jax.Array) -> jax.Array:
+            corr = matern32_from_sqdist(r2_x + to_r2(theta), 1.0)
+            return y_mean + corr @ coef
+
+        return mean
+
+    def var_fn_at(
+        self, x: jax.Array, *, include_nugget: bool = False
+    ) -> Callable[[jax.Array], jax.Array]:
+        """Fast variance ``theta -> var(x, theta)`` at fixed control inputs.
+
+        Same precomputation as :meth:`mean_fn_at`; each call costs a triangular solve,
+        ``O(m * n_train^2)``.
+
+        Returns
+        -------
+        callable
+            ``f(theta)`` with theta shape (d_theta,) returning the modelled-scale
+            variance, shape (m,).
+        """
+        r2_x, to_r2 = self._split_distances(x)
+
+        def var(theta: jax.Array) -> jax.Array:
+            k_star = matern32_from_sqdist(r2_x + to_r2(theta), self.signal_var)
+            return self._moments(k_star, include_nugget)[1]
+
+        return var
+
+    def to_natural(self, mean: jax.Array, var: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """Map modelled-scale moments to the natural (physical) output scale.
+
+        With ``transform == "log"`` the prediction is lognormal and this returns its mean
+        ``exp(mu + var / 2)`` and variance ``(exp(var) - 1) exp(2 mu + var)``. (The median
+        is ``exp(mu)``, and 95 % intervals are best taken as ``exp(mu +- 1.96 sqrt(var))``
+        on the modelled scale.) Without a transform the moments are returned unchanged.
+
+        Parameters
+        ----------
+        mean, var : array, shape (m,)
+            Modelled-scale moments from :meth:`predict`.
+
+        Returns
+        -------
+        mean, var : array, shape (m,)
+        """
+        if self.transform == "log":
+            return jnp.exp(mean + 0.5 * var), jnp.expm1(var) * jnp.exp(2.0 * mean + var)
+        return mean, var
+
+    def log_marginal_likelihood(self, log_params: jax.Array | None = None) -> jax.Array:
+        """Log marginal likelihood of the standardised training outputs.
+
+        Parameters
+        ----------
+        log_params : array, shape (d + 2,), optional
+            ``[log ell, log s2, log nugget]``; defaults to the fitted ones.
+        """
+        if log_params is None:
+            log_params = self.log_params
+        y_s = self.chol @ (self.chol.T @ self.alpha)
+        return -neg_log_marginal_likelihood(log_params, self.x_train, y_s)
+
+    @property
+    def log_params(self) -> jax.Array:
+        """``[log ell (d), log s2, log nugget]``, shape (d + 2,)."""
+        return jnp.log(jnp.concatenate(
+            [self.lengthscales, jnp.stack([self.signal_var, self.nugget])]))
+
+    def save(self, path: str | Path) -> Path:
+        """Write to ``path`` (``.npz``) plus a ``.json`` sidecar; see :mod:`calnet.surrogates.io`."""
+        from calnet.surrogates.io import save_gp
+
+        return save_gp(self, path)
+
+    @classmethod
+    def load(cls, path: str | Path) -> FittedGP:
+        """Read a surrogate written by :meth:`save`."""
+        from calnet.surrogates.io import load_gp
+
+        return load_gp(path)
+
+    # -- internals ---------------------------------------------------------------------
+
+    def _moments(self, k_star: jax.Array, include_nugget: bool) -> tuple[jax.Array, jax.Array]:
+        mean_s = k_star @ self.alpha
+        v = predictive_solve(self.chol, k_star)
+        var_s = jnp.maximum(self.signal_var - jnp.sum(v * v, axis=0), 0.0)
+        if include_nugget:
+            var_s = var_s + self.nugget
+        return self.y_mean + self.y_std * mean_s, self.y_std**2 * var_s
+
+    def _split_distances(self, x: jax.Array):
+        x = jnp.atleast_2d(jnp.asarray(x))
+        dx = x.shape[1]
+        xs = (x - self.lower[:dx]) / (self.upper[:dx] - self.lower[:dx])
+        r2_x = scaled_sqdist(xs, self.x_train[:, :dx], self.lengthscales[:dx])
+        ell_t = self.lengthscales[dx:]
+        xt = self.x_train[:, dx:] / ell_t  # (n, d_theta)
+        lo, span = self.lower[dx:], self.upper[dx:] - self.lower[dx:]
+
+        def to_r2(theta: jax.Array) -> jax.Array:
+            t = (theta - lo) / span / ell_t
+            diff = xt - t
+            return jnp.sum(diff * diff, axis=-1)[None, :]  # (1, n)
+
+        return r2_x, to_r2
+
+
+jax.tree_util.register_dataclass(FittedGP, data_fields=list(ARRAY_FIELDS),
+                                 meta_fields=list(META_FIELDS))
+
+
+def condition(
+    x: np.ndarray,
+    y: np.ndarray,
+    *,
+    lower: np.ndarray,
+    upper: np.ndarray,
+    lengthscales: np.ndarray,
+    signal_var: float,
+    nugget: float,
+    transform: str | None = None,
+    name: str = "",
+    nlml: float = float("nan"),
+) -> FittedGP:
+    """Condition a GP with *given* hyperparameters on training data (no optimisation).
+
+    Inputs are not validated here; :func:`calnet.surrogates.fit_gp` does that.
+
+    Parameters
+    ----------
+    x : array, shape (n, d)
+        Training inputs, physical units.
+    y : array, shape (n,)
+        Training outputs, natural scale (``log`` is applied when ``transform="log"``).
+    lower, upper : array, shape (d,)
+        Input bounds, physical units.
+    lengthscales : array, shape (d,)
+        Length scales in unit-cube units.
+    signal_var, nugget : float
+        Variances in standardised-output units.
+    transform : {None, "log"}
+    name : str
+    nlml : float
+        Recorded as the attribute of the same name.
+
+    Returns
+    -------
+    FittedGP
+        Its ``chol`` is NaN if ``K`` is not numerically positive definite; check with
+        ``jnp.isfinite(gp.chol[-1, -1])``.
+    """
+    lower = jnp.asarray(lower, dtype=jnp.float64)
+    upper = jnp.asarray(upper, dtype=jnp.float64)
+    xs = (jnp.asarray(x, dtype=jnp.float64) - lower) / (upper - lower)
+    z = jnp.asarray(y, dtype=jnp.float64)
+    if transform == "log":
+        z = jnp.log(z)
+    y_mean, y_std = jnp.mean(z), jnp.std(z)
+    ys = (z - y_mean) / y_std
+    ell = jnp.asarray(lengthscales, dtype=jnp.float64)
+    s2 = jnp.asarray(signal_var, dtype=jnp.float64)
+    nug = jnp.asarray(nugget, dtype=jnp.float64)
+    k = matern32(xs, xs, ell, s2) + nug * jnp.eye(xs.shape[0])
+    chol = jnp.linalg.cholesky(k)
+    alpha = jax.scipy.linalg.cho_solve((chol, True), ys)
+    return FittedGP(x_train=xs, alpha=alpha, chol=chol, lengthscales=ell, signal_var=s2,
+                    nugget=nug, lower=lower, upper=upper, y_mean=y_mean, y_std=y_std,
+                    nlml=jnp.asarray(nlml, dtype=jnp.float64), transform=transform, name=name)

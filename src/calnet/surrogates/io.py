@@ -1,0 +1,98 @@
+"""Save and load a :class:`FittedGP`: an ``.npz`` of arrays plus a JSON sidecar, no pickle.
+
+``gp.save("out/W.npz")`` writes ``out/W.npz`` (every array field, float64, bit-exact) and
+``out/W.json`` (format version, transform, name, shapes, and the scalars again for people
+to read). :func:`load_gp` reads the arrays with ``allow_pickle=False`` and checks them
+against the sidecar.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+
+from calnet.errors import SurrogateError  # noqa: E402
+from calnet.surrogates.gp import ARRAY_FIELDS, FittedGP  # noqa: E402
+
+FORMAT = "calnet.FittedGP"
+VERSION = 1
+
+
+def _paths(path: str | Path) -> tuple[Path, Path]:
+    path = Path(path)
+    if path.suffix != ".npz":
+        path = path.with_name(path.name + ".npz")
+    return path, path.with_suffix(".json")
+
+
+def save_gp(gp: FittedGP, path: str | Path) -> Path:
+    """Write ``gp`` to ``path`` (``.npz``, suffix added if missing) and a ``.json`` sidecar.
+
+    Parameters
+    ----------
+    gp : FittedGP
+    path : str or Path
+
+    Returns
+    -------
+    Path
+        The ``.npz`` path written.
+    """
+    npz, sidecar = _paths(path)
+    npz.parent.mkdir(parents=True, exist_ok=True)
+    arrays = {f: np.asarray(getattr(gp, f), dtype=np.float64) for f in ARRAY_FIELDS}
+    with open(npz, "wb") as fh:
+        np.savez(fh, **arrays)
+    meta = {
+        "format": FORMAT,
+        "version": VERSION,
+        "name": gp.name,
+        "transform": gp.transform,
+        "n_train": gp.n_train,
+        "n_inputs": gp.n_inputs,
+        "arrays": sorted(arrays),
+        "lengthscales": arrays["lengthscales"].tolist(),
+        "signal_var": float(arrays["signal_var"]),
+        "nugget": float(arrays["nugget"]),
+        "nlml": float(arrays["nlml"]),
+        "lower": arrays["lower"].tolist(),
+        "upper": arrays["upper"].tolist(),
+    }
+    sidecar.write_text(json.dumps(meta, indent=2, allow_nan=True) + "\n")
+    return npz
+
+
+def load_gp(path: str | Path) -> FittedGP:
+    """Read a surrogate written by :func:`save_gp`.
+
+    Raises
+    ------
+    SurrogateError
+        When either file is missing, is not a calnet surrogate, or the arrays do not
+        match the sidecar.
+    """
+    npz, sidecar = _paths(path)
+    for p in (npz, sidecar):
+        if not p.is_file():
+            raise SurrogateError(f"{p}: surrogate file not found; write it with gp.save()")
+    meta = json.loads(sidecar.read_text())
+    if meta.get("format") != FORMAT or meta.get("version") != VERSION:
+        raise SurrogateError(f"{sidecar}: not a {FORMAT} version {VERSION} sidecar; refit "
+                             "and save the surrogate with this calnet version")
+    with np.load(npz, allow_pickle=False) as data:
+        missing = [f for f in ARRAY_FIELDS if f not in data.files]
+        if missing:
+            raise SurrogateError(f"{npz}: arrays {missing} missing; refit and save again")
+        arrays = {f: jnp.asarray(data[f]) for f in ARRAY_FIELDS}
+    n, d = meta["n_train"], meta["n_inputs"]
+    if arrays["x_train"].shape != (n, d) or arrays["chol"].shape != (n, n):
+        raise SurrogateError(f"{npz}: array shapes do not match {sidecar.name} "
+                             f"(n_train={n}, n_inputs={d}); the pair is inconsistent")
+    return FittedGP(**arrays, transform=meta["transform"], name=meta["name"])
