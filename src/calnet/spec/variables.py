@@ -99,7 +99,20 @@ class Bounded(Frozen):
 
 
 class Input(Bounded):
-    """A control input: set by the experimenter or produced upstream through a link."""
+    """A control input: set by the experimenter or produced upstream through a link.
+
+    ``scale: log`` (for inputs spanning orders of magnitude, e.g. a thermal gradient)
+    makes the campaign design and the surrogate work in ``ln x``; bounds must be positive.
+    """
+
+    scale: Literal["linear", "log"] = "linear"
+
+    @model_validator(mode="after")
+    def _positive_for_log(self) -> Input:
+        if self.scale == "log" and self.lower <= 0:
+            raise ValueError(f"scale: log needs a positive lower bound, got {self.lower:g}; "
+                             "raise the bound or use scale: linear")
+        return self
 
 
 class Parameter(Bounded):
