@@ -54,3 +54,7 @@ class CalibrationWarning(UserWarning):
 
 class SurrogateWarning(UserWarning):
     """A surrogate was fitted with caveats (runs excluded, nugget raised)."""
+
+
+class SensitivityError(CalnetError):
+    """A sensitivity analysis cannot be run (bad bounds, non-finite or constant output)."""
