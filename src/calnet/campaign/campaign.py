@@ -1,0 +1,271 @@
+"""The campaign driver: design, simulate, store (method.md section 2).
+
+``run_campaign(network, model)`` plans a Latin hypercube over the model's ``(x, theta)``
+box, runs every planned run that the store has not finished, commits each run as it
+finishes and returns a :class:`CampaignSummary`. Calling it again resumes: finished runs
+(whatever their status) are kept, runs that were in flight when a campaign died are run
+again. Asking for more runs than the store plans augments the design (new points fill
+the gaps, the old ones stay).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+import calnet
+from calnet.campaign.design import Design, augment, design_columns, latin_hypercube, model_box
+from calnet.campaign.executors import make_executor
+from calnet.campaign.runners import (
+    RunRecord,
+    execute_run,
+    make_simulator,
+    run_timeout,
+    simulator_version,
+)
+from calnet.campaign.store import RunStore, describe_change, fingerprint_hash, model_fingerprint
+from calnet.errors import CampaignError
+from calnet.spec.models import Model
+from calnet.spec.network import Network
+
+
+@dataclass(frozen=True)
+class CampaignSummary:
+    """What a campaign call did.
+
+    Attributes
+    ----------
+    model : str
+    store_path : Path
+    planned : int
+        Runs in the design.
+    skipped : int
+        Runs already finished before this call (kept, not re-run).
+    ran : int
+        Runs finished by this call.
+    rerun_in_flight : int
+        Of those, runs that a previous, interrupted campaign had started.
+    status_counts : dict of str to int
+        Over the whole store (``unfinished`` when runs remain).
+    failures : dict of int to str
+        Run index -> message of the runs of this call that are not ``ok`` (first 20).
+    wall_time : float
+        Seconds this call took.
+    executor : str
+    workers : int
+    seed : int
+    """
+
+    model: str
+    store_path: Path
+    planned: int
+    skipped: int
+    ran: int
+    rerun_in_flight: int
+    status_counts: dict[str, int]
+    failures: dict[int, str] = field(default_factory=dict)
+    wall_time: float = 0.0
+    executor: str = ""
+    workers: int = 1
+    seed: int = 0
+
+    @property
+    def n_ok(self) -> int:
+        return self.status_counts.get("ok", 0)
+
+    @property
+    def complete(self) -> bool:
+        return "unfinished" not in self.status_counts
+
+
+def default_store(network: Network, model_name: str) -> Path:
+    """``<spec folder>/campaigns/<model>.sqlite``, the store a campaign uses by default."""
+    return network.path(Path("campaigns") / f"{model_name}.sqlite")
+
+
+def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
+                 workers: int | None = None, scheduler: str | None = None,
+                 store: str | Path | None = None, executor: str = "auto",
+                 seed: int | None = None, progress: bool = True, fresh: bool = False,
+                 retry_failed: bool = False) -> CampaignSummary:
+    """Run (or resume) the simulation campaign of one model.
+
+    Parameters
+    ----------
+    network : Network
+    model_name : str
+    runs : int, optional
+        Size of the design; default the model's ``campaign.runs`` (or the network's), or
+        the store's planned size when that is larger. More than the store plans augments it.
+    workers : int, optional
+        Parallel runs; with ``executor="auto"``, more than 1 means local processes.
+    scheduler : str, optional
+        Address of a running Dask scheduler (``tcp://host:8786``); implies Dask.
+    store : path, optional
+        The SQLite store; default :func:`default_store`.
+    executor : {"auto", "in-process", "processes", "dask"}
+        ``dask`` without ``scheduler`` starts a ``LocalCluster`` of ``workers`` workers.
+    seed : int, optional
+        Design seed; default ``network.settings.seed``. Seed 0 is a seed.
+    progress : bool
+        Show a Rich progress bar (done / failed / rate / ETA).
+    fresh : bool
+        Delete the store first and simulate everything again.
+    retry_failed : bool
+        Run again the runs that finished with a status other than ``ok``.
+
+    Returns
+    -------
+    CampaignSummary
+
+    Raises
+    ------
+    CampaignError
+        Unknown model, a store made with another seed or another model spec, bad options.
+    KeyboardInterrupt
+        Re-raised after the finished runs are committed; call again to resume.
+    """
+    model = _model(network, model_name)
+    seed = network.settings.seed if seed is None else int(seed)
+    path = Path(store) if store is not None else default_store(network, model_name)
+    if fresh:
+        remove_store(path)
+    sim = make_simulator(network, model, workdir=path.with_suffix(".work"))
+    version = simulator_version(sim)
+    start = time.perf_counter()
+    with RunStore(path) as db:
+        _claim(db, network, model, seed, sim.name, version)
+        design = _plan(db, model, _target_runs(runs, model, network, db.planned()), seed)
+        if retry_failed:
+            db.reset_failed()
+        todo = db.unfinished()
+        skipped = len(design) - len(todo)
+        in_flight = sum(was for _, _, was in todo)
+        timeout = run_timeout(network, model)
+        tasks = ((sim, i, inputs, timeout, model.output_names) for i, inputs, _ in todo)
+        failures: dict[int, str] = {}
+        with make_executor(executor, workers=workers, scheduler=scheduler) as ex, \
+                _progress_bar(progress, model_name, len(design), skipped, db) as advance:
+            for task, result in ex.run(execute_run, tasks,
+                                       on_submit=lambda t: db.mark_started([t[1]])):
+                rec = result if isinstance(result, RunRecord) else _worker_died(task[1], result)
+                db.record(rec, simulator=sim.name, version=version)
+                if rec.status != "ok" and len(failures) < 20:
+                    failures[rec.index] = f"{rec.status}: {rec.message}"
+                advance(rec.status)
+        counts = db.status_counts()
+    return CampaignSummary(model_name, path, len(design), skipped, len(todo), in_flight,
+                           counts, failures, time.perf_counter() - start, ex.name, ex.workers,
+                           seed)
+
+
+def remove_store(path: Path) -> None:
+    """Delete a store and its WAL files."""
+    for suffix in ("", "-wal", "-shm"):
+        Path(f"{path}{suffix}").unlink(missing_ok=True)
+
+
+def _model(network: Network, name: str) -> Model:
+    try:
+        return network.model(name)
+    except KeyError:
+        raise CampaignError(f"no model named '{name}'; choose one of "
+                            f"{[m.name for m in network.models]}") from None
+
+
+def _claim(db: RunStore, network: Network, model: Model, seed: int, simulator: str,
+           version: str) -> None:
+    """Check that ``db`` belongs to this model and seed, or stamp a new store."""
+    fp = model_fingerprint(model)
+    meta = db.meta()
+    if meta:
+        if meta.get("model_hash") != fingerprint_hash(fp):
+            change = describe_change(json.loads(meta.get("model_spec", "{}")), fp)
+            raise CampaignError(f"the store '{db.path}' was made from a different "
+                                f"'{model.name}' spec ({change}); simulate again with "
+                                "--fresh, or pass a new --store")
+        if int(meta["seed"]) != seed:
+            raise CampaignError(f"the store '{db.path}' was made with seed {meta['seed']}, "
+                                f"not {seed}; pass --seed {meta['seed']} to resume it, or a "
+                                "new --store (or --fresh) for the new seed")
+    else:
+        db.set_meta({"schema": "1", "model": model.name, "model_hash": fingerprint_hash(fp),
+                     "model_spec": json.dumps(fp), "seed": str(seed),
+                     "created_at": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+                     "design": "scipy.stats.qmc.LatinHypercube(optimization='random-cd')"})
+    db.set_meta({"calnet_version": calnet.__version__, "simulator": simulator,
+                 "simulator_version": version, "spec": network.source})
+
+
+def _target_runs(runs: int | None, model: Model, network: Network, planned: int) -> int:
+    if runs is None:
+        return max((model.campaign or network.settings.campaign).runs, planned)
+    if runs < planned:
+        raise CampaignError(f"the store already plans {planned} runs; ask for at least "
+                            f"{planned} (--runs), or use a new --store for a smaller design")
+    return runs
+
+
+def _plan(db: RunStore, model: Model, runs: int, seed: int) -> Design:
+    """The design of ``runs`` points: a new hypercube, or the stored one augmented."""
+    planned = db.planned()
+    if planned == 0:
+        design = latin_hypercube(model, runs, seed=seed)
+    else:
+        lower, upper = model_box(model)
+        columns = design_columns(model)
+        x = np.array([[r["inputs"][c] for c in columns] for r in db.rows()])
+        old = Design(columns, lower, upper, (x - lower) / (upper - lower))
+        design = augment(old, runs - planned, seed=seed, model_name=model.name)
+    db.plan(((i, design.row(i)) for i in range(len(design))), seed=seed)
+    return design
+
+
+def _worker_died(index: int, err: Any) -> RunRecord:
+    return RunRecord(index, "failed", {}, f"the worker running it died ({type(err).__name__}: "
+                     f"{err}); set a timeout to run each simulation in its own process",
+                     {}, math.nan)
+
+
+@contextmanager
+def _progress_bar(enabled: bool, name: str, total: int, done: int,
+                  db: RunStore) -> Iterator[Any]:
+    """A Rich bar (done / failed / rate / ETA); yields ``advance(status)``."""
+    failed = sum(n for k, n in db.status_counts().items() if k not in ("ok", "unfinished"))
+    if not enabled:
+        yield lambda status: None
+        return
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TextColumn,
+        TimeElapsedColumn,
+        TimeRemainingColumn,
+    )
+
+    columns = (TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
+               TextColumn("[red]{task.fields[failed]} failed"),
+               TextColumn("{task.fields[rate]}"), TimeElapsedColumn(), TextColumn("ETA"),
+               TimeRemainingColumn())
+    with Progress(*columns, transient=False) as bar:
+        task = bar.add_task(name, total=total, completed=done, failed=failed, rate="")
+        counts = {"failed": failed, "run": 0}
+        start = time.perf_counter()
+
+        def advance(status: str) -> None:
+            counts["run"] += 1
+            counts["failed"] += status != "ok"
+            rate = counts["run"] / max(time.perf_counter() - start, 1e-9)
+            bar.update(task, advance=1, failed=counts["failed"],
+                       rate=f"{rate * 60:.1f} runs/min" if rate < 1 else f"{rate:.1f} runs/s")
+
+        yield advance

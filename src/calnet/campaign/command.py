@@ -1,0 +1,81 @@
+"""``calnet campaign``: the Typer command over :func:`calnet.campaign.run_campaign`.
+
+Registered in :mod:`calnet.cli` as ``app.command("campaign")(user_errors(campaign))``.
+Import-light: the spec, the driver, Dask and UM-Bridge load when the command runs.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+
+
+def campaign(
+    spec: Annotated[Path, typer.Argument(help="network YAML, or a folder holding network.yaml")],
+    model: Annotated[str | None, typer.Option(
+        "--model", "-m", help="model to simulate [default: every model, parents first]")] = None,
+    runs: Annotated[int | None, typer.Option(
+        help="runs in the design [default: the spec's campaign.runs]; more than the store "
+             "plans augments it", min=1)] = None,
+    workers: Annotated[int | None, typer.Option(
+        help="parallel runs on this machine (local processes, or a Dask LocalCluster with "
+             "--executor dask)", min=1)] = None,
+    scheduler: Annotated[str | None, typer.Option(
+        help="address of a running Dask scheduler, e.g. tcp://host:8786")] = None,
+    store: Annotated[Path | None, typer.Option(
+        help="SQLite store [default: <spec folder>/campaigns/<model>.sqlite]")] = None,
+    executor: Annotated[str, typer.Option(
+        help="auto, in-process, processes or dask")] = "auto",
+    seed: Annotated[int | None, typer.Option(
+        help="design seed [default: the spec's settings.seed]", min=0)] = None,
+    fresh: Annotated[bool, typer.Option(
+        "--fresh", help="delete the store and simulate everything again")] = False,
+    retry_failed: Annotated[bool, typer.Option(
+        "--retry-failed", help="run again the runs that did not finish ok")] = False,
+    export: Annotated[Path | None, typer.Option(
+        help="also write the runs to this .csv or .parquet file (with a .meta.json)")] = None,
+    progress: Annotated[bool, typer.Option(
+        "--progress/--no-progress", help="show a progress bar")] = True,
+) -> None:
+    """Simulate a model's design and store every run; run again to resume.
+
+    Finished runs are kept, runs that were in flight when a campaign stopped are run again,
+    so an interrupted campaign (Ctrl-C, a killed job) resumes where it stopped.
+    """
+    from rich.console import Console
+
+    from calnet.campaign.campaign import run_campaign
+    from calnet.campaign.table import export_runs
+    from calnet.errors import CampaignError
+    from calnet.spec import load_spec
+
+    network = load_spec(spec)
+    names = [model] if model else list(network.order)
+    if len(names) > 1 and (store or export):
+        raise CampaignError("--store and --export name one file; give --model too")
+    console = Console(highlight=False)
+    for name in names:
+        summary = run_campaign(network, name, runs=runs, workers=workers, scheduler=scheduler,
+                               store=store, executor=executor, seed=seed, progress=progress,
+                               fresh=fresh, retry_failed=retry_failed)
+        print_summary(summary, console)
+        if export:
+            console.print(f"exported to {export_runs(summary.store_path, export)}")
+
+
+def print_summary(summary: Any, console: Any) -> None:
+    """A few lines: counts per status, throughput, the first failures."""
+    counts = ", ".join(f"{k} {n}" for k, n in sorted(summary.status_counts.items()))
+    rate = summary.ran / summary.wall_time if summary.wall_time > 0 else 0.0
+    console.print(f"[bold]{summary.model}[/]: {summary.planned} runs planned, "
+                  f"{summary.skipped} already finished, {summary.ran} run now "
+                  f"({summary.rerun_in_flight} re-run after an interruption) in "
+                  f"{summary.wall_time:.1f} s ({rate:.2f} runs/s, {summary.executor}, "
+                  f"{summary.workers} worker(s), seed {summary.seed})")
+    console.print(f"  store {summary.store_path}: {counts}")
+    for index, message in list(summary.failures.items())[:5]:
+        console.print(f"  [yellow]run {index}[/]: {message}", soft_wrap=True)
+    if len(summary.failures) > 5:
+        console.print(f"  ... {len(summary.failures) - 5} more not ok (see the store)")

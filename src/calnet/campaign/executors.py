@@ -1,0 +1,237 @@
+"""Where runs execute: in this process, in local worker processes, or on Dask.
+
+Every executor has one method, :meth:`Executor.run`, which runs ``fn(*task)`` for a stream
+of tasks and yields ``(task, result)`` as each finishes (in completion order), keeping at
+most a small window of tasks in flight so that an interrupted campaign has few runs to
+redo. ``result`` is the function's return value, or the exception a dead worker left
+behind (Dask's ``KilledWorker``, for a run that killed its workers). The results do not
+depend on the executor: run ``i``'s inputs are fixed by the design and each run is
+independent.
+
+Dask is imported only when a Dask executor is made. Worker processes import simulator
+modules by name: a Python callable's module must be importable there (``PYTHONPATH``,
+or the spec's folder, which the callable adapter adds itself).
+"""
+
+from __future__ import annotations
+
+import logging
+import multiprocessing
+from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
+from typing import Any, Protocol
+
+from calnet.errors import CampaignError
+
+Task = tuple[Any, ...]
+
+
+class Executor(Protocol):
+    """Runs tasks and yields ``(task, result)`` as each completes."""
+
+    name: str
+    workers: int
+
+    def run(self, fn: Callable[..., Any], tasks: Iterable[Task],
+            on_submit: Callable[[Task], None] | None = None) -> Iterator[tuple[Task, Any]]: ...
+
+    def close(self) -> None: ...
+
+
+class InProcessExecutor:
+    """Runs tasks one after another in this process (no parallelism; easiest to debug)."""
+
+    name = "in-process"
+    workers = 1
+
+    def run(self, fn, tasks, on_submit=None):
+        for task in tasks:
+            if on_submit:
+                on_submit(task)
+            yield task, fn(*task)
+
+    def close(self) -> None:
+        pass
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+class ProcessExecutor:
+    """A pool of ``workers`` local processes (``forkserver`` start method).
+
+    A worker that dies (a simulator crashing the interpreter without a timeout set) stops
+    the campaign with a :class:`CampaignError`; the runs in flight stay unfinished.
+    """
+
+    name = "processes"
+
+    def __init__(self, workers: int):
+        self.workers = workers
+        self._pool = self._new_pool()
+
+    def _new_pool(self) -> ProcessPoolExecutor:
+        method = "forkserver" if "forkserver" in multiprocessing.get_all_start_methods() \
+            else "spawn"
+        return ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context(method))
+
+    def run(self, fn, tasks, on_submit=None):
+        pending: dict[Future, Task] = {}
+        stream = iter(tasks)
+        try:
+            self._fill(fn, stream, pending, on_submit)
+            while pending:
+                done, _ = wait(pending, return_when=FIRST_COMPLETED)
+                for fut in done:
+                    task = pending.pop(fut)
+                    err = fut.exception()
+                    if isinstance(err, BrokenProcessPool):
+                        self._pool.shutdown(wait=False, cancel_futures=True)
+                        self._pool = self._new_pool()
+                        raise CampaignError(
+                            "a worker process died (a simulator crashed the interpreter); "
+                            "the runs in flight are left unfinished. Set a timeout "
+                            "(campaign.timeout) so that each run has its own process and a "
+                            "crash is recorded as a failed run, then run again to resume")
+                    if err is not None:
+                        raise CampaignError(f"a run could not be executed in a worker "
+                                            f"({type(err).__name__}: {err})") from err
+                    yield task, fut.result()
+                self._fill(fn, stream, pending, on_submit)
+        finally:
+            for fut in pending:
+                fut.cancel()
+
+    def _fill(self, fn, stream, pending, on_submit) -> None:
+        while len(pending) < 2 * self.workers:
+            task = next(stream, None)
+            if task is None:
+                return
+            if on_submit:
+                on_submit(task)
+            pending[self._pool.submit(fn, *task)] = task
+
+    def close(self) -> None:
+        self._pool.shutdown(wait=True, cancel_futures=True)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+class DaskExecutor:
+    """Dask distributed: a new ``LocalCluster`` of ``workers`` single-threaded worker
+    processes, or an existing scheduler at ``scheduler`` (``tcp://host:8786``), which is
+    how a campaign reaches a SLURM/PBS cluster (docs/campaigns.md)."""
+
+    name = "dask"
+
+    def __init__(self, *, workers: int | None = None, scheduler: str | None = None):
+        try:
+            from distributed import Client, LocalCluster
+        except ImportError as err:  # pragma: no cover - a declared dependency
+            raise CampaignError(f"the Dask executor needs 'distributed' ({err}); "
+                                "pip install 'dask[distributed]'") from None
+        self._cluster = None
+        if scheduler:
+            try:
+                self._client = Client(scheduler, timeout="20s")
+            except (OSError, TimeoutError) as err:
+                raise CampaignError(f"cannot reach the Dask scheduler at '{scheduler}' ({err});"
+                                    " check the address, or start one with `dask scheduler`"
+                                    ) from None
+        else:
+            self._cluster = LocalCluster(n_workers=workers or 1, threads_per_worker=1,
+                                         processes=True, dashboard_address=None,
+                                         silence_logs=logging.ERROR)
+            self._client = Client(self._cluster)
+        self.workers = max(1, sum(self._client.nthreads().values()))
+
+    def run(self, fn, tasks, on_submit=None):
+        from distributed import KilledWorker, as_completed
+
+        stream = iter(tasks)
+        pending: dict[str, Task] = {}
+        completed = as_completed(with_results=False)
+
+        def submit() -> bool:
+            task = next(stream, None)
+            if task is None:
+                return False
+            if on_submit:
+                on_submit(task)
+            fut = self._client.submit(fn, *task, pure=False)
+            pending[fut.key] = task
+            completed.add(fut)
+            return True
+
+        try:
+            for _ in range(2 * self.workers):
+                if not submit():
+                    break
+            for fut in completed:
+                task = pending.pop(fut.key)
+                try:
+                    result = fut.result()
+                except KilledWorker as err:  # this task killed its workers: record it failed
+                    result = err
+                except Exception as err:
+                    raise CampaignError(f"a run could not be executed on Dask "
+                                        f"({type(err).__name__}: {err})") from err
+                fut.release()
+                yield task, result
+                submit()
+        finally:
+            completed.clear()
+            for key in list(pending):
+                pending.pop(key)
+
+    def close(self) -> None:
+        self._client.close()
+        if self._cluster is not None:
+            self._cluster.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+def make_executor(kind: str = "auto", *, workers: int | None = None,
+                  scheduler: str | None = None) -> Executor:
+    """Choose an executor.
+
+    Parameters
+    ----------
+    kind : {"auto", "in-process", "processes", "dask"}
+        ``auto``: Dask with ``scheduler`` given; in-process for ``workers`` None or 1;
+        local processes otherwise.
+    workers : int, optional
+        Number of parallel runs (processes, or LocalCluster workers).
+    scheduler : str, optional
+        Address of a running Dask scheduler.
+    """
+    if workers is not None and workers < 1:
+        raise CampaignError(f"--workers must be >= 1, got {workers}")
+    if scheduler and workers:
+        raise CampaignError("give --workers or --scheduler, not both (an existing scheduler "
+                            "brings its own workers)")
+    if kind == "auto":
+        kind = "dask" if scheduler else ("processes" if (workers or 1) > 1 else "in-process")
+    if scheduler and kind != "dask":
+        raise CampaignError(f"--scheduler needs the Dask executor, not '{kind}'")
+    if kind == "in-process":
+        return InProcessExecutor()
+    if kind == "processes":
+        return ProcessExecutor(workers or 1)
+    if kind == "dask":
+        return DaskExecutor(workers=workers, scheduler=scheduler)
+    raise CampaignError(f"unknown executor '{kind}'; choose auto, in-process, processes or "
+                        "dask")

@@ -1,0 +1,430 @@
+"""Simulator adapters: every kind of simulator spoken through one small protocol.
+
+``simulator(inputs) -> SimResult`` (:class:`calnet.simulators.base.Simulator`), with a
+``name`` and a ``version`` that the store records. Four kinds:
+
+- :class:`BuiltinRunner`, the built-in physics models (``melt_pool``, ``solidification``);
+- :class:`CallableRunner`, a Python function given as ``module:function``;
+- :class:`CommandRunner`, an external program run from an argument-list template (never a
+  shell string), one working directory per run;
+- :class:`UMBridgeRunner`, a model on a UM-Bridge server.
+
+Adapters are small frozen dataclasses, so they pickle to process-pool and Dask workers.
+:func:`execute_run` is the task every executor runs: it times one run, turns exceptions,
+NaN and missing outputs into a recorded status, and enforces the timeout. A timeout on a
+Python call (built-in, callable, UM-Bridge) is enforced by running the call in a child
+Python process that is killed when the time is up; without a timeout the call runs in the
+worker itself.
+"""
+
+from __future__ import annotations
+
+import importlib
+import json
+import math
+import os
+import pickle
+import re
+import signal
+import subprocess
+import sys
+import time
+import traceback
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from calnet.errors import CampaignError
+from calnet.simulators.base import STATUSES, SimResult, Simulator
+from calnet.spec.models import Model
+from calnet.spec.network import Network
+
+
+@dataclass(frozen=True)
+class RunRecord:
+    """The outcome of run ``index``, as the store keeps it.
+
+    Attributes
+    ----------
+    index : int
+        Row of the design.
+    status : {"ok", "failed", "timeout", "nonconverged"}
+    outputs : dict of str to float
+    message : str
+        Why the run is not ``ok``.
+    diagnostics : dict
+        The simulator's free-form diagnostics (JSON-serialisable).
+    wall_time : float
+        Seconds the run took, timeout handling included.
+    """
+
+    index: int
+    status: str
+    outputs: dict[str, float]
+    message: str
+    diagnostics: dict[str, Any]
+    wall_time: float
+
+
+# --------------------------------------------------------------------------- adapters
+@dataclass(frozen=True)
+class BuiltinRunner:
+    """A built-in simulator of :mod:`calnet.simulators`, called with ``options``."""
+
+    name: str
+    version: str
+    options: dict[str, Any] = field(default_factory=dict)
+
+    def __call__(self, inputs: Mapping[str, float]) -> SimResult:
+        from calnet.simulators.registry import builtin_info
+
+        return builtin_info(self.name).simulate(dict(inputs), **self.options)
+
+
+@dataclass(frozen=True)
+class CallableRunner:
+    """A Python function ``module:function`` taking an inputs dict.
+
+    It returns a :class:`SimResult` or a mapping of output values. The module is imported
+    from ``sys.path`` (``PYTHONPATH`` in worker processes) or, failing that, from the
+    folders in ``search_path`` (the spec's folder).
+    """
+
+    target: str
+    version: str = ""
+    options: dict[str, Any] = field(default_factory=dict)
+    search_path: tuple[str, ...] = ()
+
+    @property
+    def name(self) -> str:
+        return self.target
+
+    def __call__(self, inputs: Mapping[str, float]) -> SimResult:
+        out = load_callable(self.target, self.search_path)(dict(inputs), **self.options)
+        if isinstance(out, SimResult):
+            return out
+        if not isinstance(out, Mapping):
+            return SimResult({}, "failed", f"{self.target} returned {type(out).__name__}; "
+                             "return a dict of outputs or a SimResult")
+        return SimResult({str(k): _to_float(v) for k, v in out.items()})
+
+
+@dataclass(frozen=True)
+class CommandRunner:
+    """An external program, run without a shell.
+
+    ``argv`` is a template: in each argument, ``{input_json}``, ``{output_json}``,
+    ``{workdir}``, ``{run}`` and ``{<variable>}`` (any input, parameter or option) are
+    replaced per run. With ``input_mode="json-file"`` the inputs are written to
+    ``input.json`` in the run's working directory; with ``"args"`` only the template
+    carries them. Outputs are read from ``output.json`` (``output_mode="json-file"``) or
+    from standard output (``"stdout"``), as a JSON object of output values, optionally
+    with ``status`` and ``message``. Each run has its own working directory
+    ``<workdir>/<run>``; the program runs there.
+    """
+
+    argv: tuple[str, ...]
+    workdir: str
+    input_mode: str = "json-file"
+    output_mode: str = "json-file"
+    timeout: float | None = None
+    options: dict[str, Any] = field(default_factory=dict)
+    version: str = ""
+
+    @property
+    def name(self) -> str:
+        return Path(self.argv[0]).name
+
+    def __call__(self, inputs: Mapping[str, float], *, run: str = "run") -> SimResult:
+        folder = Path(self.workdir) / run
+        folder.mkdir(parents=True, exist_ok=True)
+        in_path, out_path = folder / "input.json", folder / "output.json"
+        out_path.unlink(missing_ok=True)
+        if self.input_mode == "json-file":
+            in_path.write_text(json.dumps(dict(inputs)))
+        values = {**{k: str(v) for k, v in self.options.items()},
+                  **{k: repr(float(v)) for k, v in inputs.items()},
+                  "input_json": str(in_path), "output_json": str(out_path),
+                  "workdir": str(folder), "run": run}
+        argv = [_substitute(arg, values) for arg in self.argv]
+        try:
+            proc = _run_killable(argv, folder, self.timeout)
+        except FileNotFoundError:
+            return SimResult({}, "failed", f"command '{argv[0]}' not found; give its full "
+                             "path or put it on PATH")
+        if proc is None:
+            return SimResult({}, "timeout", f"command exceeded its timeout of {self.timeout:g} s")
+        if proc.returncode != 0:
+            tail = proc.stderr.strip().splitlines()[-3:]
+            return SimResult({}, "failed", f"command exited with code {proc.returncode}"
+                             + (f": {' | '.join(tail)}" if tail else ""))
+        text = proc.stdout if self.output_mode == "stdout" else _read(out_path)
+        return _parse_outputs(text, self.output_mode)
+
+
+@dataclass(frozen=True)
+class UMBridgeRunner:
+    """A model on a UM-Bridge server: one input vector (inputs then parameters, in
+    declaration order) -> one output vector (the model's outputs, in order).
+    ``options`` go to the server as the model ``config``."""
+
+    url: str
+    model: str
+    columns: tuple[str, ...]
+    outputs: tuple[str, ...]
+    options: dict[str, Any] = field(default_factory=dict)
+    version: str = ""
+
+    @property
+    def name(self) -> str:
+        return f"{self.url.rstrip('/')}/{self.model}"
+
+    def __call__(self, inputs: Mapping[str, float]) -> SimResult:
+        import umbridge
+
+        client = umbridge.HTTPModel(self.url, self.model)
+        vector = [float(inputs[c]) for c in self.columns]
+        out = client([vector], dict(self.options))
+        flat = [float(v) for block in out for v in block]
+        if len(flat) != len(self.outputs):
+            return SimResult({}, "failed", f"UM-Bridge model returned {len(flat)} values, "
+                             f"expected {len(self.outputs)} ({list(self.outputs)})")
+        return SimResult(dict(zip(self.outputs, flat, strict=True)))
+
+
+# --------------------------------------------------------------------------- factory
+def make_simulator(network: Network, model: Model, *, workdir: str | Path) -> Simulator:
+    """The adapter of ``model``'s simulator reference.
+
+    Parameters
+    ----------
+    network : Network
+        For the spec's folder (Python modules, relative command paths).
+    model : Model
+        Its ``simulator`` reference is adapted.
+    workdir : path
+        Folder of the per-run working directories of a command simulator.
+    """
+    ref = model.simulator
+    options = dict(ref.options)
+    version = str(options.pop("version", ""))
+    if ref.kind == "builtin":
+        from calnet.simulators.registry import builtin_info
+
+        try:
+            return BuiltinRunner(ref.name, builtin_info(ref.name).version, options)
+        except Exception as err:
+            raise CampaignError(str(err)) from None
+    if ref.kind == "python":
+        return CallableRunner(ref.target, version, options, (str(Path(network.root).resolve()),))
+    if ref.kind == "command":
+        return CommandRunner(_resolve_program(ref.argv, network), str(workdir), ref.input_mode,
+                             ref.output_mode, run_timeout(network, model), options, version)
+    return UMBridgeRunner(ref.url, ref.model, model.input_names + model.parameter_names,
+                          model.output_names, options, version)
+
+
+def run_timeout(network: Network, model: Model) -> float | None:
+    """Seconds allowed per run: the simulator's own, else the model's or network's
+    campaign setting, else none."""
+    campaign = model.campaign or network.settings.campaign
+    return model.simulator.timeout or campaign.timeout
+
+
+def simulator_version(sim: Simulator) -> str:
+    """The version of ``sim``; for a callable, the module's ``__version__`` or ``VERSION``
+    when the spec gives none."""
+    if isinstance(sim, CallableRunner) and not sim.version:
+        try:
+            module = importlib.import_module(sim.target.partition(":")[0])
+        except ImportError:
+            return ""
+        return str(getattr(module, "__version__", getattr(module, "VERSION", "")))
+    return sim.version
+
+
+def load_callable(target: str, search_path: tuple[str, ...] = ()) -> Any:
+    """Import ``module:function``, trying ``sys.path`` first, then ``search_path``."""
+    module_name, _, func_name = target.partition(":")
+    try:
+        module = importlib.import_module(module_name)
+    except ModuleNotFoundError as err:
+        if err.name != module_name.partition(".")[0] or not search_path:
+            raise
+        sys.path.extend(p for p in search_path if p not in sys.path)
+        module = importlib.import_module(module_name)
+    try:
+        return getattr(module, func_name)
+    except AttributeError:
+        raise CampaignError(f"module '{module_name}' has no '{func_name}'; fix the "
+                            f"simulator target '{target}'") from None
+
+
+# --------------------------------------------------------------------------- one run
+def execute_run(sim: Simulator, index: int, inputs: Mapping[str, float],
+                timeout: float | None, expected: tuple[str, ...]) -> RunRecord:
+    """Run ``sim`` once and return what the store records; never raises for a sim failure.
+
+    Parameters
+    ----------
+    sim : Simulator
+    index : int
+        Run index (names a command's working directory ``run-00012``).
+    inputs : mapping of str to float
+    timeout : float or None
+        Seconds; a Python call is then made in a child process that is killed on expiry.
+    expected : tuple of str
+        Outputs that must be present and finite for status ``ok``.
+    """
+    start = time.perf_counter()
+    if isinstance(sim, CommandRunner):
+        result = _guarded(lambda: sim(inputs, run=f"run-{index:05d}"))
+    elif timeout is not None:
+        result = call_in_child(sim, inputs, timeout)
+    else:
+        result = _guarded(lambda: sim(inputs))
+    result = result.checked(expected)
+    if result.status not in STATUSES:
+        result = SimResult(result.outputs, "failed", f"unknown status '{result.status}' "
+                           f"(allowed {list(STATUSES)}): {result.message}", result.diagnostics)
+    outputs = {k: _to_float(v) for k, v in result.outputs.items()}
+    return RunRecord(index, result.status, outputs, result.message,
+                     _jsonable(result.diagnostics), time.perf_counter() - start)
+
+
+def _guarded(call) -> SimResult:
+    try:
+        result = call()
+    except Exception as err:  # any simulator error is recorded, the campaign goes on
+        return SimResult({}, "failed", _describe(err))
+    if not isinstance(result, SimResult):
+        return SimResult({}, "failed", f"simulator returned {type(result).__name__}, "
+                         "expected a SimResult")
+    return result
+
+
+def _describe(err: BaseException) -> str:
+    frame = traceback.extract_tb(err.__traceback__)[-1:] if err.__traceback__ else []
+    where = f" (at {Path(frame[0].filename).name}:{frame[0].lineno})" if frame else ""
+    return f"{type(err).__name__}: {err}{where}"
+
+
+def call_in_child(sim: Simulator, inputs: Mapping[str, float], timeout: float) -> SimResult:
+    """Call ``sim(inputs)`` in a fresh Python process, killed after ``timeout`` seconds.
+
+    The child inherits this process's ``sys.path``; a crash of the child (segfault,
+    ``os._exit``) is recorded as ``failed``.
+    """
+    payload = pickle.dumps((list(sys.path), sim, dict(inputs)))
+    argv = [sys.executable, "-c", "from calnet.campaign.runners import child_main; child_main()"]
+    proc = _run_killable(argv, None, timeout, stdin=payload, text=False)
+    if proc is None:
+        return SimResult({}, "timeout", f"run exceeded its timeout of {timeout:g} s and was "
+                         "killed")
+    if proc.returncode != 0 or not proc.stdout:
+        tail = proc.stderr.decode(errors="replace").strip().splitlines()[-2:]
+        return SimResult({}, "failed", f"simulator process died with exit code "
+                         f"{proc.returncode}" + (f": {' | '.join(tail)}" if tail else ""))
+    return pickle.loads(proc.stdout)  # noqa: S301 (our own child's answer)
+
+
+def child_main() -> None:
+    """Entry point of :func:`call_in_child`'s process: pickle in on stdin, out on stdout."""
+    path, sim, inputs = pickle.loads(sys.stdin.buffer.read())  # noqa: S301
+    sys.path[:] = path
+    result = _guarded(lambda: sim(inputs))
+    sys.stdout.buffer.write(pickle.dumps(result))
+    sys.stdout.flush()
+
+
+def _run_killable(argv: list[str], cwd: Path | None, timeout: float | None, *,
+                  stdin: bytes | None = None, text: bool = True):
+    """``subprocess.run`` in its own session; on timeout kill the whole process group and
+    return None."""
+    proc = subprocess.Popen(argv, cwd=cwd, stdin=subprocess.PIPE if stdin else subprocess.DEVNULL,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=text,
+                            start_new_session=True)
+    try:
+        out, err = proc.communicate(stdin, timeout=timeout)
+    except subprocess.TimeoutExpired:
+        _kill_group(proc)
+        proc.communicate()
+        return None
+    except BaseException:
+        _kill_group(proc)
+        proc.wait()
+        raise
+    return subprocess.CompletedProcess(argv, proc.returncode, out, err)
+
+
+def _kill_group(proc: subprocess.Popen) -> None:
+    try:
+        os.killpg(proc.pid, signal.SIGKILL)
+    except (ProcessLookupError, PermissionError):
+        proc.kill()
+
+
+# --------------------------------------------------------------------------- helpers
+_FIELD = re.compile(r"\{([A-Za-z_][A-Za-z0-9_]*)\}")
+
+
+def _substitute(arg: str, values: Mapping[str, str]) -> str:
+    """Replace ``{name}`` fields of one argument; unknown names are an error."""
+    def one(match: re.Match) -> str:
+        key = match.group(1)
+        if key not in values:
+            raise CampaignError(f"command argument '{arg}' names '{{{key}}}', which is not an "
+                                f"input, parameter or option; known: {sorted(values)}")
+        return values[key]
+
+    return _FIELD.sub(one, arg)
+
+
+def _resolve_program(argv: tuple[str, ...], network: Network) -> tuple[str, ...]:
+    """Make a relative program path (``./sim.sh``, ``bin/sim``) relative to the spec."""
+    program = argv[0]
+    if os.sep in program and not os.path.isabs(program):
+        program = str(Path(network.root).resolve() / program)
+    return (program, *argv[1:])
+
+
+def _read(path: Path) -> str:
+    try:
+        return path.read_text()
+    except FileNotFoundError:
+        return ""
+
+
+def _parse_outputs(text: str, mode: str) -> SimResult:
+    where = "standard output" if mode == "stdout" else "output.json"
+    try:
+        doc = json.loads(text)
+    except json.JSONDecodeError as err:
+        return SimResult({}, "failed", f"cannot read a JSON object from {where} ({err})")
+    if not isinstance(doc, dict):
+        return SimResult({}, "failed", f"{where} holds {type(doc).__name__}, expected a "
+                         "JSON object of outputs")
+    status = str(doc.pop("status", "ok"))
+    message = str(doc.pop("message", ""))
+    outputs = {k: _to_float(v) for k, v in doc.items() if isinstance(v, (int, float))
+               or v is None}
+    return SimResult(outputs, status if status in STATUSES else "failed", message)  # type: ignore[arg-type]
+
+
+def _to_float(value: Any) -> float:
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        return math.nan
+
+
+def _jsonable(obj: Any) -> Any:
+    """A JSON-serialisable copy (NumPy scalars/arrays to Python, others to strings)."""
+    return json.loads(json.dumps(obj, default=_json_default))
+
+
+def _json_default(obj: Any) -> Any:
+    if hasattr(obj, "tolist"):
+        return obj.tolist()
+    return str(obj)

@@ -1,0 +1,249 @@
+"""The campaign store: one embedded SQLite database per campaign, durable and resumable.
+
+One row per planned run (the design), filled in as the run finishes:
+
+=================  =======================================================================
+column             meaning
+=================  =======================================================================
+idx                run index (row of the design)
+input_hash         sha256 of the inputs (canonical JSON), to detect a moved design
+inputs             JSON object: inputs then parameters, declared units
+seed               the campaign's design seed
+started_at         UNIX time the run was last handed to a worker (NULL: never)
+status             ``ok`` / ``failed`` / ``timeout`` / ``nonconverged``; NULL: not finished
+outputs            JSON object of output values (may hold NaN when not ok)
+message            why a run is not ok
+diagnostics        JSON object, the simulator's diagnostics
+wall_time          seconds
+simulator          simulator name; simulator_version its version
+finished_at        UNIX time the row was committed
+=================  =======================================================================
+
+The database runs in WAL mode while a campaign writes; every finished run is committed on
+its own, so a killed campaign loses at most the runs in flight. When a campaign closes the
+store it is checkpointed back to a single file, so a finished store can be shipped and
+read from a read-only folder.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import sqlite3
+import time
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+from typing import Any
+
+from calnet.campaign.runners import RunRecord
+from calnet.errors import CampaignError
+from calnet.spec.models import Model
+
+SCHEMA_VERSION = "1"
+
+_SCHEMA = """
+CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
+CREATE TABLE IF NOT EXISTS runs (
+    idx INTEGER PRIMARY KEY,
+    input_hash TEXT NOT NULL,
+    inputs TEXT NOT NULL,
+    seed INTEGER NOT NULL,
+    started_at REAL,
+    status TEXT CHECK (status IS NULL OR
+                       status IN ('ok', 'failed', 'timeout', 'nonconverged')),
+    outputs TEXT,
+    message TEXT,
+    diagnostics TEXT,
+    wall_time REAL,
+    simulator TEXT,
+    simulator_version TEXT,
+    finished_at REAL
+);
+"""
+
+
+def model_fingerprint(model: Model) -> dict[str, Any]:
+    """What a store's runs depend on: the model's input and parameter boxes (name, bounds,
+    unit, declaration order), its outputs and its simulator reference (the timeout aside)."""
+    def box(variables) -> list[list[Any]]:
+        return [[v.name, float(v.lower), float(v.upper), v.unit] for v in variables]
+
+    return {"model": model.name, "inputs": box(model.inputs),
+            "parameters": box(model.parameters), "outputs": list(model.output_names),
+            "simulator": model.simulator.model_dump(mode="json", exclude={"timeout"})}
+
+
+def fingerprint_hash(fingerprint: Mapping[str, Any]) -> str:
+    return hashlib.sha256(_canonical(fingerprint).encode()).hexdigest()
+
+
+def input_hash(inputs: Mapping[str, float]) -> str:
+    """Content hash of one run's inputs (order-preserving canonical JSON, exact floats)."""
+    return hashlib.sha256(json.dumps(list(inputs.items())).encode()).hexdigest()
+
+
+def describe_change(old: Mapping[str, Any], new: Mapping[str, Any]) -> str:
+    """One phrase saying how two model fingerprints differ."""
+    changes = []
+    for group in ("inputs", "parameters"):
+        before = {v[0]: v for v in old.get(group, [])}
+        after = {v[0]: v for v in new.get(group, [])}
+        for name in after.keys() - before.keys():
+            changes.append(f"{group[:-1]} '{name}' added")
+        for name in before.keys() - after.keys():
+            changes.append(f"{group[:-1]} '{name}' removed")
+        for name in before.keys() & after.keys():
+            if before[name][1:3] != after[name][1:3]:
+                changes.append(f"bounds of '{name}' changed from {before[name][1:3]} to "
+                               f"{after[name][1:3]}")
+            if before[name][3] != after[name][3]:
+                changes.append(f"unit of '{name}' changed from '{before[name][3]}' to "
+                               f"'{after[name][3]}'")
+        if not changes and [v[0] for v in old.get(group, [])] != list(after):
+            changes.append(f"order of the {group} changed")
+    if old.get("outputs") != new.get("outputs"):
+        changes.append(f"outputs changed from {old.get('outputs')} to {new.get('outputs')}")
+    if old.get("simulator") != new.get("simulator"):
+        changes.append(f"simulator changed from {old.get('simulator')} to "
+                       f"{new.get('simulator')}")
+    return "; ".join(sorted(changes)) or "the model spec changed"
+
+
+class RunStore:
+    """An open campaign store (use as a context manager, or call :meth:`close`).
+
+    Parameters
+    ----------
+    path : path
+        The SQLite file.
+    readonly : bool
+        Open for reading only (no WAL switch, works in read-only folders).
+    """
+
+    def __init__(self, path: str | Path, *, readonly: bool = False):
+        self.path = Path(path)
+        self.readonly = readonly
+        if readonly:
+            if not self.path.is_file():
+                raise CampaignError(f"no campaign store at '{self.path}'")
+            uri = f"file:{self.path.resolve()}?mode=ro"
+            self._db = sqlite3.connect(uri, uri=True)
+        else:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._db = sqlite3.connect(self.path, timeout=30)
+            self._db.execute("PRAGMA journal_mode=WAL")
+            self._db.execute("PRAGMA synchronous=NORMAL")
+            self._db.executescript(_SCHEMA)
+        try:
+            self._db.execute("SELECT 1 FROM runs LIMIT 1")
+        except sqlite3.DatabaseError as err:
+            self._db.close()
+            raise CampaignError(f"'{self.path}' is not a calnet campaign store ({err}); pass "
+                                "another --store or remove the file") from None
+
+    def __enter__(self) -> RunStore:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Commit, checkpoint the WAL into the main file and close."""
+        if self._db is None:
+            return
+        if not self.readonly:
+            self._db.commit()
+            self._db.execute("PRAGMA wal_checkpoint(TRUNCATE)")
+            self._db.execute("PRAGMA journal_mode=DELETE")
+        self._db.close()
+        self._db = None
+
+    # ---------------------------------------------------------------- metadata
+    def meta(self) -> dict[str, str]:
+        return dict(self._db.execute("SELECT key, value FROM meta"))
+
+    def set_meta(self, values: Mapping[str, Any]) -> None:
+        with self._db:
+            self._db.executemany("INSERT OR REPLACE INTO meta VALUES (?, ?)",
+                                 [(k, v if isinstance(v, str) else json.dumps(v))
+                                  for k, v in values.items()])
+
+    # ---------------------------------------------------------------- the plan
+    def planned(self) -> int:
+        return self._db.execute("SELECT COUNT(*) FROM runs").fetchone()[0]
+
+    def plan(self, rows: Iterable[tuple[int, Mapping[str, float]]], *, seed: int) -> None:
+        """Add design rows ``(index, inputs)``; existing indices must hold the same inputs."""
+        known = dict(self._db.execute("SELECT idx, input_hash FROM runs"))
+        new = []
+        for index, inputs in rows:
+            digest = input_hash(inputs)
+            if index in known:
+                if known[index] != digest:
+                    raise CampaignError(f"{self.path}: run {index} holds other inputs than "
+                                        "the design asks for; use a new --store or --fresh")
+                continue
+            new.append((index, digest, _dumps(inputs), seed))
+        with self._db:
+            self._db.executemany("INSERT INTO runs (idx, input_hash, inputs, seed) "
+                                 "VALUES (?, ?, ?, ?)", new)
+
+    def unfinished(self) -> list[tuple[int, dict[str, float], bool]]:
+        """``(index, inputs, was_in_flight)`` of every run without a status, by index."""
+        rows = self._db.execute("SELECT idx, inputs, started_at FROM runs WHERE status IS NULL "
+                                "ORDER BY idx")
+        return [(i, json.loads(s), started is not None) for i, s, started in rows]
+
+    def reset_failed(self) -> int:
+        """Forget the outcome of every run that is not ``ok``, so it runs again."""
+        with self._db:
+            cur = self._db.execute("UPDATE runs SET status = NULL, started_at = NULL "
+                                   "WHERE status IS NOT NULL AND status != 'ok'")
+        return cur.rowcount
+
+    def mark_started(self, indices: Iterable[int]) -> None:
+        now = time.time()
+        with self._db:
+            self._db.executemany("UPDATE runs SET started_at = ? WHERE idx = ?",
+                                 [(now, i) for i in indices])
+
+    def record(self, rec: RunRecord, *, simulator: str, version: str) -> None:
+        """Commit one finished run."""
+        with self._db:
+            self._db.execute(
+                "UPDATE runs SET status = ?, outputs = ?, message = ?, diagnostics = ?, "
+                "wall_time = ?, simulator = ?, simulator_version = ?, finished_at = ? "
+                "WHERE idx = ?",
+                (rec.status, _dumps(rec.outputs), rec.message, _dumps(rec.diagnostics),
+                 rec.wall_time, simulator, version, time.time(), rec.index))
+
+    # ---------------------------------------------------------------- reading
+    def status_counts(self) -> dict[str, int]:
+        rows = self._db.execute("SELECT COALESCE(status, 'unfinished'), COUNT(*) FROM runs "
+                                "GROUP BY 1")
+        return {k: int(n) for k, n in rows}
+
+    def rows(self) -> list[dict[str, Any]]:
+        """Every run as a dict (JSON columns decoded), by index."""
+        cur = self._db.execute("SELECT * FROM runs ORDER BY idx")
+        names = [d[0] for d in cur.description]
+        out = []
+        for values in cur:
+            row = dict(zip(names, values, strict=True))
+            for key in ("inputs", "outputs", "diagnostics"):
+                row[key] = json.loads(row[key]) if row[key] is not None else None
+            out.append(row)
+        return out
+
+
+def _dumps(obj: Any) -> str:
+    return json.dumps(obj, allow_nan=True)
+
+
+def _canonical(obj: Any) -> str:
+    return json.dumps(obj, sort_keys=True, separators=(",", ":"))
+
+
+def is_finite(value: Any) -> bool:
+    return isinstance(value, (int, float)) and math.isfinite(value)

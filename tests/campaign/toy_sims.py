@@ -1,0 +1,65 @@
+"""Toy simulators for the campaign tests (milliseconds each).
+
+Referenced from specs as ``python:toy_sims:<function>``; worker processes import this
+module through ``PYTHONPATH`` (the tests set it to this folder).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+
+from calnet.simulators.base import SimResult
+
+VERSION = "toy-1"
+
+
+def quadratic(inputs, *, scale=1.0):
+    """``y = scale * (x^2 + a x + b)``, ``z = x - b``."""
+    x, a, b = inputs["x"], inputs["a"], inputs["b"]
+    return {"y": scale * (x * x + a * x + b), "z": x - b}
+
+
+def crashy(inputs):
+    """Raises for ``x > 0.7``."""
+    if inputs["x"] > 0.7:
+        raise RuntimeError(f"solver diverged at x={inputs['x']:.3f}")
+    return quadratic(inputs)
+
+
+def hangs(inputs):
+    """Sleeps forever for ``x < 0.2``."""
+    if inputs["x"] < 0.2:
+        while True:
+            time.sleep(1)
+    return quadratic(inputs)
+
+
+def nan_out(inputs):
+    """Returns NaN for ``y`` when ``x`` is in (0.4, 0.6)."""
+    out = quadratic(inputs)
+    if 0.4 < inputs["x"] < 0.6:
+        out["y"] = math.nan
+    return out
+
+
+def nonconverged(inputs):
+    """A SimResult with status ``nonconverged`` for ``a < 0.3``."""
+    out = quadratic(inputs)
+    if inputs["a"] < 0.3:
+        return SimResult(out, "nonconverged", "residual 1e-2 after 100 iterations")
+    return SimResult(out)
+
+
+def dies(inputs):
+    """Kills its own process for ``x > 0.9`` (a hard crash, not an exception)."""
+    if inputs["x"] > 0.9:
+        os._exit(7)
+    return quadratic(inputs)
+
+
+def slow(inputs):
+    """``quadratic`` after 0.1 s (the kill -9 test)."""
+    time.sleep(0.1)
+    return quadratic(inputs)
