@@ -1,0 +1,11 @@
+"""Report stage: figures (PNG), the self-contained HTML report and ``metrics.json``.
+
+Figures live in :mod:`calnet.report.figures` (matplotlib imported lazily); this package
+exports only the HTML and metrics writers.
+"""
+
+from calnet.report.html import Section, Table, fmt, render_report, write_report
+from calnet.report.metrics import to_jsonable, write_metrics
+
+__all__ = ["Section", "Table", "fmt", "render_report", "write_report", "to_jsonable",
+           "write_metrics"]

@@ -1,0 +1,90 @@
+"""Every figure function writes a non-empty PNG for small inputs."""
+
+import numpy as np
+import pytest
+
+from calnet.errors import SpecError
+from calnet.report import figures as F
+from calnet.report.network_diagram import topological_depth
+
+PNG = b"\x89PNG\r\n\x1a\n"
+
+
+def _is_png(path):
+    data = path.read_bytes()
+    return len(data) > 1000 and data.startswith(PNG)
+
+
+def _param(name, lo, hi, **extra):
+    xs = np.linspace(lo, hi, 20)
+    samples = np.random.default_rng(0).uniform(lo, hi, 200)
+    return dict(name=name, unit="W", lower=lo, upper=hi, prior_pdf_x=xs,
+                prior_pdf_y=np.full(20, 1 / (hi - lo)), posterior_samples=samples, **extra)
+
+
+def test_data_grid(tmp_path):
+    P, v = np.array([70.0, 150.0, 250.0]), np.array([0.1, 1.0, 2.0])
+    out = F.data_grid(P, v, {"width": (P, v, [False, True, False]), "pdas": (P[:2], v[:2])},
+                      tmp_path / "sub" / "grid.png")
+    assert _is_png(out)
+    assert _is_png(F.data_grid(None, None, {"width": (P, v)}, tmp_path / "g2.png"))
+
+
+def test_prior_posterior_and_grid(tmp_path):
+    p = _param("K_S", 60.0, 100.0, mode=70.0, reference=68.0)
+    assert _is_png(F.prior_posterior(**p, path=tmp_path / "pp.png"))
+    params = [p, _param("sigma", 2e-7, 1e-6, mode=4e-7, reference=1.1e-7), _param("M", 5, 15)]
+    assert _is_png(F.prior_posterior_grid(params, tmp_path / "ppg.png", ncols=2, title="M1"))
+
+
+def test_prior_posterior_degenerate_samples(tmp_path):
+    p = _param("K", 0.0, 1.0)
+    p["posterior_samples"] = np.full(10, 0.5)  # no spread: histogram only, no KDE
+    assert _is_png(F.prior_posterior(**p, path=tmp_path / "pp.png"))
+
+
+def test_predictive_vs_observed(tmp_path):
+    y = np.array([0.3, 0.35, 0.4, 0.33])
+    out = F.predictive_vs_observed(y, y + 0.01, y - 0.02, y + 0.03, [False, False, True, True],
+                                   tmp_path / "pvo.png", "PDAS", "um")
+    assert _is_png(out)
+
+
+def test_maps(tmp_path):
+    Pg, vg = np.linspace(65, 260, 6), np.linspace(0.04, 2.4, 5)
+    z = Pg[None, :] / 100 + vg[:, None]
+    pts = np.array([[100.0, 0.5], [200.0, 1.5]])
+    assert _is_png(F.predictive_map(Pg, vg, z, tmp_path / "m.png", "W", "um", points=pts))
+    PP, VV = np.meshgrid(Pg, vg)
+    assert _is_png(F.predictive_map(PP, VV, z, tmp_path / "m2.png", "W", "um",
+                                    points={"width": pts}))
+    prob = np.clip(z / z.max(), 0, 1)
+    assert _is_png(F.process_map(Pg, vg, prob, tmp_path / "p.png", "W > 80 um", points=pts))
+    with pytest.raises(ValueError, match="grid shapes"):
+        F.predictive_map(Pg, vg, z.T, tmp_path / "bad.png", "W", "um")
+
+
+def test_sobol_bars(tmp_path):
+    out = F.sobol_bars(["P", "v"], [0.1, 0.8], [0.02, 0.05], [0.15, 0.85], [0.03, 0.04],
+                       tmp_path / "s.png", "PDAS")
+    assert _is_png(out)
+
+
+def test_network_diagram(tmp_path):
+    models = [dict(name="melt_pool", inputs=["P", "v", "K_S"], outputs=["W", "G", "R"],
+                   measurable=["W"]),
+              dict(name="solidification", inputs=["G", "R"], outputs=["lambda"],
+                   measurable=True),
+              dict(name="extra", inputs=["lambda"], outputs=["y"], measurable=[])]
+    links = [("melt_pool", "solidification", "G"), ("melt_pool", "solidification", "R"),
+             ("solidification", "extra", "lambda")]
+    assert _is_png(F.network_diagram(models, links, tmp_path / "net.png", title="net"))
+    assert topological_depth(["a", "b", "c"], [("a", "c", ""), ("b", "c", "")]) == {
+        "a": 0, "b": 0, "c": 1}
+
+
+def test_network_cycle_and_unknown_model_rejected():
+    with pytest.raises(SpecError, match="cycle"):
+        topological_depth(["a", "b"], [("a", "b", ""), ("b", "a", "")])
+    with pytest.raises(SpecError, match="unknown model 'z'"):
+        topological_depth(["a"], [("a", "z", "")])
