@@ -34,6 +34,7 @@ _PENALTY = 1e10  # objective value reported to L-BFGS-B where K is not positive 
 _NUGGET_RETRIES = 3
 
 _value_and_grad = jax.jit(nlml_value_and_grad)
+_nlml = jax.jit(neg_log_marginal_likelihood)
 
 
 def _label(name: str) -> str:
@@ -85,7 +86,7 @@ def validate_training_data(
                              f"{int(np.sum(y <= 0))} values <= 0; use transform=None")
     z = np.log(y) if transform == "log" else y
     if np.ptp(z) <= 1e-12 * max(1.0, float(np.max(np.abs(z)))):
-        raise SurrogateError(f"{lab} is constant (value {y[0]!r} at all {n} points); a GP "
+        raise SurrogateError(f"{lab} is constant (value {float(y[0]):g} at all {n} points); a GP "
                              "cannot be fitted, model it as a constant or drop it")
     return x, y, lower, upper
 
@@ -217,7 +218,7 @@ def _condition_with_retries(x, y, xs, ys, p, *, lower, upper, transform, name) -
             if attempt:
                 warnings.warn(f"{_label(name)}: nugget raised to {nugget:.3g} to factorise K",
                               SurrogateWarning, stacklevel=3)
-            nlml = neg_log_marginal_likelihood(gp.log_params, xs, ys)
+            nlml = _nlml(gp.log_params, xs, ys)
             return dataclasses.replace(gp, nlml=nlml)
         nugget *= 10.0
     raise SurrogateError(f"{_label(name)}: the covariance matrix is not positive definite "

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 
 import jax
@@ -107,9 +108,7 @@ class FittedGP:
         var : array, shape (m,)
             Modelled-scale variance, >= 0.
         """
-        zs = self.scale_inputs(jnp.atleast_2d(z))
-        k_star = matern32(zs, self.x_train, self.lengthscales, self.signal_var)
-        return self._moments(k_star, include_nugget)
+        return _predict(self, jnp.asarray(z, dtype=jnp.float64), include_nugget)
 
     def predict_split(
         self, x: jax.Array, theta: jax.Array, *, include_nugget: bool = False
@@ -208,8 +207,7 @@ class FittedGP:
         """
         if log_params is None:
             log_params = self.log_params
-        y_s = self.chol @ (self.chol.T @ self.alpha)
-        return -neg_log_marginal_likelihood(log_params, self.x_train, y_s)
+        return _log_marginal_likelihood(self, jnp.asarray(log_params))
 
     @property
     def log_params(self) -> jax.Array:
@@ -218,7 +216,7 @@ class FittedGP:
             [self.lengthscales, jnp.stack([self.signal_var, self.nugget])]))
 
     def save(self, path: str | Path) -> Path:
-        """Write to ``path`` (``.npz``) plus a ``.json`` sidecar; see :mod:`calnet.surrogates.io`."""
+        """Write to ``path`` (``.npz``) plus a ``.json`` sidecar (:func:`save_gp`)."""
         from calnet.surrogates.io import save_gp
 
         return save_gp(self, path)
@@ -261,6 +259,31 @@ jax.tree_util.register_dataclass(FittedGP, data_fields=list(ARRAY_FIELDS),
                                  meta_fields=list(META_FIELDS))
 
 
+@partial(jax.jit, static_argnums=2)
+def _predict(gp: FittedGP, z: jax.Array, include_nugget: bool):
+    zs = gp.scale_inputs(jnp.atleast_2d(z))
+    k_star = matern32(zs, gp.x_train, gp.lengthscales, gp.signal_var)
+    return gp._moments(k_star, include_nugget)
+
+
+@jax.jit
+def _log_marginal_likelihood(gp: FittedGP, log_params: jax.Array) -> jax.Array:
+    y_s = gp.chol @ (gp.chol.T @ gp.alpha)  # K alpha: the standardised training outputs
+    return -neg_log_marginal_likelihood(log_params, gp.x_train, y_s)
+
+
+@partial(jax.jit, static_argnums=7)
+def _condition_arrays(x, y, lower, upper, ell, s2, nug, log: bool):
+    xs = (x - lower) / (upper - lower)
+    z = jnp.log(y) if log else y
+    y_mean, y_std = jnp.mean(z), jnp.std(z)
+    ys = (z - y_mean) / y_std
+    k = matern32(xs, xs, ell, s2) + nug * jnp.eye(xs.shape[0], dtype=xs.dtype)
+    chol = jnp.linalg.cholesky(k)
+    alpha = jax.scipy.linalg.cho_solve((chol, True), ys)
+    return xs, alpha, chol, y_mean, y_std
+
+
 def condition(
     x: np.ndarray,
     y: np.ndarray,
@@ -301,20 +324,10 @@ def condition(
         Its ``chol`` is NaN if ``K`` is not numerically positive definite; check with
         ``jnp.isfinite(gp.chol[-1, -1])``.
     """
-    lower = jnp.asarray(lower, dtype=jnp.float64)
-    upper = jnp.asarray(upper, dtype=jnp.float64)
-    xs = (jnp.asarray(x, dtype=jnp.float64) - lower) / (upper - lower)
-    z = jnp.asarray(y, dtype=jnp.float64)
-    if transform == "log":
-        z = jnp.log(z)
-    y_mean, y_std = jnp.mean(z), jnp.std(z)
-    ys = (z - y_mean) / y_std
-    ell = jnp.asarray(lengthscales, dtype=jnp.float64)
-    s2 = jnp.asarray(signal_var, dtype=jnp.float64)
-    nug = jnp.asarray(nugget, dtype=jnp.float64)
-    k = matern32(xs, xs, ell, s2) + nug * jnp.eye(xs.shape[0])
-    chol = jnp.linalg.cholesky(k)
-    alpha = jax.scipy.linalg.cho_solve((chol, True), ys)
+    f64 = partial(jnp.asarray, dtype=jnp.float64)
+    lower, upper, ell, s2, nug = (f64(v) for v in (lower, upper, lengthscales, signal_var, nugget))
+    xs, alpha, chol, y_mean, y_std = _condition_arrays(f64(x), f64(y), lower, upper, ell, s2, nug,
+                                                       transform == "log")
     return FittedGP(x_train=xs, alpha=alpha, chol=chol, lengthscales=ell, signal_var=s2,
                     nugget=nug, lower=lower, upper=upper, y_mean=y_mean, y_std=y_std,
-                    nlml=jnp.asarray(nlml, dtype=jnp.float64), transform=transform, name=name)
+                    nlml=f64(nlml), transform=transform, name=name)

@@ -1,0 +1,180 @@
+"""Fit every surrogate a network needs from its campaign stores (method.md section 2).
+
+One GP per needed output (observed by a data set or feeding a link), trained on the
+model's ok runs over its inputs and parameters. Inputs declared ``scale: log`` enter the
+GP as ``ln x``.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import jax.numpy as jnp
+import numpy as np
+
+from calnet.errors import SurrogateError
+from calnet.spec import Model, Network
+from calnet.surrogates.cv import CVResult, cross_validate
+from calnet.surrogates.fit import fit_gp
+from calnet.surrogates.gp import FittedGP
+from calnet.surrogates.io import load_gp, save_gp
+
+
+def log_mask(model: Model) -> np.ndarray:
+    """Boolean mask over ``inputs + parameters``: True where the GP works in ``ln x``."""
+    return np.array([getattr(v, "scale", "linear") == "log"
+                     for v in (*model.inputs, *model.parameters)])
+
+
+def gp_space(model: Model, z):
+    """Map physical ``(..., n_inputs + n_parameters)`` values to the GP's input space."""
+    mask = log_mask(model)
+    if not mask.any():
+        return z
+    xp = jnp if not isinstance(z, np.ndarray) else np
+    return xp.where(mask, xp.log(xp.where(mask, z, 1.0)), z)
+
+
+def gp_bounds(model: Model) -> tuple[np.ndarray, np.ndarray]:
+    """Lower and upper bounds of the GP input space, shape (n_inputs + n_parameters,)."""
+    vars_ = (*model.inputs, *model.parameters)
+    lower = np.array([v.lower for v in vars_], dtype=float)
+    upper = np.array([v.upper for v in vars_], dtype=float)
+    return gp_space(model, lower), gp_space(model, upper)
+
+
+@dataclass(frozen=True)
+class OutputSurrogate:
+    """The fitted GP of one model output, with its cross-validation and provenance."""
+
+    model: str
+    output: str
+    gp: FittedGP
+    cv: CVResult | None
+    n_runs: int
+    n_excluded: int
+
+    @property
+    def key(self) -> str:
+        return f"{self.model}.{self.output}"
+
+    @property
+    def transform(self) -> str | None:
+        return self.gp.transform
+
+    def summary(self) -> dict:
+        """JSON-ready metrics (for ``metrics.json``)."""
+        doc = {"model": self.model, "output": self.output, "transform": self.transform,
+               "n_runs": self.n_runs, "n_excluded": self.n_excluded,
+               "nlml": float(self.gp.nlml) if self.gp.nlml is not None else None}
+        if self.cv is not None:
+            doc["cv"] = self.cv.metrics()
+        return doc
+
+
+@dataclass(frozen=True)
+class Surrogates:
+    """All surrogates of a network, keyed by ``model.output``."""
+
+    items: Mapping[str, OutputSurrogate] = field(default_factory=dict)
+
+    def __getitem__(self, key: str) -> OutputSurrogate:
+        return self.items[key]
+
+    def __contains__(self, key: str) -> bool:
+        return key in self.items
+
+    def gp(self, model: str, output: str) -> FittedGP:
+        try:
+            return self.items[f"{model}.{output}"].gp
+        except KeyError:
+            raise SurrogateError(f"no surrogate for '{model}.{output}'; fit surrogates "
+                                 "for this network first (calnet surrogates SPEC)") from None
+
+    def summary(self) -> dict:
+        return {k: s.summary() for k, s in self.items.items()}
+
+    def save(self, folder: str | Path) -> Path:
+        """Write every GP (``.npz`` + JSON, no pickle) and an index to ``folder``."""
+        folder = Path(folder)
+        folder.mkdir(parents=True, exist_ok=True)
+        index = {}
+        for key, s in self.items.items():
+            save_gp(s.gp, folder / key)
+            index[key] = {**s.summary(), "file": key}
+        (folder / "surrogates.json").write_text(json.dumps(index, indent=2, default=float))
+        return folder
+
+    @classmethod
+    def load(cls, folder: str | Path) -> Surrogates:
+        """Read surrogates written by :meth:`save` (CV results are not reloaded)."""
+        folder = Path(folder)
+        index_path = folder / "surrogates.json"
+        if not index_path.is_file():
+            raise SurrogateError(f"{folder}: no surrogates.json; run calnet surrogates first")
+        index = json.loads(index_path.read_text())
+        return cls({k: OutputSurrogate(v["model"], v["output"], load_gp(folder / v["file"]),
+                                       None, v["n_runs"], v["n_excluded"])
+                    for k, v in index.items()})
+
+
+def fit_surrogates(network: Network, *, stores: Mapping[str, Path] | None = None,
+                   seed: int | None = None, cv: bool = True, restarts: int | None = None,
+                   cv_folds: int | None = None,
+                   progress: Callable[[str], None] | None = None) -> Surrogates:
+    """Fit (and cross-validate) a GP for every output the network needs.
+
+    Parameters
+    ----------
+    network : Network
+    stores : mapping of model name to campaign store path, optional
+        Defaults to each model's default store beside the spec.
+    seed : int, optional
+        Seeds optimiser restarts and CV folds (default: ``network.settings.seed``).
+    cv : bool
+        Run k-fold cross-validation (k from the model's or the network's settings).
+    restarts, cv_folds : int, optional
+        Override the spec's surrogate settings (e.g. for a quick run).
+    progress : callable, optional
+        Called with a short message before each fit.
+
+    Returns
+    -------
+    Surrogates
+    """
+    from calnet.campaign import load_runs
+
+    seed = network.settings.seed if seed is None else seed
+    items = {}
+    for name in network.order:
+        model = network.model(name)
+        needed = network.needed_outputs(name)
+        if not needed:
+            continue
+        settings = model.surrogate or network.settings.surrogate
+        runs = load_runs(network, name, store=(stores or {}).get(name))
+        x = gp_space(model, np.asarray(runs.X, dtype=float))
+        lower, upper = gp_bounds(model)
+        for out in needed:
+            if progress:
+                progress(f"{name}.{out.name}")
+            y = np.asarray(runs.Y[out.name], dtype=float)
+            ok = np.isfinite(y) & np.all(np.isfinite(x), axis=1)
+            n_excl = runs.n_excluded + int((~ok).sum())
+            if ok.sum() == 0:
+                raise SurrogateError(f"{name}.{out.name}: all {runs.n_total} runs failed or "
+                                     "gave non-finite values; fix the simulator and re-run "
+                                     "the campaign")
+            kw = dict(lower=lower, upper=upper, transform=out.transform,
+                      n_restarts=restarts or settings.restarts, seed=seed,
+                      name=f"{name}.{out.name}")
+            gp = fit_gp(x[ok], y[ok], **kw)
+            cvr = (cross_validate(x[ok], y[ok], k=min(cv_folds or settings.cv_folds,
+                                                      int(ok.sum())), **kw)
+                   if cv else None)
+            items[f"{name}.{out.name}"] = OutputSurrogate(name, out.name, gp, cvr,
+                                                          int(ok.sum()), n_excl)
+    return Surrogates(items)
