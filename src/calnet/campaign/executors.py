@@ -26,6 +26,8 @@ from calnet.errors import CampaignError
 
 Task = tuple[Any, ...]
 
+CONNECT_TIMEOUT = "20s"  # how long to try reaching an existing Dask scheduler
+
 
 class Executor(Protocol):
     """Runs tasks and yields ``(task, result)`` as each completes."""
@@ -141,7 +143,7 @@ class DaskExecutor:
         self._cluster = None
         if scheduler:
             try:
-                self._client = Client(scheduler, timeout="20s")
+                self._client = Client(scheduler, timeout=CONNECT_TIMEOUT)
             except (OSError, TimeoutError) as err:
                 raise CampaignError(f"cannot reach the Dask scheduler at '{scheduler}' ({err});"
                                     " check the address, or start one with `dask scheduler`"

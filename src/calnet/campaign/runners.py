@@ -25,6 +25,7 @@ import math
 import os
 import pickle
 import re
+import select
 import signal
 import subprocess
 import sys
@@ -219,6 +220,7 @@ def make_simulator(network: Network, model: Model, *, workdir: str | Path) -> Si
     if ref.kind == "python":
         return CallableRunner(ref.target, version, options, (str(Path(network.root).resolve()),))
     if ref.kind == "command":
+        _check_template(ref.argv, (*model.input_names, *model.parameter_names, *options))
         return CommandRunner(_resolve_program(ref.argv, network), str(workdir), ref.input_mode,
                              ref.output_mode, run_timeout(network, model), options, version)
     return UMBridgeRunner(ref.url, ref.model, model.input_names + model.parameter_names,
@@ -310,29 +312,59 @@ def _describe(err: BaseException) -> str:
     return f"{type(err).__name__}: {err}{where}"
 
 
-def call_in_child(sim: Simulator, inputs: Mapping[str, float], timeout: float) -> SimResult:
+def call_in_child(sim: Simulator, inputs: Mapping[str, float], timeout: float, *,
+                  startup_timeout: float = 300.0) -> SimResult:
     """Call ``sim(inputs)`` in a fresh Python process, killed after ``timeout`` seconds.
 
-    The child inherits this process's ``sys.path``; a crash of the child (segfault,
-    ``os._exit``) is recorded as ``failed``.
+    The clock starts once the child has imported the simulator (it says so on stdout), so
+    a slow interpreter start on a busy machine does not count against the run. The child
+    inherits this process's ``sys.path``; a crash of the child (segfault, ``os._exit``)
+    is recorded as ``failed``.
     """
     payload = pickle.dumps((list(sys.path), sim, dict(inputs)))
     argv = [sys.executable, "-c", "from calnet.campaign.runners import child_main; child_main()"]
-    proc = _run_killable(argv, None, timeout, stdin=payload, text=False)
-    if proc is None:
-        return SimResult({}, "timeout", f"run exceeded its timeout of {timeout:g} s and was "
-                         "killed")
-    if proc.returncode != 0 or not proc.stdout:
-        tail = proc.stderr.decode(errors="replace").strip().splitlines()[-2:]
-        return SimResult({}, "failed", f"simulator process died with exit code "
-                         f"{proc.returncode}" + (f": {' | '.join(tail)}" if tail else ""))
-    return pickle.loads(proc.stdout)  # noqa: S301 (our own child's answer)
+    proc = subprocess.Popen(argv, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, start_new_session=True)
+    try:
+        proc.stdin.write(payload)
+        proc.stdin.close()
+        proc.stdin = None
+        ready = _wait_ready(proc, startup_timeout)
+        out, err = proc.communicate(timeout=timeout if ready else 0.1)
+    except subprocess.TimeoutExpired:
+        _kill_group(proc)
+        out, err = proc.communicate()
+        if ready:
+            return SimResult({}, "timeout", f"run exceeded its timeout of {timeout:g} s and "
+                             "was killed")
+    except BaseException:
+        _kill_group(proc)
+        proc.wait()
+        raise
+    if proc.returncode != 0 or not out:
+        tail = err.decode(errors="replace").strip().splitlines()[-2:]
+        what = "died" if ready else "did not start"
+        return SimResult({}, "failed", f"simulator process {what} (exit code "
+                         f"{proc.returncode})" + (f": {' | '.join(tail)}" if tail else ""))
+    return pickle.loads(out)  # noqa: S301 (our own child's answer)
+
+
+def _wait_ready(proc: subprocess.Popen, timeout: float) -> bool:
+    """Wait for the child's one-byte "ready" mark on stdout."""
+    fd = proc.stdout.fileno()
+    readable, _, _ = select.select([fd], [], [], timeout)
+    return bool(readable) and os.read(fd, 1) == _READY
+
+
+_READY = b"\x00"
 
 
 def child_main() -> None:
     """Entry point of :func:`call_in_child`'s process: pickle in on stdin, out on stdout."""
     path, sim, inputs = pickle.loads(sys.stdin.buffer.read())  # noqa: S301
     sys.path[:] = path
+    sys.stdout.buffer.write(_READY)
+    sys.stdout.buffer.flush()
     result = _guarded(lambda: sim(inputs))
     sys.stdout.buffer.write(pickle.dumps(result))
     sys.stdout.flush()
@@ -379,6 +411,15 @@ def _substitute(arg: str, values: Mapping[str, str]) -> str:
         return values[key]
 
     return _FIELD.sub(one, arg)
+
+
+def _check_template(argv: tuple[str, ...], names: tuple[str, ...]) -> None:
+    known = {*names, "input_json", "output_json", "workdir", "run"}
+    for arg in argv:
+        unknown = [k for k in _FIELD.findall(arg) if k not in known]
+        if unknown:
+            raise CampaignError(f"command argument '{arg}' names {{{unknown[0]}}}, which is "
+                                f"not an input, parameter or option; known: {sorted(known)}")
 
 
 def _resolve_program(argv: tuple[str, ...], network: Network) -> tuple[str, ...]:

@@ -21,8 +21,8 @@ finished_at        UNIX time the row was committed
 
 The database runs in WAL mode while a campaign writes; every finished run is committed on
 its own, so a killed campaign loses at most the runs in flight. When a campaign closes the
-store it is checkpointed back to a single file, so a finished store can be shipped and
-read from a read-only folder.
+store it is checkpointed back to a single file (unless another connection is reading it),
+so a finished store can be shipped and read from a read-only folder.
 """
 
 from __future__ import annotations
@@ -124,19 +124,19 @@ class RunStore:
     def __init__(self, path: str | Path, *, readonly: bool = False):
         self.path = Path(path)
         self.readonly = readonly
+        if readonly and not self.path.is_file():
+            raise CampaignError(f"no campaign store at '{self.path}'")
         if readonly:
-            if not self.path.is_file():
-                raise CampaignError(f"no campaign store at '{self.path}'")
-            uri = f"file:{self.path.resolve()}?mode=ro"
-            self._db = sqlite3.connect(uri, uri=True)
+            self._db = sqlite3.connect(f"file:{self.path.resolve()}?mode=ro", uri=True)
         else:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             self._db = sqlite3.connect(self.path, timeout=30)
-            self._db.execute("PRAGMA journal_mode=WAL")
-            self._db.execute("PRAGMA synchronous=NORMAL")
-            self._db.executescript(_SCHEMA)
         try:
-            self._db.execute("SELECT 1 FROM runs LIMIT 1")
+            if not readonly:
+                self._db.execute("PRAGMA journal_mode=WAL")
+                self._db.execute("PRAGMA synchronous=NORMAL")
+                self._db.executescript(_SCHEMA)
+            self._db.execute("SELECT idx, status FROM runs LIMIT 1")
         except sqlite3.DatabaseError as err:
             self._db.close()
             raise CampaignError(f"'{self.path}' is not a calnet campaign store ({err}); pass "
@@ -154,8 +154,11 @@ class RunStore:
             return
         if not self.readonly:
             self._db.commit()
-            self._db.execute("PRAGMA wal_checkpoint(TRUNCATE)")
-            self._db.execute("PRAGMA journal_mode=DELETE")
+            try:  # best effort: another reader may hold the WAL open, which is fine
+                self._db.execute("PRAGMA wal_checkpoint(TRUNCATE)")
+                self._db.execute("PRAGMA journal_mode=DELETE")
+            except sqlite3.OperationalError:
+                pass
         self._db.close()
         self._db = None
 

@@ -1,0 +1,41 @@
+"""A toy external simulator for the command-runner tests (run as a script).
+
+Modes (first argument):
+  json  IN OUT        read inputs from the JSON file IN, write outputs to the JSON file OUT
+  args  X A B         inputs as arguments, outputs as JSON on stdout
+  echo  TEXT OUT      write {"y": len(TEXT), "z": 0} and TEXT itself (to check quoting)
+  fail                exit with code 3 and a message on stderr
+  hang                sleep for a minute
+"""
+
+import json
+import sys
+import time
+
+
+def outputs(x: float, a: float, b: float) -> dict:
+    return {"y": x * x + a * x + b, "z": x - b}
+
+
+def main(argv: list[str]) -> None:
+    mode = argv[0]
+    if mode == "json":
+        inputs = json.loads(open(argv[1]).read())
+        with open(argv[2], "w") as fh:
+            json.dump(outputs(inputs["x"], inputs["a"], inputs["b"]), fh)
+    elif mode == "args":
+        print(json.dumps(outputs(*map(float, argv[1:4]))))
+    elif mode == "echo":
+        with open(argv[2], "w") as fh:
+            json.dump({"y": len(argv[1]), "z": 0.0}, fh)
+        with open(argv[2] + ".txt", "w") as fh:
+            fh.write(argv[1])
+    elif mode == "fail":
+        print("mesh generation failed", file=sys.stderr)
+        sys.exit(3)
+    elif mode == "hang":
+        time.sleep(60)
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])

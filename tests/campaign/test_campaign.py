@@ -1,0 +1,161 @@
+"""The driver and the store: resume, augment, failures, the read API, export."""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+import sys
+
+import numpy as np
+import pytest
+from conftest import store_rows, toy_network
+
+from calnet.campaign import default_store, export_runs, load_runs, run_campaign
+from calnet.campaign.store import RunStore
+from calnet.errors import CampaignError
+
+
+def test_campaign_stores_every_run_and_reads_back(tmp_path):
+    net = toy_network(tmp_path, runs=10)
+    summary = run_campaign(net, "toy", progress=False)
+    assert summary.store_path == default_store(net, "toy") == tmp_path / "campaigns/toy.sqlite"
+    assert (summary.planned, summary.ran, summary.skipped) == (10, 10, 0)
+    assert summary.status_counts == {"ok": 10} and summary.complete
+    table = load_runs(net, "toy")
+    assert table.columns == ("x", "a", "b")
+    assert table.X.shape == (10, 3) and set(table.Y) == {"y", "z"}
+    x, a, b = table.X.T
+    np.testing.assert_allclose(table.Y["y"], x * x + a * x + b)
+    assert (table.n_total, table.n_excluded) == (10, 0)
+    row = RunStore(summary.store_path, readonly=True).rows()[0]
+    assert row["simulator"] == "toy_sims:quadratic" and row["simulator_version"] == "toy-1"
+    assert row["seed"] == 0 and len(row["input_hash"]) == 64 and row["wall_time"] >= 0
+    assert not (tmp_path / "campaigns/toy.sqlite-wal").exists()
+
+
+def test_failures_are_recorded_and_excluded(tmp_path):
+    crashy = toy_network(tmp_path / "c", "python:toy_sims:crashy", runs=20)
+    summary = run_campaign(crashy, "toy", progress=False)
+    counts = summary.status_counts
+    assert counts["failed"] > 0 and counts["ok"] > 0 and sum(counts.values()) == 20
+    assert all("diverged" in m for m in summary.failures.values())
+    table = load_runs(crashy, "toy")
+    assert table.n_excluded == counts["failed"] and len(table.X) == counts["ok"]
+    assert (table.X[:, 0] <= 0.7).all()
+
+    nan = toy_network(tmp_path / "n", "python:toy_sims:nan_out", runs=20)
+    counts = run_campaign(nan, "toy", progress=False).status_counts
+    assert counts["failed"] > 0
+    assert np.isfinite(load_runs(nan, "toy").Y["y"]).all()
+
+
+def test_a_hanging_simulator_times_out_and_the_campaign_completes(tmp_path):
+    net = toy_network(tmp_path, "python:toy_sims:hangs", runs=5, timeout=1.0, x_upper=0.3)
+    summary = run_campaign(net, "toy", progress=False, workers=2)
+    assert summary.complete and summary.status_counts.get("timeout", 0) >= 1
+    assert summary.status_counts.get("ok", 0) >= 1
+    messages = [r["message"] for r in RunStore(summary.store_path, readonly=True).rows()
+                if r["status"] == "timeout"]
+    assert all("timeout of 1 s" in m for m in messages)
+
+
+def test_resume_skips_finished_and_reruns_in_flight(tmp_path):
+    net = toy_network(tmp_path, runs=8)
+    path = default_store(net, "toy")
+    run_campaign(net, "toy", progress=False)
+    with RunStore(path) as db:  # pretend runs 2 and 5 were in flight when a campaign died
+        db._db.execute("UPDATE runs SET status = NULL, outputs = NULL WHERE idx IN (2, 5)")
+        db._db.commit()
+        kept = {r["idx"]: r["finished_at"] for r in db.rows() if r["status"]}
+    summary = run_campaign(net, "toy", progress=False)
+    assert (summary.skipped, summary.ran, summary.rerun_in_flight) == (6, 2, 2)
+    after = {r["idx"]: r["finished_at"] for r in RunStore(path, readonly=True).rows()}
+    assert all(after[i] == t for i, t in kept.items())
+    again = run_campaign(net, "toy", progress=False)
+    assert (again.ran, again.skipped) == (0, 8)
+
+
+def test_more_runs_augment_the_design(tmp_path):
+    net = toy_network(tmp_path, runs=6)
+    run_campaign(net, "toy", progress=False)
+    before = store_rows(default_store(net, "toy"))
+    summary = run_campaign(net, "toy", runs=9, progress=False)
+    assert (summary.planned, summary.ran) == (9, 3)
+    after = store_rows(default_store(net, "toy"))
+    assert after[:6] == before
+    assert len({r[1] for r in after}) == 9  # no input hash repeated
+    with pytest.raises(CampaignError, match="already plans 9 runs"):
+        run_campaign(net, "toy", runs=4, progress=False)
+    assert run_campaign(net, "toy", progress=False).planned == 9  # the spec's 6 < 9
+
+
+def test_retry_failed_and_fresh(tmp_path):
+    net = toy_network(tmp_path, "python:toy_sims:crashy", runs=10)
+    first = run_campaign(net, "toy", progress=False)
+    retry = run_campaign(net, "toy", progress=False, retry_failed=True)
+    assert retry.ran == first.status_counts["failed"]
+    fresh = run_campaign(net, "toy", progress=False, fresh=True)
+    assert fresh.ran == 10 and fresh.skipped == 0
+
+
+def test_seed_zero_is_a_seed_and_a_store_keeps_its_seed(tmp_path):
+    net = toy_network(tmp_path, runs=4, seed=7)
+    a = run_campaign(net, "toy", progress=False, seed=0, store=tmp_path / "a.sqlite")
+    b = run_campaign(net, "toy", progress=False, store=tmp_path / "b.sqlite")
+    assert (a.seed, b.seed) == (0, 7)
+    assert store_rows(a.store_path) != store_rows(b.store_path)
+    with pytest.raises(CampaignError, match="made with seed 0, not 7; pass --seed 0"):
+        run_campaign(net, "toy", progress=False, store=a.store_path)
+
+
+def test_load_runs_errors_name_the_fix(tmp_path):
+    net = toy_network(tmp_path, runs=4)
+    with pytest.raises(CampaignError, match="run `calnet campaign .* --model toy` first"):
+        load_runs(net, "toy")
+    run_campaign(net, "toy", progress=False)
+    moved = toy_network(tmp_path, runs=4, x_upper=2.0)
+    with pytest.raises(CampaignError, match=r"bounds of 'x' changed from \[0.0, 1.0\] to "
+                                            r"\[0.0, 2.0\]\); re-simulate .*--fresh"):
+        load_runs(moved, "toy")
+    with pytest.raises(CampaignError, match="different 'toy' spec"):
+        run_campaign(moved, "toy", progress=False)
+    with pytest.raises(CampaignError, match="no model named 'nope'"):
+        load_runs(net, "nope")
+
+
+def test_not_a_store(tmp_path):
+    bad = tmp_path / "bad.sqlite"
+    bad.write_text("not a database" * 100)
+    with pytest.raises(CampaignError, match="not a calnet campaign store"):
+        RunStore(bad)
+
+
+def test_export_csv_and_parquet(tmp_path, monkeypatch):
+    import pandas as pd
+
+    net = toy_network(tmp_path, "python:toy_sims:crashy", runs=6)
+    path = run_campaign(net, "toy", progress=False).store_path
+    csv = export_runs(path, tmp_path / "out" / "toy.csv")
+    frame = pd.read_csv(csv)
+    assert list(frame.columns[:8]) == ["run", "status", "message", "x", "a", "b", "y", "z"]
+    table = load_runs(net, "toy")
+    ok = frame[frame.status == "ok"]
+    np.testing.assert_array_equal(ok[["x", "a", "b"]].to_numpy(), table.X)  # exact floats
+    meta = json.loads((tmp_path / "out" / "toy.meta.json").read_text())
+    assert meta["model"] == "toy" and meta["calnet_version"] and len(meta["model_hash"]) == 64
+    pq = pd.read_parquet(export_runs(path, tmp_path / "toy.parquet"))
+    assert pq.shape == frame.shape
+    monkeypatch.setitem(sys.modules, "pyarrow", None)
+    with pytest.raises(CampaignError, match="Parquet export needs pyarrow"):
+        export_runs(path, tmp_path / "again.parquet")
+    with pytest.raises(CampaignError, match=r"\*.csv or \*.parquet"):
+        export_runs(path, tmp_path / "toy.xlsx")
+
+
+def test_store_is_plain_sqlite(tmp_path):
+    net = toy_network(tmp_path, runs=3)
+    path = run_campaign(net, "toy", progress=False).store_path
+    with sqlite3.connect(path) as db:
+        status = [s for (s,) in db.execute("SELECT status FROM runs ORDER BY idx")]
+    db.close()
+    assert status == ["ok", "ok", "ok"]

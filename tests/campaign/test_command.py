@@ -1,0 +1,44 @@
+"""``calnet campaign``: the Typer command, as the CLI registers it."""
+
+from __future__ import annotations
+
+import typer
+from conftest import toy_spec
+from typer.testing import CliRunner
+
+from calnet.campaign.command import campaign
+from calnet.cli import user_errors
+
+app = typer.Typer()
+app.command("campaign")(user_errors(campaign))
+app.command("other")(lambda: None)  # two commands, so the app dispatches by name
+
+
+def test_command_runs_exports_and_resumes(tmp_path):
+    spec = toy_spec(tmp_path, "python:toy_sims:crashy", runs=8)
+    out = tmp_path / "runs.csv"
+    result = CliRunner().invoke(app, ["campaign", str(spec), "--model", "toy", "--export",
+                                      str(out), "--no-progress"])
+    assert result.exit_code == 0, result.output
+    assert "8 runs planned, 0 already finished, 8 run now" in result.output
+    assert out.is_file() and (tmp_path / "runs.meta.json").is_file()
+    again = CliRunner().invoke(app, ["campaign", str(spec), "--no-progress"])
+    assert "8 already finished, 0 run now" in again.output
+
+
+def test_command_errors_are_one_line(tmp_path):
+    spec = toy_spec(tmp_path)
+    result = CliRunner().invoke(app, ["campaign", str(spec), "--model", "nope"])
+    assert result.exit_code == 1
+    assert "no model named 'nope'" in result.output
+
+
+def test_command_is_import_light():
+    import subprocess
+    import sys
+
+    code = ("import sys, calnet.campaign.command; "
+            "print(any(m.split('.')[0] in ('dask', 'distributed', 'umbridge', 'scipy') "
+            "for m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.stdout.strip() == "False", out.stderr

@@ -1,0 +1,70 @@
+"""kill -9 of a running campaign, then resume: nothing finished is lost or repeated."""
+
+from __future__ import annotations
+
+import os
+import signal
+import sqlite3
+import subprocess
+import sys
+import time
+
+import pytest
+from conftest import store_rows, toy_spec
+
+from calnet.campaign import run_campaign
+from calnet.spec import load_spec
+
+RUNS = 40
+
+
+def _finished(path) -> dict[int, float]:
+    if not path.exists():
+        return {}
+    db = sqlite3.connect(path, timeout=5)
+    try:
+        return dict(db.execute("SELECT idx, finished_at FROM runs WHERE status IS NOT NULL"))
+    except sqlite3.OperationalError:  # the schema is not there yet
+        return {}
+    finally:
+        db.close()
+
+
+def _campaign(spec, store) -> list[str]:
+    return [sys.executable, "-m", "calnet.campaign", str(spec), "--model", "toy",
+            "--store", str(store), "--no-progress"]
+
+
+@pytest.mark.integration
+def test_kill_9_then_resume_equals_an_uninterrupted_run(tmp_path):
+    spec = toy_spec(tmp_path, "python:toy_sims:slow", runs=RUNS, seed=0)
+    store = tmp_path / "killed.sqlite"
+    proc = subprocess.Popen(_campaign(spec, store), stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, env=os.environ.copy())
+    try:
+        deadline = time.monotonic() + 90
+        while len(_finished(store)) < 8:
+            assert proc.poll() is None, proc.stdout.read().decode()
+            assert time.monotonic() < deadline, "campaign made no progress"
+            time.sleep(0.05)
+        os.kill(proc.pid, signal.SIGKILL)
+    finally:
+        proc.kill()
+        proc.wait()
+        proc.stdout.close()
+    assert proc.returncode == -signal.SIGKILL
+    before = _finished(store)
+    assert 8 <= len(before) < RUNS
+
+    resumed = subprocess.run(_campaign(spec, store), capture_output=True, text=True,
+                             timeout=120, env=os.environ.copy())
+    assert resumed.returncode == 0, resumed.stdout + resumed.stderr
+    assert f"{len(before)} already finished" in resumed.stdout
+    after = _finished(store)
+    assert len(after) == RUNS
+    assert all(after[i] == t for i, t in before.items())  # finished runs were not re-run
+
+    reference = run_campaign(load_spec(spec), "toy", progress=False,
+                             store=tmp_path / "uninterrupted.sqlite")
+    assert reference.ran == RUNS
+    assert store_rows(store) == store_rows(reference.store_path)

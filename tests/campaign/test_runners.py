@@ -1,0 +1,165 @@
+"""Simulator adapters: built-in, Python callable, external command, UM-Bridge."""
+
+from __future__ import annotations
+
+import math
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from conftest import HERE, toy_network
+
+from calnet.campaign.runners import execute_run, make_simulator
+from calnet.errors import CampaignError
+from calnet.spec import parse_spec
+
+POINT = {"x": 0.5, "a": 0.25, "b": -0.5}
+EXPECTED = {"y": 0.5 * 0.5 + 0.25 * 0.5 - 0.5, "z": 1.0}
+
+
+def _run(net, inputs=POINT, timeout=None, index=0):
+    model = net.model(net.order[0])
+    sim = make_simulator(net, model, workdir=Path(net.root) / "work")
+    return execute_run(sim, index, inputs, timeout, model.output_names)
+
+
+def test_builtin_solidification(tmp_path):
+    box = {"lower": 1.0, "upper": 2.0}
+    raw = {"models": {"solidification": {
+        "simulator": "builtin:solidification",
+        "inputs": {"S": {**box, "unit": "m/s"}, "G": {**box, "unit": "K/m"}},
+        "parameters": {"sigma": {**box, "unit": "J/cm^2"}, "M": {**box, "unit": "cm^4/(J s)"},
+                       "p_int": {**box, "unit": "cm^3/(J s)"}},
+        "outputs": {"lambda": {"unit": "um"}, "k_V": {}}}}}
+    net = parse_spec(raw, root=tmp_path)
+    model = net.model("solidification")
+    sim = make_simulator(net, model, workdir=tmp_path)
+    rec = execute_run(sim, 0, {"S": 0.3, "G": 1e7, "sigma": 2e-6, "M": 7.5, "p_int": 15000},
+                      None, model.output_names)
+    assert rec.status == "ok" and sim.name == "solidification" and sim.version
+    assert rec.outputs["lambda"] == pytest.approx(0.27, abs=0.01)
+
+
+def test_callable_gets_options(tmp_path):
+    spec = {"kind": "python", "target": "toy_sims:quadratic", "options": {"scale": 2.0}}
+    rec = _run(toy_network(tmp_path, spec))
+    assert rec.status == "ok"
+    assert rec.outputs["y"] == pytest.approx(2 * EXPECTED["y"])
+
+
+@pytest.mark.parametrize(("target", "inputs", "status", "message"), [
+    ("crashy", {**POINT, "x": 0.9}, "failed", "RuntimeError: solver diverged"),
+    ("nan_out", POINT, "failed", "non-finite outputs ['y']"),
+    ("nonconverged", {**POINT, "a": 0.1}, "nonconverged", "residual"),
+])
+def test_failures_are_results_not_exceptions(tmp_path, target, inputs, status, message):
+    rec = _run(toy_network(tmp_path, f"python:toy_sims:{target}"), inputs)
+    assert rec.status == status
+    assert message in rec.message
+
+
+def test_a_hung_call_is_killed_at_its_timeout(tmp_path):
+    net = toy_network(tmp_path, "python:toy_sims:hangs")
+    start = time.perf_counter()
+    rec = _run(net, {**POINT, "x": 0.1}, timeout=1.0)
+    assert rec.status == "timeout" and "timeout of 1 s" in rec.message
+    assert time.perf_counter() - start < 30
+    assert _run(net, POINT, timeout=30.0).outputs == pytest.approx(EXPECTED)
+
+
+def test_a_hard_crash_in_the_child_is_recorded(tmp_path):
+    rec = _run(toy_network(tmp_path, "python:toy_sims:dies"), {**POINT, "x": 0.95}, timeout=30)
+    assert rec.status == "failed" and "exit code 7" in rec.message
+
+
+def _command(*args, **kw):
+    return {"kind": "command", "argv": [sys.executable, str(HERE / "cmd_sim.py"), *args], **kw}
+
+
+def test_command_json_files_and_per_run_folder(tmp_path):
+    net = toy_network(tmp_path, _command("json", "{input_json}", "{output_json}"))
+    rec = _run(net, index=12)
+    assert rec.status == "ok" and rec.outputs == pytest.approx(EXPECTED)
+    assert (tmp_path / "work" / "run-00012" / "input.json").is_file()
+
+
+def test_command_args_and_stdout(tmp_path):
+    net = toy_network(tmp_path, _command("args", "{x}", "{a}", "{b}", input_mode="args",
+                                         output_mode="stdout"))
+    assert _run(net).outputs == pytest.approx(EXPECTED)
+
+
+def test_command_values_are_never_run_through_a_shell(tmp_path):
+    evil = "$(touch pwned); touch pwned2 && echo"
+    net = toy_network(tmp_path, _command("echo", "{label}", "{output_json}",
+                                         options={"label": evil}))
+    rec = _run(net)
+    assert rec.status == "ok"
+    folder = tmp_path / "work" / "run-00000"
+    assert (folder / "output.json.txt").read_text() == evil
+    assert not list(tmp_path.rglob("pwned*"))
+
+
+@pytest.mark.parametrize(("mode", "timeout", "status", "message"), [
+    ("fail", None, "failed", "exited with code 3: mesh generation failed"),
+    ("hang", 1.0, "timeout", "timeout of 1 s"),
+])
+def test_command_failures(tmp_path, mode, timeout, status, message):
+    net = toy_network(tmp_path, _command(mode, timeout=timeout) if timeout else _command(mode))
+    rec = _run(net)
+    assert rec.status == status and message in rec.message
+    assert rec.wall_time < 30
+
+
+def test_command_template_names_are_checked(tmp_path):
+    net = toy_network(tmp_path, _command("json", "{inptu_json}"))
+    with pytest.raises(CampaignError, match="names {inptu_json}"):
+        make_simulator(net, net.model("toy"), workdir=tmp_path)
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture
+def umbridge_url():
+    """A UM-Bridge server in a subprocess on a free loopback port; stopped at the end."""
+    import requests
+
+    port = _free_port()
+    proc = subprocess.Popen([sys.executable, str(HERE / "umbridge_server.py"), str(port)],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    url = f"http://127.0.0.1:{port}"
+    try:
+        deadline = time.monotonic() + 60
+        while True:
+            try:
+                with requests.get(f"{url}/Info", timeout=1) as response:
+                    if response.ok:
+                        break
+            except requests.ConnectionError:
+                pass
+            if proc.poll() is not None or time.monotonic() > deadline:
+                raise RuntimeError(f"UM-Bridge test server did not start: "
+                                   f"{proc.stderr.read().decode()[-500:]}")
+            time.sleep(0.1)
+        yield url
+    finally:
+        proc.terminate()
+        proc.wait(timeout=10)
+        proc.stderr.close()
+
+
+def test_umbridge_model(tmp_path, umbridge_url):
+    net = toy_network(tmp_path, {"kind": "umbridge", "url": umbridge_url, "model": "forward",
+                                 "options": {"scale": 3.0}})
+    rec = _run(net)
+    assert rec.status == "ok"
+    assert rec.outputs["y"] == pytest.approx(3 * EXPECTED["y"])
+    assert rec.outputs["z"] == pytest.approx(EXPECTED["z"])
+    assert not math.isnan(rec.wall_time)
