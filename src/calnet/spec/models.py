@@ -257,7 +257,7 @@ class CalibrationSettings(Frozen):
     mode: Literal["segmented", "joint"] = "segmented"
     plug: Literal["mode", "posterior"] = "posterior"
     emulator_variance: bool = True
-    upstream_draws: int = Field(50, ge=1, description="upstream draws propagated downstream")
+    upstream_draws: int = Field(16, ge=1, description="upstream draws propagated downstream")
 
 
 class Settings(Frozen):
