@@ -8,7 +8,7 @@ import sys
 
 import numpy as np
 import pytest
-from conftest import store_rows, toy_network
+from campaign_helpers import store_rows, toy_network
 
 from calnet.campaign import default_store, export_runs, load_runs, run_campaign
 from calnet.campaign.store import RunStore

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import typer
-from conftest import toy_spec
+from campaign_helpers import toy_spec
 from typer.testing import CliRunner
 
 from calnet.campaign.command import campaign

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import pytest
-from conftest import store_rows, toy_network
+from campaign_helpers import store_rows, toy_network
 
 from calnet.campaign import run_campaign
 from calnet.campaign.executors import make_executor

@@ -10,7 +10,7 @@ import sys
 import time
 
 import pytest
-from conftest import store_rows, toy_spec
+from campaign_helpers import store_rows, toy_spec
 
 from calnet.campaign import run_campaign
 from calnet.spec import load_spec
@@ -68,3 +68,27 @@ def test_kill_9_then_resume_equals_an_uninterrupted_run(tmp_path):
                              store=tmp_path / "uninterrupted.sqlite")
     assert reference.ran == RUNS
     assert store_rows(store) == store_rows(reference.store_path)
+
+
+@pytest.mark.integration
+def test_ctrl_c_keeps_finished_runs(tmp_path):
+    spec = toy_spec(tmp_path, "python:toy_sims:slow", runs=RUNS, seed=0)
+    store = tmp_path / "interrupted.sqlite"
+    proc = subprocess.Popen(_campaign(spec, store), stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True, env=os.environ.copy())
+    try:
+        deadline = time.monotonic() + 90
+        while len(_finished(store)) < 3:
+            assert proc.poll() is None and time.monotonic() < deadline
+            time.sleep(0.05)
+        proc.send_signal(signal.SIGINT)
+        output, _ = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+        proc.wait()
+    assert proc.returncode == 130, output
+    assert "finished work is kept" in output
+    kept = _finished(store)
+    assert 3 <= len(kept) < RUNS
+    summary = run_campaign(load_spec(spec), "toy", store=store, progress=False)
+    assert summary.skipped == len(kept) and summary.complete

@@ -10,7 +10,7 @@ import time
 from pathlib import Path
 
 import pytest
-from conftest import HERE, toy_network
+from campaign_helpers import HERE, toy_network
 
 from calnet.campaign.runners import execute_run, make_simulator
 from calnet.errors import CampaignError

@@ -117,14 +117,15 @@ class ProcessExecutor:
                 on_submit(task)
             pending[self._pool.submit(fn, *task)] = task
 
-    def close(self) -> None:
-        self._pool.shutdown(wait=True, cancel_futures=True)
+    def close(self, *, wait: bool = True) -> None:
+        self._pool.shutdown(wait=wait, cancel_futures=True)
 
     def __enter__(self):
         return self
 
-    def __exit__(self, *exc):
-        self.close()
+    def __exit__(self, kind, *exc):
+        # after an interrupt, do not wait for the runs in flight: they will be run again
+        self.close(wait=kind is None)
 
 
 class DaskExecutor:

@@ -1,0 +1,44 @@
+"""Helpers of the campaign tests: small networks around the toy simulators."""
+
+from __future__ import annotations
+
+import sqlite3
+from pathlib import Path
+
+import yaml
+
+HERE = Path(__file__).resolve().parent
+
+
+def toy_spec(folder: Path, simulator: str | dict = "python:toy_sims:quadratic", *,
+             runs: int = 12, timeout: float | None = None, seed: int = 0,
+             x_upper: float = 1.0) -> Path:
+    """Write a one-model spec (inputs x; parameters a, b; outputs y, z) and return it."""
+    model = {"simulator": simulator,
+             "inputs": {"x": {"lower": 0.0, "upper": x_upper}},
+             "parameters": {"a": {"lower": 0.0, "upper": 1.0}, "b": {"lower": -1.0, "upper": 1.0}},
+             "outputs": {"y": {}, "z": {}},
+             "campaign": {"runs": runs, **({"timeout": timeout} if timeout else {})}}
+    spec = {"name": "toy", "models": {"toy": model}, "settings": {"seed": seed}}
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / "network.yaml"
+    path.write_text(yaml.safe_dump(spec, sort_keys=False))
+    return path
+
+
+def store_rows(path: Path, *, drop=("wall_time", "started_at", "finished_at")) -> list[tuple]:
+    """Every row of a store, by index, without the columns that record time."""
+    with sqlite3.connect(f"file:{path}?mode=ro", uri=True) as db:
+        cur = db.execute("SELECT * FROM runs ORDER BY idx")
+        names = [d[0] for d in cur.description]
+        keep = [i for i, n in enumerate(names) if n not in drop]
+        rows = [tuple(r[i] for i in keep) for r in cur]
+    db.close()
+    return rows
+
+
+def toy_network(folder: Path, simulator: str | dict = "python:toy_sims:quadratic", **kw):
+    """Load the spec written by :func:`toy_spec`."""
+    from calnet.spec import load_spec
+
+    return load_spec(toy_spec(folder, simulator, **kw))
