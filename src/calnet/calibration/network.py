@@ -13,7 +13,6 @@ import warnings
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -102,7 +101,7 @@ def _term(network: Network, ds_name: str, emulator_variance: bool) -> TermSpec:
                     InverseGamma(disc.noise_prior.a, disc.noise_prior.b), emulator_variance)
 
 
-def _term_data(network: Network, data: ExperimentalData) -> tuple[dict, tuple[float, float]]:
+def term_data(network: Network, data: ExperimentalData) -> tuple[dict, tuple[float, float]]:
     ds = network.dataset(data.name)
     out = network.model(ds.observed_model).output(ds.observed_output)
     y = np.log(data.y) if out.transform == "log" else data.y
@@ -128,7 +127,7 @@ def build_network_logdensity(network: Network, surrogates: Surrogates, *,
     terms = tuple(_term(network, ds, emulator_variance) for ds in datasets)
     tdata, std = [], {}
     for ds_name, d in datasets.items():
-        td, std[ds_name] = _term_data(network, d)
+        td, std[ds_name] = term_data(network, d)
         tdata.append(td)
     spec = NetworkKOHSpec(plan, free_specs, tuple(sorted(upstream)), terms)
     gps = {k: s.gp for k, s in surrogates.items.items()}
@@ -242,9 +241,8 @@ def _segmented(network, surrogates, data, plan, seed, sampler, emu, plug, n_up, 
     n = max((v.shape[0] for v in theta.values()), default=0)
     for name in prior_only:  # prior draws stand in for models without data
         priors = [theta_prior(p) for p in network.model(name).parameters]
-        keys = jax.random.split(jax.random.PRNGKey(seed + 7919), len(priors))
-        theta[name] = np.stack([np.asarray(p.sample(k, (n,))) for p, k in zip(priors, keys,
-                                                                                strict=True)], 1)
+        prior_rng = np.random.default_rng([seed, 7919])
+        theta[name] = np.stack([np.asarray(p.sample(prior_rng, (n,))) for p in priors], 1)
     theta = {m: (v if v.shape[0] == n else v[rng.integers(0, v.shape[0], n)])
              for m, v in theta.items()}
     return _posterior(network, "segmented", plug, tuple(stages), theta, data, None,
@@ -286,7 +284,7 @@ def _posterior(network, mode, plug, stages, theta, data, ld, prior_only) -> Netw
         for ds in stage.datasets:
             hyper[ds] = {h: stage.draws(f"{h}_{ds}") for h in ("ell", "sd2", "se2")}
     for ds_name, d in data.items():
-        std[ds_name] = _term_data(network, d)[1]
+        std[ds_name] = term_data(network, d)[1]
     n = max((v.shape[0] for v in theta.values()), default=0)
     for ds, h in hyper.items():  # align hyperparameter draws with theta draws
         if n and next(iter(h.values())).shape[0] != n:

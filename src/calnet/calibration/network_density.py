@@ -129,12 +129,11 @@ class NetworkKOHSpec:
     def constrain(self, data, u):
         return self._unpack(u)[0]
 
-    def init(self, key, n_chains: int):
+    def init(self, seed, n_chains: int):
+        """Prior draws on the unconstrained scale, (n_chains, dim); seed: int or Generator."""
+        rng = np.random.default_rng(seed)
         priors = [pr for _, block in self._blocks() for pr in block]
-        keys = jax.random.split(key, max(len(priors), 1))
-        cols = [pr.sample_unconstrained(k, (n_chains,)) for pr, k in zip(priors, keys,
-                                                                         strict=False)]
-        return jnp.stack(cols, axis=1)
+        return np.stack([pr.sample_unconstrained(rng, (n_chains,)) for pr in priors], axis=1)
 
 
 @dataclass(frozen=True)
@@ -175,7 +174,7 @@ class NetworkLogDensity:
         return self.spec.constrain(self.data, u)
 
     def init(self, seed: int, n_chains: int):
-        return self.spec.init(jax.random.PRNGKey(seed), n_chains)
+        return self.spec.init(seed, n_chains)
 
 
 def standardise(y: np.ndarray) -> tuple[float, float]:

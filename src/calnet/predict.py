@@ -1,0 +1,179 @@
+"""Posterior prediction through the network, with an uncertainty budget (method.md §5).
+
+For new process settings the chain pushes them through the calibrated upstream surrogates
+to the observing model; for each posterior draw the KOH predictive is
+
+    E[y^P] = yhat(x^P) + C_d(x^P, X^E) [C_d(X^E, X^E) + s_eps^2 I]^-1 (Y^E - yhat(X^E))
+
+with variance from the discrepancy, the surrogate and the noise. The mixture over draws
+gives the predictive distribution; the variance is split into its sources.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+
+from calnet.calibration.network import NetworkPosterior  # noqa: E402
+from calnet.chain import ChainPlan  # noqa: E402
+from calnet.errors import CalnetError  # noqa: E402
+from calnet.spec import Network  # noqa: E402
+from calnet.surrogates.network import Surrogates  # noqa: E402
+
+Z95 = 1.959963984540054
+
+
+@dataclass(frozen=True)
+class Prediction:
+    """Posterior predictive of one data set's output at process settings ``x``.
+
+    Attributes
+    ----------
+    dataset, observes : str
+    input_keys : tuple of str
+        ``model.input`` of each column of ``x``.
+    x : ndarray (n, k)
+    mean, lower, upper : ndarray (n,)
+        Predictive mean and central 95 % interval of a new measurement, natural scale.
+    budget : dict of str -> ndarray (n,)
+        Variance contributions on the modelled, standardised scale, by source:
+        ``parameters``, ``emulator <model.output>`` (one per surrogate), ``discrepancy``,
+        ``noise``.
+    """
+
+    dataset: str
+    observes: str
+    input_keys: tuple[str, ...]
+    x: np.ndarray
+    mean: np.ndarray
+    lower: np.ndarray
+    upper: np.ndarray
+    budget: dict[str, np.ndarray] = field(default_factory=dict)
+
+    def shares(self) -> dict[str, float]:
+        """Average share of each source in the predictive variance (sums to 1)."""
+        total = sum(self.budget.values())
+        safe = np.where(total > 0, total, 1.0)
+        return {k: float(np.mean(v / safe)) for k, v in self.budget.items()}
+
+    def to_dict(self) -> dict:
+        return {"dataset": self.dataset, "observes": self.observes,
+                "inputs": list(self.input_keys), "x": self.x.tolist(),
+                "mean": self.mean.tolist(), "lower95": self.lower.tolist(),
+                "upper95": self.upper.tolist(),
+                "variance_shares": self.shares()}
+
+
+def _se(xa, xb, ell):
+    d2 = (xa[:, None, :] - xb[None, :, :]) ** 2
+    return jnp.exp(-0.5 * jnp.sum(d2 / ell**2, axis=-1))
+
+
+def _link_keys(plan: ChainPlan) -> tuple[str, ...]:
+    return tuple(dict.fromkeys(src[2] for m in plan.models for src in m.sources
+                               if src[0] == "output"))
+
+
+def _draw_moments(plan, gps, model, key, tr, xp_new, thetas, hyper, eps, emu):
+    """KOH predictive mean (m,) and variance parts for one posterior draw."""
+    x_e, m_e, v_e = plan.output(gps, model, key, tr["xp"], thetas)
+    x_p, m_p, v_p = plan.output(gps, model, key, xp_new, thetas, eps)
+    s = tr["y_sd"]
+    ue, up = plan.unit_inputs(model, x_e), plan.unit_inputs(model, x_p)
+    ell, sd2, se2 = hyper["ell"], hyper["sd2"], hyper["se2"]
+    K = sd2 * _se(ue, ue, ell) + jnp.diag(se2 + (v_e / s**2 if emu else 0.0) + 1e-10
+                                          + jnp.zeros(ue.shape[0]))
+    kpe = sd2 * _se(up, ue, ell)
+    L = jnp.linalg.cholesky(K)
+    resid = tr["y"] - (m_e - tr["y_mean"]) / s
+    w = jax.scipy.linalg.cho_solve((L, True), resid)
+    mean = (m_p - tr["y_mean"]) / s + kpe @ w
+    a = jax.scipy.linalg.solve_triangular(L, kpe.T, lower=True)
+    var_delta = jnp.maximum(sd2 - jnp.sum(a * a, axis=0), 0.0)
+    return mean, var_delta, v_p / s**2, se2 * jnp.ones_like(mean)
+
+
+def predict(network: Network, surrogates: Surrogates, posterior: NetworkPosterior,
+            dataset: str, x: np.ndarray, *, n_draws: int = 200, seed: int = 0,
+            n_samples: int = 20) -> Prediction:
+    """Posterior predictive of the output observed by ``dataset`` at process settings.
+
+    Parameters
+    ----------
+    x : array (n, k)
+        Process inputs, columns in the order of ``network.process_inputs(model)``.
+    n_draws : int
+        Posterior draws used (thinned evenly from the posterior).
+    n_samples : int
+        Predictive samples per draw used for the 95 % interval.
+    """
+    from calnet.calibration.network import term_data
+
+    ds = network.dataset(dataset)
+    if dataset not in posterior.hyper:
+        raise CalnetError(f"data set '{dataset}' was not calibrated; nothing to predict")
+    plan = ChainPlan.from_network(network)
+    gps = {k: s.gp for k, s in surrogates.items.items()}
+    keys = [f"{m}.{i}" for m, i in network.process_inputs(ds.observed_model)]
+    x = np.atleast_2d(np.asarray(x, dtype=float))
+    if x.shape[1] != len(keys):
+        raise CalnetError(f"predict: expected {len(keys)} process inputs {keys}, got "
+                          f"{x.shape[1]} columns")
+    xp_new = {k: jnp.asarray(x[:, j]) for j, k in enumerate(keys)}
+    tr, _ = term_data(network, posterior.data[dataset])
+    total = posterior.n_draws
+    idx = np.linspace(0, total - 1, min(n_draws, total)).astype(int)
+    thetas = {m: jnp.asarray(v[idx]) for m, v in posterior.theta.items()}
+    for m in plan.models:
+        if m.n_parameters == 0:
+            thetas[m.name] = jnp.zeros((len(idx), 0))
+    hyper = {h: jnp.asarray(v[idx]) for h, v in posterior.hyper[dataset].items()}
+    links = _link_keys(plan)
+    rng = np.random.default_rng(seed)
+    eps = {k: jnp.asarray(rng.standard_normal((len(idx), len(x)))) for k in links}
+    emu = network.settings.calibration.emulator_variance
+    model, key = ds.observed_model, ds.observes
+
+    def run(eps_on):
+        def one(th, hy, ep):
+            return _draw_moments(plan, gps, model, key, tr, xp_new, th, hy,
+                                 {k: ep[k] for k in eps_on}, emu)
+        return jax.jit(jax.vmap(one))(thetas, hyper, eps)
+
+    mean0, var_delta, var_emu, noise = (np.asarray(a) for a in run(()))
+    budget = {"parameters": mean0.var(axis=0)}
+    mean_all = mean0
+    for k in links:  # upstream emulator variance, one surrogate at a time
+        mean_k = np.asarray(run((k,))[0])
+        budget[f"emulator {k}"] = np.mean((mean_k - mean0) ** 2, axis=0)
+    if links:
+        mean_all = np.asarray(run(links)[0])
+    budget[f"emulator {key}"] = var_emu.mean(axis=0)
+    budget["discrepancy"] = var_delta.mean(axis=0)
+    budget["noise"] = noise.mean(axis=0)
+    sd = np.sqrt(var_delta + var_emu + noise)
+    z = rng.standard_normal((n_samples,) + mean_all.shape)
+    samples = (mean_all[None] + sd[None] * z).reshape(-1, len(x)) * tr["y_sd"] + tr["y_mean"]
+    if network.model(model).output(ds.observed_output).transform == "log":
+        samples = np.exp(samples)
+    lo, hi = np.percentile(samples, [2.5, 97.5], axis=0)
+    return Prediction(dataset, ds.observes, tuple(keys), x, samples.mean(axis=0), lo, hi,
+                      budget)
+
+
+def metrics(y: np.ndarray, mean: np.ndarray, lower: np.ndarray | None = None,
+            upper: np.ndarray | None = None) -> dict[str, float]:
+    """MAPE (%), SE_pred (= RMSE, method.md §5) and 95 % coverage of predictions."""
+    y, mean = np.asarray(y, float), np.asarray(mean, float)
+    out = {"n": int(len(y)), "mape": float(np.mean(np.abs(y - mean) / np.abs(y)) * 100),
+           "se_pred": float(np.sqrt(np.mean((y - mean) ** 2)))}
+    out["rmse"] = out["se_pred"]
+    if lower is not None and upper is not None:
+        out["coverage95"] = float(np.mean((y >= lower) & (y <= upper)))
+    return out
