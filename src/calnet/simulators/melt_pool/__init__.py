@@ -1,0 +1,119 @@
+"""M1, the built-in melt-pool thermal simulator (docs/physics.md, section M1).
+
+Steady 3D finite-volume conduction in the laser's frame with phase-dependent
+anisotropic conductivity, temperature-dependent absorptivity, latent heat through
+enthalpy advection and a 30 um powder layer; Newton with the exact Jacobian
+(Kirchhoff potentials), pseudo-transient continuation and AMG-preconditioned GMRES on
+a mesh fine around the pool and stretched outside.
+
+Examples
+--------
+>>> from calnet.simulators import melt_pool
+>>> res = melt_pool.simulate({"P": 150.0, "v": 0.8}, resolution=0.5)
+>>> res.status, sorted(res.outputs) == sorted(melt_pool.OUTPUTS)
+('ok', True)
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from calnet.simulators.base import SimResult
+from calnet.simulators.melt_pool.model import run
+from calnet.simulators.melt_pool.options import MeltPoolOptions
+
+NAME = "melt_pool"
+VERSION = "0.1.0"
+INPUTS = ("P", "v")
+PARAMETERS = ("K_S", "K_L", "K_Lz", "K_V", "K_Vz", "A_0", "A_max")
+OUTPUTS = ("D", "W", "L", "T0", "S0", "G0")
+UNITS: dict[str, str] = {
+    "P": "W", "v": "m/s",
+    "K_S": "W/(m K)", "K_L": "W/(m K)", "K_Lz": "1", "K_V": "W/(m K)",
+    "K_Vz": "1",  # a factor on K_V by default; W/(m K) with kvz_mode="absolute"
+    "A_0": "1", "A_max": "1",
+    "D": "um", "W": "um", "L": "um", "T0": "K", "S0": "m/s", "G0": "K/m",
+}
+BOUNDS: dict[str, tuple[float, float]] = {  # method.md section 1, reference study
+    "P": (80.0, 250.0), "v": (0.05, 2.0),
+    "K_S": (60.0, 100.0), "K_L": (100.0, 200.0), "K_Lz": (0.5, 1.5), "K_V": (5.0, 20.0),
+    "K_Vz": (1000.0, 2000.0), "A_0": (0.25, 0.4), "A_max": (0.6, 0.8),
+}
+
+__all__ = ["BOUNDS", "INPUTS", "NAME", "OUTPUTS", "PARAMETERS", "UNITS", "VERSION",
+           "MeltPoolOptions", "simulate"]
+
+
+def _check_inputs(inputs: Mapping[str, float]) -> tuple[float, float, dict[str, float]]:
+    unknown = sorted(set(inputs) - set(INPUTS) - set(PARAMETERS))
+    if unknown:
+        raise ValueError(f"melt_pool: unknown inputs {unknown}; expected {INPUTS} and "
+                         f"optionally {PARAMETERS}")
+    missing = [k for k in INPUTS if k not in inputs]
+    if missing:
+        raise ValueError(f"melt_pool: missing control inputs {missing}; pass P (W), v (m/s)")
+    values = {k: float(inputs[k]) for k in inputs}
+    bad = [k for k, x in values.items() if not math.isfinite(x) or x <= 0]
+    if bad:
+        raise ValueError(f"melt_pool: inputs {bad} must be finite and positive, got "
+                         f"{ {k: values[k] for k in bad} }")
+    theta = {k: values.get(k, 0.5 * sum(BOUNDS[k])) for k in PARAMETERS}
+    if theta["A_max"] < theta["A_0"] or theta["A_max"] >= 1:
+        raise ValueError(f"melt_pool: need A_0 <= A_max < 1, got A_0={theta['A_0']}, "
+                         f"A_max={theta['A_max']}")
+    return values["P"], values["v"], theta
+
+
+def simulate(inputs: Mapping[str, float], **options: Any) -> SimResult:
+    """Run the melt-pool model once.
+
+    Parameters
+    ----------
+    inputs : mapping of str to float
+        ``P`` (W) and ``v`` (m/s), and optionally any of :data:`PARAMETERS` (units in
+        :data:`UNITS`); missing parameters default to the middle of :data:`BOUNDS`.
+    **options
+        Keyword-only options, see :class:`MeltPoolOptions` (``resolution``,
+        ``absorptivity``, ``kvz_mode``, ``anisotropy``, ``rtol``, ``max_iter``, ...).
+
+    Returns
+    -------
+    SimResult
+        ``outputs`` ``D, W, L`` (um), ``T0`` (K), ``S0`` (m/s), ``G0`` (K/m); status
+        ``"ok"`` only if Newton converged and every output is finite, otherwise
+        ``"nonconverged"``/``"timeout"``/``"failed"`` with NaN outputs and a message.
+        ``diagnostics`` holds iterations, residual, mesh size, peak temperature, ...
+    """
+    opts = MeltPoolOptions.from_kwargs(**options)
+    P, v, theta = _check_inputs(inputs)
+    rec = run(P, v, theta, opts)
+    rep = rec.report
+    diag: dict[str, Any] = {
+        "converged": rep.converged, "iterations": rep.iterations,
+        "linear_iterations": rep.linear_iterations, "residual": rep.residual,
+        "last_update_K": rep.update, "n_cells": rec.mesh.size,
+        "mesh_shape": list(rec.mesh.shape), "remeshed": rec.remeshed,
+        "peak_temperature_K": float(np.max(rep.T)),
+        "absorptivity": rep.absorptivity, "surface_temperature_K": rep.surface_temperature,
+        "seconds": rec.seconds, "theta": theta, "options": opts.to_dict(),
+        "version": VERSION,
+    }
+    nan = {k: float("nan") for k in OUTPUTS}
+    if not rep.converged:
+        status = "timeout" if rep.reason == "time limit reached" else "nonconverged"
+        msg = (f"Newton did not converge: {rep.reason} after {rep.iterations} iterations "
+               f"(scaled residual {rep.residual:.2e}, last update {rep.update:.3g} K)")
+        return SimResult(nan, status, msg, diag)
+    g = rec.geometry
+    assert g is not None
+    outputs = {"D": g.D * 1e6, "W": g.W * 1e6, "L": g.L * 1e6, "T0": g.T0, "S0": g.S0,
+               "G0": g.G0}
+    bad = [k for k, x in outputs.items() if not math.isfinite(x)]
+    if bad:
+        return SimResult(outputs, "failed", f"converged, but outputs {bad} could not be "
+                         "extracted (no liquidus isotherm on the surface?)", diag)
+    return SimResult(outputs, "ok", "", diag).checked(OUTPUTS)

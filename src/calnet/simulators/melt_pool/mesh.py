@@ -1,0 +1,129 @@
+"""Nonuniform tensor-product mesh, fine around the pool and stretched outside.
+
+The pool region is sized from a quick Rosenthal estimate (:func:`estimate_pool`), or
+from a previous solution when the mesh is adapted. Domain (physics.md, M1): inflow face
+1.5 mm ahead of the beam, outflow 3.5 mm behind, half width 1.5 mm (``y >= 0``), depth
+powder layer + 1 mm substrate.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from calnet.simulators.materials import AlloyProperties
+
+X_AHEAD, X_BEHIND, Y_SIDE = 1.5e-3, 3.5e-3, 1.5e-3
+CELLS_PER_HALF_WIDTH = 9.0  # pool-region spacing h = min(W/2, D) / 9 at resolution 1
+STRETCH = 1.25  # far-field geometric growth ratio at resolution 1
+H_MIN, H_MAX = 1.5e-6, 12e-6  # bounds on the pool-region spacing (resolution 1)
+
+
+@dataclass(frozen=True)
+class PoolBox:
+    """Extent of the region meshed finely (m): ``x`` in ``[-tail, front]``, ``y`` in
+    ``[0, half_width]``, ``z`` in ``[0, depth]``, and the spacing ``h`` there."""
+
+    tail: float
+    front: float
+    half_width: float
+    depth: float
+    h: float
+
+
+@dataclass(frozen=True)
+class Mesh:
+    """Cell faces along each axis (m); ``z`` points down from the powder top."""
+
+    xf: np.ndarray
+    yf: np.ndarray
+    zf: np.ndarray
+    n_powder: int  # number of cell layers in the powder layer
+
+    @property
+    def shape(self) -> tuple[int, int, int]:
+        return (self.xf.size - 1, self.yf.size - 1, self.zf.size - 1)
+
+    @property
+    def size(self) -> int:
+        nx, ny, nz = self.shape
+        return nx * ny * nz
+
+    @staticmethod
+    def centres(f: np.ndarray) -> np.ndarray:
+        return 0.5 * (f[1:] + f[:-1])
+
+
+def estimate_pool(P: float, v: float, absorb: float, k: float, mat: AlloyProperties
+                  ) -> tuple[float, float, float]:
+    """Rosenthal point-source estimate of the liquidus pool: ``(tail, front, half_width)``.
+
+    ``T - T_inf = A P / (2 pi k R) exp(-v (R + x) / (2 alpha))`` (Rosenthal 1946).
+    """
+    alpha = k / (mat.rho * mat.cp_solid)
+    q = absorb * P / (2 * math.pi * k * (mat.T_liquidus - mat.T_ambient))
+    tail = q  # R at x = -R
+    lo, hi = 0.0, tail
+    for _ in range(60):  # front: q/R exp(-v R / alpha) = 1
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if q / mid * math.exp(-v * mid / alpha) > 1 else (lo, mid)
+    front = lo
+    x = np.linspace(-tail, front, 400)
+    R = np.maximum(np.abs(x), 1e-12)
+    lo_r, hi_r = R.copy(), np.full_like(R, tail)
+    for _ in range(60):  # largest R >= |x| on the isotherm, per x
+        mid = 0.5 * (lo_r + hi_r)
+        inside = np.log(q / mid) - v * (mid + x) / (2 * alpha) > 0
+        lo_r, hi_r = np.where(inside, mid, lo_r), np.where(inside, hi_r, mid)
+    half_width = float(np.sqrt(np.maximum(lo_r**2 - x**2, 0.0)).max())
+    return tail, front, half_width
+
+
+def pool_box(tail: float, front: float, half_width: float, depth: float, *,
+             resolution: float, beam_radius: float) -> PoolBox:
+    """Fine region around a pool of the given size, with margins."""
+    h = min(half_width, depth) / CELLS_PER_HALF_WIDTH
+    h = min(max(h, H_MIN), H_MAX) / resolution
+    return PoolBox(tail=1.15 * tail + 3 * h, front=max(front, beam_radius) + 3 * h,
+                   half_width=1.15 * half_width + 3 * h, depth=1.15 * depth + 3 * h, h=h)
+
+
+def _stretched(length: float, h0: float, ratio: float) -> np.ndarray:
+    """Spacings growing geometrically from about ``h0`` that sum exactly to ``length``."""
+    n = max(1, math.ceil(math.log(1 + length * (ratio - 1) / h0) / math.log(ratio)))
+    d = h0 * ratio ** np.arange(1, n + 1)
+    return d * (length / d.sum())
+
+
+def _axis(lo_len: float, fine_lo: float, fine_hi: float, hi_len: float, h: float,
+          ratio: float) -> np.ndarray:
+    """Faces on ``[-lo_len, hi_len]`` uniform (spacing ~h) on ``[-fine_lo, fine_hi]``."""
+    n = max(1, math.ceil((fine_lo + fine_hi) / h))
+    core = np.linspace(-fine_lo, fine_hi, n + 1)
+    hh = (fine_lo + fine_hi) / n
+    parts = [core]
+    if hi_len > fine_hi:
+        parts.append(fine_hi + np.cumsum(_stretched(hi_len - fine_hi, hh, ratio)))
+    if lo_len > fine_lo:
+        parts.insert(0, (-fine_lo - np.cumsum(_stretched(lo_len - fine_lo, hh, ratio)))[::-1])
+    return np.concatenate(parts)
+
+
+def build_mesh(box: PoolBox, mat: AlloyProperties, *, resolution: float,
+               powder: bool) -> Mesh:
+    """Tensor mesh for ``box``; the powder/substrate interface is a face."""
+    ratio = STRETCH ** (1.0 / resolution)
+    h = box.h
+    tail = min(box.tail, 0.8 * X_BEHIND)
+    front = min(box.front, 0.8 * X_AHEAD)
+    xf = _axis(X_BEHIND, tail, front, X_AHEAD, h, ratio)
+    yf = _axis(0.0, 0.0, min(box.half_width, 0.8 * Y_SIDE), Y_SIDE, h, ratio)
+    t_p = mat.powder_thickness if powder else 0.0
+    n_p = math.ceil(t_p / h) if powder else 0
+    zp = np.linspace(0.0, t_p, n_p + 1) if powder else np.zeros(1)
+    fine_sub = min(max(box.depth - t_p, h), 0.8 * mat.substrate_thickness)
+    zs = _axis(0.0, 0.0, fine_sub, mat.substrate_thickness, h, ratio)
+    zf = np.concatenate([zp, t_p + zs[1:]])
+    return Mesh(xf=xf, yf=yf, zf=zf, n_powder=n_p)

@@ -1,0 +1,127 @@
+"""One melt-pool run: parameters -> mesh -> Newton solve -> outputs (the driver).
+
+Pipeline: Rosenthal estimate -> :class:`~.mesh.Mesh` -> analytic initial field ->
+:func:`~.solver.newton_solve` -> :func:`~.outputs.extract`; if the computed pool left
+the finely meshed box (or is much smaller than assumed) the mesh is rebuilt around it
+once and the solve is warm-started from the interpolated field.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.interpolate import RegularGridInterpolator
+
+from calnet.simulators.materials import NI5NB, AlloyProperties
+from calnet.simulators.melt_pool.assembly import Discretization
+from calnet.simulators.melt_pool.mesh import Mesh, PoolBox, build_mesh, estimate_pool, pool_box
+from calnet.simulators.melt_pool.options import MeltPoolOptions
+from calnet.simulators.melt_pool.outputs import PoolGeometry, _outer_crossing, extract
+from calnet.simulators.melt_pool.properties import (
+    MaterialLaws,
+    absorptivity_of_temperature,
+    build_laws,
+)
+from calnet.simulators.melt_pool.solver import AbsorptivityLaw, SolveReport, newton_solve
+
+
+@dataclass(frozen=True)
+class RunRecord:
+    """Everything one run produced (internal; turned into a SimResult by ``simulate``)."""
+
+    geometry: PoolGeometry | None
+    report: SolveReport
+    mesh: Mesh
+    remeshed: int
+    seconds: float
+
+
+def _absorptivity(disc: Discretization, laws: MaterialLaws, theta: dict[str, float],
+                  opts: MeltPoolOptions, mat: AlloyProperties) -> AbsorptivityLaw:
+    def by_temperature(T: np.ndarray) -> tuple[float, np.ndarray | None, float]:
+        ts, dts = disc.surface_temperature(T, laws)
+        A, dA = absorptivity_of_temperature(ts, theta, mat, opts.w_absorb)
+        return float(A), dA * dts, ts
+
+    def by_keyhole(T: np.ndarray) -> tuple[float, np.ndarray | None, float]:
+        ts, _ = disc.surface_temperature(T, laws)
+        zc, yc = Mesh.centres(disc.mesh.zf), Mesh.centres(disc.mesh.yf)
+        T3 = T.reshape(disc.mesh.shape)
+        col = T3[:, 0, :] + (T3[:, 0, :] - T3[:, 1, :]) * yc[0] ** 2 / (yc[1] ** 2 - yc[0] ** 2)
+        depth = np.nan_to_num(_outer_crossing(col, zc, mat.T_boil), nan=0.0).max()
+        frac = min(1.0, depth / mat.beam_radius)
+        return theta["A_0"] + (theta["A_max"] - theta["A_0"]) * frac, None, ts
+
+    return AbsorptivityLaw(by_temperature if opts.absorptivity == "surface_temperature"
+                           else by_keyhole)
+
+
+def initial_field(mesh: Mesh, P: float, v: float, absorb: float, k: float,
+                  mat: AlloyProperties) -> np.ndarray:
+    """Rosenthal field with the source smeared over the beam radius, capped at ``T_b``."""
+    alpha = k / (mat.rho * mat.cp_solid)
+    X, Y, Z = np.meshgrid(*(Mesh.centres(a) for a in (mesh.xf, mesh.yf, mesh.zf)),
+                          indexing="ij")
+    R = np.sqrt(X**2 + Y**2 + Z**2 + (0.5 * mat.beam_radius) ** 2)
+    T = mat.T_ambient + absorb * P / (2 * math.pi * k * R) * np.exp(-v * (R + X) / (2 * alpha))
+    return np.minimum(T, mat.T_boil).ravel()
+
+
+def _box_from_geometry(g: PoolGeometry, opts: MeltPoolOptions, mat: AlloyProperties
+                       ) -> PoolBox:
+    return pool_box(-g.x_tail, max(g.x_front, 0.0), 0.5 * g.W, g.D,
+                    resolution=opts.resolution, beam_radius=mat.beam_radius)
+
+
+def _needs_remesh(g: PoolGeometry, box: PoolBox) -> bool:
+    if not all(np.isfinite([g.W, g.D, g.x_tail])):
+        return False
+    outside = (-g.x_tail > box.tail - 2 * box.h or 0.5 * g.W > box.half_width - 2 * box.h
+               or g.D > box.depth - 2 * box.h)
+    return outside or min(0.5 * g.W, g.D) < 0.6 * box.h * 9.0 * 1.0 and False
+
+
+def run(P: float, v: float, theta: dict[str, float], opts: MeltPoolOptions,
+        mat: AlloyProperties = NI5NB) -> RunRecord:
+    """Solve one case; see :func:`calnet.simulators.melt_pool.simulate`."""
+    start = time.monotonic()
+    deadline = None if opts.time_limit is None else start + opts.time_limit
+    a_mid = 0.5 * (theta["A_0"] + theta["A_max"])
+    k_est = math.sqrt(theta["K_S"] * theta["K_L"])
+    tail, front, half = estimate_pool(P, v, a_mid, k_est, mat)
+    box = pool_box(tail, front, half, half + mat.powder_thickness * opts.powder,
+                   resolution=opts.resolution, beam_radius=mat.beam_radius)
+    k_p = mat.k_powder if opts.k_powder is None else opts.k_powder
+    laws = build_laws(theta, mat, kvz_mode=opts.kvz_mode, anisotropy=opts.anisotropy,
+                      w_vapour=opts.w_vapour, k_powder=k_p)
+    mesh = build_mesh(box, mat, resolution=opts.resolution, powder=opts.powder)
+    T0 = initial_field(mesh, P, v, a_mid, k_est, mat)
+    remeshed, geometry = 0, None
+    while True:
+        disc = Discretization(mesh, mat, P, v)
+        report = newton_solve(disc, laws, T0, absorptivity=_absorptivity(disc, laws, theta,
+                              opts, mat), rtol=opts.rtol, ttol=opts.ttol,
+                              max_iter=opts.max_iter, max_update=opts.max_update,
+                              deadline=deadline)
+        if not report.converged:
+            break
+        geometry = extract(report.T, mesh, laws, v=v, T_liquidus=mat.T_liquidus)
+        if remeshed or not opts.adapt_mesh or not _needs_remesh(geometry, box):
+            break
+        box = _box_from_geometry(geometry, opts, mat)
+        new_mesh = build_mesh(box, mat, resolution=opts.resolution, powder=opts.powder)
+        T0 = _interpolate(report.T, mesh, new_mesh)
+        mesh, remeshed = new_mesh, remeshed + 1
+    return RunRecord(geometry if report.converged else None, report, mesh, remeshed,
+                     time.monotonic() - start)
+
+
+def _interpolate(T: np.ndarray, old: Mesh, new: Mesh) -> np.ndarray:
+    c_old = [Mesh.centres(a) for a in (old.xf, old.yf, old.zf)]
+    c_new = np.meshgrid(*(Mesh.centres(a) for a in (new.xf, new.yf, new.zf)), indexing="ij")
+    f = RegularGridInterpolator(c_old, T.reshape(old.shape), bounds_error=False, fill_value=None)
+    pts = np.stack([np.clip(c, o[0], o[-1]) for c, o in zip(c_new, c_old, strict=True)], -1)
+    return f(pts.reshape(-1, 3))

@@ -1,0 +1,103 @@
+"""Keyword-only options of the melt-pool simulator, with documented defaults.
+
+Choices that the reference study does not publish (docs/physics.md, *inferred*) are
+options here; the default is the form stated in physics.md.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, fields
+from typing import Any
+
+ABSORPTIVITY_LAWS = ("surface_temperature", "keyhole_depth")
+KVZ_MODES = ("factor", "absolute")
+ANISOTROPY_DIRECTIONS = ("vertical", "lateral")
+
+
+@dataclass(frozen=True)
+class MeltPoolOptions:
+    """Numerical and modelling options of :func:`calnet.simulators.melt_pool.simulate`.
+
+    Parameters
+    ----------
+    resolution : float, default 1.0
+        Mesh refinement factor: the pool-region spacing is divided by it and the far-field
+        stretching ratio is raised to ``1/resolution`` (``2.0`` halves every spacing).
+    absorptivity : {"surface_temperature", "keyhole_depth"}, default "surface_temperature"
+        ``A = A_0 + (A_max - A_0) 0.5 (1 + tanh((T_s - T_b)/w_A))`` with ``T_s`` the
+        reconstructed surface temperature at the beam centre, or the keyhole-depth form
+        ``A = A_0 + (A_max - A_0) min(1, d_v / r_0)`` (``d_v`` depth of the ``T_b`` isotherm).
+    kvz_mode : {"factor", "absolute"}, default "factor"
+        ``"factor"``: vapour z-conductivity ``K_Vz * K_V`` (physics.md table);
+        ``"absolute"``: ``K_Vz`` is the z-conductivity itself in W/(m K).
+    anisotropy : {"vertical", "lateral"}, default "vertical"
+        Which conductivity the factors ``K_Lz``/``K_Vz`` multiply: ``k_z`` (physics.md
+        table, keyhole-like downward conduction) or ``k_x = k_y``.
+    w_absorb : float, default 150.0
+        Width ``w_A`` (K) of the absorptivity switch.
+    w_vapour : float, default 75.0
+        Width ``w_v`` (K) of the vapour switch ``s_v``.
+    powder : bool, default True
+        Model the 30 um powder layer (False: dense substrate up to the top surface).
+    k_powder : float or None, default None
+        Powder conductivity (W/(m K)); None uses the material constant (1.0).
+    rtol : float, default 1e-6
+        Convergence when ``max|R| / (A P / 2) <= rtol`` (R in W per cell) and the last
+        temperature update is below ``ttol``.
+    ttol : float, default 0.05
+        Temperature-update tolerance (K).
+    max_iter : int, default 120
+        Newton iterations allowed over all continuation stages.
+    max_update : float, default 800.0
+        Cap on the largest temperature update per Newton step (K).
+    time_limit : float or None, default None
+        Wall-clock limit (s); exceeding it returns status ``"timeout"``.
+    adapt_mesh : bool, default True
+        Re-mesh once around the computed pool if it left the fine region.
+    """
+
+    resolution: float = 1.0
+    absorptivity: str = "surface_temperature"
+    kvz_mode: str = "factor"
+    anisotropy: str = "vertical"
+    w_absorb: float = 150.0
+    w_vapour: float = 75.0
+    powder: bool = True
+    k_powder: float | None = None
+    rtol: float = 1e-6
+    ttol: float = 0.05
+    max_iter: int = 120
+    max_update: float = 800.0
+    time_limit: float | None = None
+    adapt_mesh: bool = True
+
+    def __post_init__(self) -> None:
+        checks = [
+            ("absorptivity", self.absorptivity in ABSORPTIVITY_LAWS, ABSORPTIVITY_LAWS),
+            ("kvz_mode", self.kvz_mode in KVZ_MODES, KVZ_MODES),
+            ("anisotropy", self.anisotropy in ANISOTROPY_DIRECTIONS, ANISOTROPY_DIRECTIONS),
+        ]
+        for name, ok, allowed in checks:
+            if not ok:
+                raise ValueError(f"option {name}: expected one of {allowed}, "
+                                 f"got {getattr(self, name)!r}")
+        positive = ("resolution", "w_absorb", "w_vapour", "rtol", "ttol", "max_update")
+        for name in positive:
+            if not float(getattr(self, name)) > 0:
+                raise ValueError(f"option {name}: expected a positive number, "
+                                 f"got {getattr(self, name)!r}")
+        if int(self.max_iter) < 1:
+            raise ValueError(f"option max_iter: expected >= 1, got {self.max_iter!r}")
+
+    @classmethod
+    def from_kwargs(cls, **kwargs: Any) -> MeltPoolOptions:
+        """Build options, rejecting unknown names with the list of known ones."""
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(kwargs) - known)
+        if unknown:
+            raise TypeError(f"unknown melt_pool option(s) {unknown}; known: {sorted(known)}")
+        return cls(**kwargs)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-serialisable view (stored in the result diagnostics)."""
+        return asdict(self)

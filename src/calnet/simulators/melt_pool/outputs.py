@@ -1,0 +1,124 @@
+"""Melt-pool outputs on the liquidus isotherm (physics.md, M1 "Outputs").
+
+The surface field is reconstructed from the two top cell layers by extrapolating the
+vertical Kirchhoff potential ``Phi_z`` (linear in z); the symmetry plane ``y = 0`` by
+an even (quadratic in y) extrapolation. Isotherm positions are interpolated linearly
+between cell centres, and maxima over ``x`` are refined with a parabola through the
+three best columns, so outputs vary smoothly with the mesh.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from calnet.simulators.melt_pool.assembly import surface_weights
+from calnet.simulators.melt_pool.mesh import Mesh
+from calnet.simulators.melt_pool.properties import MaterialLaws
+
+
+@dataclass(frozen=True)
+class PoolGeometry:
+    """Outputs (SI units) and the pool extent used for mesh adaptation."""
+
+    D: float
+    W: float
+    L: float
+    T0: float
+    S0: float
+    G0: float
+    x_tail: float
+    x_front: float
+
+
+def surface_field(T3: np.ndarray, mesh: Mesh, laws: MaterialLaws) -> np.ndarray:
+    """Reconstructed surface temperature, shape ``(nx, ny)`` (K)."""
+    zc = Mesh.centres(mesh.zf)
+    w = surface_weights(zc[0], zc[1], even=False)
+    phi = w[0] * laws.phi_z(T3[:, :, 0])[0] + w[1] * laws.phi_z(T3[:, :, 1])[0]
+    return laws.phi_z.inverse(phi)
+
+
+def _symmetry_plane(F: np.ndarray, yc: np.ndarray) -> np.ndarray:
+    """Values at ``y = 0`` from the first two ``y`` columns (axis 1), even extrapolation."""
+    w = surface_weights(yc[0], yc[1], even=True)
+    return w[0] * F[:, 0] + w[1] * F[:, 1]
+
+
+def _outer_crossing(F: np.ndarray, s: np.ndarray, level: float) -> np.ndarray:
+    """Per row of ``F`` (rows, n), the largest ``s`` where ``F`` crosses ``level``.
+
+    Rows entirely below ``level`` give NaN; rows above it up to the end give ``s[-1]``.
+    """
+    above = F >= level
+    last = np.where(above.any(axis=1), F.shape[1] - 1 - np.argmax(above[:, ::-1], axis=1), -1)
+    out = np.full(F.shape[0], np.nan)
+    ok = (last >= 0) & (last < F.shape[1] - 1)
+    r = np.flatnonzero(ok)
+    a, b = F[r, last[r]], F[r, last[r] + 1]
+    out[r] = s[last[r]] + (a - level) / (a - b) * (s[last[r] + 1] - s[last[r]])
+    out[(last == F.shape[1] - 1)] = s[-1]
+    return out
+
+
+def _refined_max(x: np.ndarray, y: np.ndarray) -> float:
+    """Maximum of samples ``y(x)`` refined by a parabola through the best three."""
+    if not np.isfinite(y).any():
+        return float("nan")
+    i = int(np.nanargmax(y))
+    if i == 0 or i == y.size - 1 or not np.isfinite(y[i - 1 : i + 2]).all():
+        return float(y[i])
+    c = np.polyfit(x[i - 1 : i + 2] - x[i], y[i - 1 : i + 2], 2)
+    if c[0] >= 0:
+        return float(y[i])
+    return float(min(c[2] - c[1] ** 2 / (4 * c[0]), y[i] + abs(y[i] - y[i - 1])))
+
+
+def _crossing_1d(x: np.ndarray, f: np.ndarray, level: float) -> tuple[float, float]:
+    """Outermost ``x`` positions (low, high) where ``f(x) = level`` (NaN if none)."""
+    hot = np.flatnonzero(f >= level)
+    if hot.size == 0 or hot[0] == 0 or hot[-1] == f.size - 1:
+        return float("nan"), float("nan")
+    i, j = hot[0], hot[-1]
+    lo = x[i - 1] + (level - f[i - 1]) / (f[i] - f[i - 1]) * (x[i] - x[i - 1])
+    hi = x[j] + (f[j] - level) / (f[j] - f[j + 1]) * (x[j + 1] - x[j])
+    return float(lo), float(hi)
+
+
+def tail_gradient(T3: np.ndarray, mesh: Mesh, x_tail: float, half: int = 3
+                  ) -> tuple[float, float]:
+    """``(dT/dx, dT/dz)`` at ``(x_tail, 0, 0)`` by least squares over about +-3 cells.
+
+    Quadratic model ``a + b X + c Z + d X^2 + e Z^2 + f X Z + g Y^2`` (even in ``y``
+    by symmetry) fitted to the ``(2 half + 1) x half x half`` cells nearest the tail.
+    """
+    xc, yc, zc = (Mesh.centres(a) for a in (mesh.xf, mesh.yf, mesh.zf))
+    i0 = int(np.argmin(np.abs(xc - x_tail)))
+    ii = np.arange(max(i0 - half, 0), min(i0 + half + 1, xc.size))
+    X, Y, Z = np.meshgrid(xc[ii] - x_tail, yc[:half], zc[:half], indexing="ij")
+    scale = float(np.ptp(xc[ii])) or 1.0
+    X, Y, Z = X / scale, Y / scale, Z / scale
+    basis = np.stack([np.ones_like(X), X, Z, X**2, Z**2, X * Z, Y**2], axis=-1)
+    coef, *_ = np.linalg.lstsq(basis.reshape(-1, 7), T3[ii, :half, :half].ravel(), rcond=None)
+    return float(coef[1] / scale), float(coef[2] / scale)
+
+
+def extract(T: np.ndarray, mesh: Mesh, laws: MaterialLaws, *, v: float,
+            T_liquidus: float) -> PoolGeometry:
+    """Pool outputs from the cell temperatures ``T`` (n_cells,)."""
+    T3 = T.reshape(mesh.shape)
+    xc, yc, zc = (Mesh.centres(a) for a in (mesh.xf, mesh.yf, mesh.zf))
+    Ts = surface_field(T3, mesh, laws)
+    y_l = _outer_crossing(Ts, yc, T_liquidus)
+    W = 2 * _refined_max(xc, y_l)
+    z_l = _outer_crossing(_symmetry_plane(T3, yc), zc, T_liquidus)
+    D = _refined_max(xc, z_l)
+    line = _symmetry_plane(Ts, yc)
+    x_tail, x_front = _crossing_1d(xc, line, T_liquidus)
+    gx, gz = tail_gradient(T3, mesh, x_tail) if np.isfinite(x_tail) else (np.nan, np.nan)
+    G0 = float(np.hypot(gx, gz))
+    S0 = float(v * abs(gx) / G0) if G0 > 0 else float("nan")
+    T0 = float(np.max(line))
+    return PoolGeometry(D=D, W=W, L=x_front - x_tail, T0=T0, S0=S0, G0=G0,
+                        x_tail=x_tail, x_front=x_front)

@@ -1,0 +1,115 @@
+"""Newton iteration with pseudo-transient continuation and AMG-preconditioned GMRES.
+
+Each step solves ``(V rho c_eff / dt - J) dT = R`` (physics.md: exact Jacobian through
+Kirchhoff potentials, pseudo-transient continuation, temperature updates capped at
+``max_update``). The pseudo time step follows switched evolution relaxation,
+``dt_k = dt_(k-1) clip(2 |R_(k-1)| / |R_k|, 1/4, 4)``, so the iteration turns into plain Newton as the
+residual falls. The consolidation of the powder (a max over the upstream line) is
+lagged by one step and only grows (melted powder stays consolidated, as it would in a
+physical transient); convergence requires it to have stopped changing.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import pyamg
+import scipy.sparse as sp
+
+from calnet.simulators.melt_pool.assembly import Discretization
+from calnet.simulators.melt_pool.properties import MaterialLaws
+
+import os
+
+_DEBUG = bool(os.environ.get("CALNET_MELT_POOL_DEBUG"))
+DT0 = 2e-6  # s, first pseudo time step
+DT_MAX = 1.0  # s; beyond this the step is effectively Newton
+
+
+@dataclass(frozen=True)
+class SolveReport:
+    """Outcome of :func:`newton_solve`."""
+
+    T: np.ndarray  # (n_cells,) temperature (K)
+    converged: bool
+    reason: str
+    iterations: int
+    residual: float  # max |R| / (A P / 2)
+    update: float  # last max |dT| (K)
+    linear_iterations: int
+    absorptivity: float
+    surface_temperature: float
+
+
+@dataclass(frozen=True)
+class AbsorptivityLaw:
+    """``A`` and ``dA/dT`` on the reconstruction stencil (None: lagged) from ``T``."""
+
+    evaluate: Callable[[np.ndarray], tuple[float, np.ndarray | None, float]]
+
+
+def linear_solve(M: sp.csr_matrix, b: np.ndarray, *, rtol: float) -> tuple[np.ndarray, int]:
+    """Solve ``M x = b`` with GMRES preconditioned by classical (Ruge-Stuben) AMG.
+
+    ``M`` is an M-matrix (upwind advection, Kirchhoff conduction); classical AMG handles
+    its advection-dominated far field far better than smoothed aggregation (measured:
+    10 vs 50 GMRES iterations and 0.2 vs 2 s setup at 73k cells).
+    """
+    ml = pyamg.ruge_stuben_solver(M, max_coarse=400)
+    res: list[float] = []
+    x = ml.solve(b, tol=rtol, accel="gmres", maxiter=60, residuals=res)
+    return x, len(res)
+
+
+def newton_solve(disc: Discretization, laws: MaterialLaws, T0: np.ndarray, *,
+                 absorptivity: AbsorptivityLaw, rtol: float, ttol: float,
+                 max_iter: int, max_update: float, deadline: float | None
+                 ) -> SolveReport:
+    """Drive the residual to ``max|R| <= rtol * A P / 2`` from the initial field ``T0``."""
+    T = T0.copy()
+    rho_c = None
+    dt, r0_norm, upd, lin_total = DT0, None, np.inf, 0
+    dense = ~disc.powder_cells.ravel()
+    reason, it, rnorm = "iteration limit reached", 0, np.inf
+    A, Ts = np.nan, np.nan
+    for it in range(1, max_iter + 1):
+        if deadline is not None and time.monotonic() > deadline:
+            reason = "time limit reached"
+            break
+        new_dense = dense | disc.consolidated(T)  # melted powder stays consolidated
+        mask_changed = bool(np.any(new_dense != dense))
+        dense = new_dense
+        A, dA, Ts = absorptivity.evaluate(T)
+        R, J = disc.evaluate(T, dense, laws, A, dA)
+        rnorm = float(np.abs(R).max() / (A * disc.P / 2))
+        if not np.isfinite(rnorm):
+            reason = "non-finite residual"
+            break
+        if rnorm <= rtol and upd <= ttol and not mask_changed:
+            return SolveReport(T, True, "", it - 1, rnorm, upd, lin_total, A, Ts)
+        if r0_norm is not None:  # grow dt while the residual falls (SER-like)
+            dt = min(dt * float(np.clip(2.0 * r0_norm / rnorm, 0.25, 4.0)), DT_MAX)
+        r0_norm = rnorm
+        _, c = laws.enthalpy(T)
+        rho_c = disc.density(dense) * c
+        M = (sp.diags(disc.volume * rho_c / dt) - J).tocsr()
+        if _DEBUG and os.environ.get("CALNET_MELT_POOL_DUMP") and dt > 1e-2:
+            sp.save_npz("/tmp/mpool/M.npz", M)
+            np.save("/tmp/mpool/R.npy", R)
+        dT, n_lin = linear_solve(M, R, rtol=min(1e-3, max(1e-10, 0.1 * rnorm)))
+        lin_total += n_lin
+        big = float(np.abs(dT).max())
+        if not np.isfinite(big):
+            reason = "non-finite Newton update"
+            break
+        if big > max_update:
+            dT *= max_update / big
+        T = np.maximum(T + dT, 0.5 * disc.mat.T_ambient)
+        upd = min(big, max_update)
+        if _DEBUG:
+            print(f"it {it} r {rnorm:.3e} dt {dt:.2e} dT {big:.1f} lin {n_lin} A {A:.3f} "
+                  f"Ts {Ts:.0f} Tmax {T.max():.0f} mask {mask_changed}", flush=True)
+    return SolveReport(T, False, reason, it, rnorm, upd, lin_total, A, Ts)
