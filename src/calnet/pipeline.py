@@ -1,33 +1,191 @@
-"""``calnet run``: every stage in order, from the spec to the report."""
+"""``calnet run``: every stage in order, from the spec to the report.
+
+campaign (shipped store unless ``fresh``) -> surrogates -> calibration -> prediction and
+validation -> sensitivity -> process map -> report (HTML, metrics.json, posteriors, figures).
+"""
 
 from __future__ import annotations
 
-import importlib
+import time
+import warnings
 from pathlib import Path
 
+import numpy as np
 from rich.console import Console
+from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-from calnet.spec import load_spec
-from calnet.spec.describe import describe_network
+from calnet.errors import CalibrationWarning, CalnetError
+from calnet.spec import Network, load_spec, read_all
+from calnet.spec.models import SamplerSettings
 
-STAGES = (
-    ("campaign", "calnet.campaign"),
-    ("surrogates", "calnet.surrogates.network"),
-    ("calibration", "calnet.calibration.network"),
-    ("prediction", "calnet.predict"),
-    ("sensitivity", "calnet.sensitivity"),
-    ("report", "calnet.report"),
-)
+STAGES = ("campaign", "surrogates", "calibration", "prediction", "validation",
+          "sensitivity", "report")
+
+
+def _quick_sampler(s: SamplerSettings) -> SamplerSettings:
+    return s.model_copy(update={"warmup": min(s.warmup, 300), "draws": min(s.draws, 300),
+                                "thin": 1})
 
 
 def run_pipeline(spec: str | Path, *, out: Path, fresh: bool = False, quick: bool = False,
-                 console: Console | None = None) -> None:
-    """Validate ``spec`` and run the stages that exist, saying which do not yet."""
+                 console: Console | None = None, loo_max: int | None = None) -> dict:
+    """Run every stage on ``spec`` and write ``out/report.html`` and ``out/metrics.json``.
+
+    Parameters
+    ----------
+    fresh : bool
+        Re-simulate into ``out/campaigns`` instead of using the stores beside the spec.
+    quick : bool
+        Fewer draws, restarts and folds: a fast look (used by the tests).
+    loo_max : int, optional
+        Leave-one-out re-calibration only for data sets with at most this many points
+        (default 15; 12 with ``quick``).
+
+    Returns
+    -------
+    dict
+        The metrics written to ``metrics.json``.
+    """
     console = console or Console()
+    t_start = time.perf_counter()
     network = load_spec(spec)
-    describe_network(network, console)
-    for stage, module in STAGES:
-        try:
-            importlib.import_module(module)
-        except ImportError:
-            console.print(f"[yellow]stage '{stage}' is not available yet[/]")
+    out = Path(out)
+    for sub in ("figures", "posterior", "surrogates"):
+        (out / sub).mkdir(parents=True, exist_ok=True)
+    timings: dict[str, float] = {}
+    ctx = _Context(network, out, quick, fresh, loo_max if loo_max is not None
+                   else (12 if quick else 15))
+    columns = (TextColumn("[bold]{task.description}"), BarColumn(), TextColumn("{task.fields[note]}"),
+               TimeElapsedColumn())
+    with Progress(*columns, console=console, transient=False) as bar:
+        task = bar.add_task("calnet run", total=len(STAGES), note="")
+        for stage in STAGES:
+            bar.update(task, description=f"{stage}", note="")
+            t0 = time.perf_counter()
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always", CalibrationWarning)
+                getattr(ctx, stage)(lambda note: bar.update(task, note=note))
+            ctx.warnings += [str(w.message) for w in caught]
+            for w in caught:
+                warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+            timings[stage] = round(time.perf_counter() - t0, 2)
+            bar.advance(task)
+    timings["total"] = round(time.perf_counter() - t_start, 2)
+    ctx.metrics["timings_s"] = timings
+    from calnet.report.build import write_outputs
+
+    write_outputs(ctx)
+    console.print(f"report: {out / 'report.html'}  metrics: {out / 'metrics.json'}  "
+                  f"total wall time {timings['total']:.1f} s")
+    return ctx.metrics
+
+
+class _Context:
+    """What the stages pass to each other (mutable only here, at the edge)."""
+
+    def __init__(self, network: Network, out: Path, quick: bool, fresh: bool, loo_max: int):
+        self.network, self.out, self.quick, self.fresh, self.loo_max = (
+            network, out, quick, fresh, loo_max)
+        self.seed = network.settings.seed
+        self.metrics: dict = {"network": network.name, "quick": quick}
+        self.warnings: list[str] = []
+        self.data = read_all(network)
+        self.stores: dict[str, Path] = {}
+        self.figures: dict[str, Path] = {}
+        self.sampler = (_quick_sampler(network.settings.sampler) if quick
+                        else network.settings.sampler)
+
+    # ------------------------------------------------------------ stages
+    def campaign(self, note) -> None:
+        from calnet.campaign import default_store, load_runs, run_campaign
+
+        summary = {}
+        for name in self.network.order:
+            if not self.network.needed_outputs(name):
+                continue
+            store = (self.out / "campaigns" / f"{name}.sqlite" if self.fresh
+                     else default_store(self.network, name))
+            if self.fresh or not Path(store).exists():
+                note(f"simulating {name}")
+                Path(store).parent.mkdir(parents=True, exist_ok=True)
+                run_campaign(self.network, name, store=store, progress=True)
+            runs = load_runs(self.network, name, store=store)
+            self.stores[name] = Path(store)
+            summary[name] = {"store": str(store), "n_total": runs.n_total,
+                             "n_excluded": runs.n_excluded,
+                             "status_counts": dict(runs.status_counts)}
+        self.metrics["campaigns"] = summary
+
+    def surrogates(self, note) -> None:
+        from calnet.surrogates.network import fit_surrogates
+        from calnet.surrogates.plots import parity_plot
+
+        self.sur = fit_surrogates(self.network, stores=self.stores, seed=self.seed,
+                                  restarts=2 if self.quick else None,
+                                  cv_folds=5 if self.quick else None, progress=note)
+        self.sur.save(self.out / "surrogates")
+        for key, s in self.sur.items.items():
+            if s.cv is not None:
+                unit = self.network.model(s.model).output(s.output).unit
+                self.figures[f"cv {key}"] = parity_plot(
+                    s.cv, self.out / "figures" / f"cv_{key}.png", units=unit)
+        self.metrics["surrogates"] = self.sur.summary()
+
+    def calibration(self, note) -> None:
+        from calnet.calibration.network import calibrate
+
+        train = {k: v.train for k, v in self.data.items()}
+        self.post = calibrate(self.network, self.sur, data=train, seed=self.seed,
+                              sampler=self.sampler, progress=note)
+        for stage in self.post.stages:
+            stage.idata.to_netcdf(str(self.out / "posterior" / f"{'+'.join(stage.models)}.nc"))
+
+    def prediction(self, note) -> None:
+        from calnet.predict import predict
+
+        self.predictions = {}
+        for name, d in self.data.items():
+            note(name)
+            self.predictions[name] = predict(self.network, self.sur, self.post, name, d.x,
+                                             seed=self.seed)
+
+    def validation(self, note) -> None:
+        from calnet.predict import metrics
+        from calnet.validation import baselines, leave_one_out
+
+        out = {}
+        for name, d in self.data.items():
+            pred = self.predictions[name]
+            entry = {"train": metrics(d.y[~d.is_test], pred.mean[~d.is_test],
+                                      pred.lower[~d.is_test], pred.upper[~d.is_test])}
+            if d.is_test.any():
+                entry["test"] = metrics(d.test.y, pred.mean[d.is_test], pred.lower[d.is_test],
+                                        pred.upper[d.is_test])
+                entry["baselines_test"] = baselines(self.network, d.train, d.test,
+                                                    seed=self.seed)
+            if len(d.y) <= self.loo_max:
+                note(f"leave-one-out {name}")
+                entry["loo"] = leave_one_out(
+                    self.network, self.sur, self.post, d, sampler=self.sampler,
+                    seed=self.seed, progress=lambda i, n, nm=name: note(f"LOO {nm} {i + 1}/{n}"))
+            else:
+                entry["loo"] = {"skipped": f"{len(d.y)} points > loo_max {self.loo_max}"}
+            entry["variance_shares"] = self.predictions[name].shares()
+            out[name] = entry
+        self.metrics["validation"] = out
+
+    def sensitivity(self, note) -> None:
+        from calnet.report.build import sensitivity_and_maps
+
+        sensitivity_and_maps(self, note)
+
+    def report(self, note) -> None:
+        note("figures")
+
+
+def require(condition: bool, message: str) -> None:
+    if not condition:
+        raise CalnetError(message)
+
+
+__all__ = ["STAGES", "run_pipeline", "np"]

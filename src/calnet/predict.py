@@ -55,6 +55,7 @@ class Prediction:
     lower: np.ndarray
     upper: np.ndarray
     budget: dict[str, np.ndarray] = field(default_factory=dict)
+    prob: np.ndarray | None = None
 
     def shares(self) -> dict[str, float]:
         """Average share of each source in the predictive variance (sums to 1)."""
@@ -101,7 +102,8 @@ def _draw_moments(plan, gps, model, key, tr, xp_new, thetas, hyper, eps, emu):
 
 def predict(network: Network, surrogates: Surrogates, posterior: NetworkPosterior,
             dataset: str, x: np.ndarray, *, n_draws: int = 200, seed: int = 0,
-            n_samples: int = 20) -> Prediction:
+            n_samples: int = 20,
+            within: tuple[float | None, float | None] | None = None) -> Prediction:
     """Posterior predictive of the output observed by ``dataset`` at process settings.
 
     Parameters
@@ -112,6 +114,9 @@ def predict(network: Network, surrogates: Surrogates, posterior: NetworkPosterio
         Posterior draws used (thinned evenly from the posterior).
     n_samples : int
         Predictive samples per draw used for the 95 % interval.
+    within : (lower, upper), optional
+        Also return the probability that a new measurement lies in this range (either
+        end may be None).
     """
     from calnet.calibration.network import term_data
 
@@ -163,8 +168,16 @@ def predict(network: Network, surrogates: Surrogates, posterior: NetworkPosterio
     if network.model(model).output(ds.observed_output).transform == "log":
         samples = np.exp(samples)
     lo, hi = np.percentile(samples, [2.5, 97.5], axis=0)
+    prob = None
+    if within is not None:
+        ok = np.ones(samples.shape, dtype=bool)
+        if within[0] is not None:
+            ok &= samples >= within[0]
+        if within[1] is not None:
+            ok &= samples <= within[1]
+        prob = ok.mean(axis=0)
     return Prediction(dataset, ds.observes, tuple(keys), x, samples.mean(axis=0), lo, hi,
-                      budget)
+                      budget, prob)
 
 
 def metrics(y: np.ndarray, mean: np.ndarray, lower: np.ndarray | None = None,

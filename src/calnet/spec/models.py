@@ -260,8 +260,28 @@ class CalibrationSettings(Frozen):
     upstream_draws: int = Field(16, ge=1, description="upstream draws propagated downstream")
 
 
+class Criterion(Frozen):
+    """A specification an output must meet (for the process map): lower <= y <= upper."""
+
+    lower: float | None = None
+    upper: float | None = None
+
+    @model_validator(mode="after")
+    def _some_bound(self) -> Criterion:
+        if self.lower is None and self.upper is None:
+            raise ValueError("a criterion needs 'lower', 'upper' or both")
+        if self.lower is not None and self.upper is not None and self.lower >= self.upper:
+            raise ValueError(f"lower ({self.lower:g}) must be smaller than upper "
+                             f"({self.upper:g})")
+        return self
+
+
 class Settings(Frozen):
-    """Network-wide settings; every field has a documented default."""
+    """Network-wide settings; every field has a documented default.
+
+    ``criteria`` maps a data set name to the range its output should meet; the report's
+    process map shows the probability of meeting it over the process inputs.
+    """
 
     seed: int = Field(0, ge=0)
     strict: bool = False
@@ -269,6 +289,7 @@ class Settings(Frozen):
     surrogate: SurrogateSettings = Field(default_factory=SurrogateSettings)
     sampler: SamplerSettings = Field(default_factory=SamplerSettings)
     calibration: CalibrationSettings = Field(default_factory=CalibrationSettings)
+    criteria: dict[str, Criterion] = Field(default_factory=dict)
 
 
 def named_mapping_to_list(value: Any) -> Any:
@@ -288,7 +309,7 @@ def named_mapping_to_list(value: Any) -> Any:
 
 
 __all__ = [
-    "CalibrationSettings", "CampaignSettings", "Dataset", "DiscrepancySettings", "Link",
+    "CalibrationSettings", "CampaignSettings", "Criterion", "Dataset", "DiscrepancySettings", "Link",
     "Model", "Name", "SamplerSettings", "Settings", "SimulatorRef", "Split",
     "SurrogateSettings",
 ]

@@ -67,6 +67,10 @@ class Network(Frozen):
         self.order  # noqa: B018  (raises on a cycle)
         for i, ds in enumerate(self.data):
             self._check_dataset(i, ds)
+        for name in self.settings.criteria:
+            if name not in {d.name for d in self.data}:
+                raise ValueError(f"settings.criteria: no data set named '{name}'; known: "
+                                 f"{[d.name for d in self.data]}")
         return self
 
     def _check_link(self, i: int, link: Link) -> None:

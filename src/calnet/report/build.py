@@ -1,0 +1,282 @@
+"""Assemble ``calnet run``'s outputs: sensitivity, maps, figures, report.html, metrics.json."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from calnet.report.html import Section, Table, fmt, write_report
+from calnet.report.metrics import write_metrics
+from calnet.report.reference import reference_rows
+
+GRID = 30
+
+
+def _process_box(ctx, name):
+    """Bounds of the data set's process inputs over its data (the working region)."""
+    d = ctx.data[name]
+    lo, hi = d.x.min(axis=0), d.x.max(axis=0)
+    span = np.where(hi > lo, hi - lo, np.abs(hi) * 0.1 + 1e-9)
+    return np.column_stack([lo - 0.02 * span, hi + 0.02 * span])
+
+
+def _mean_fn(ctx, name, idx):
+    """Vectorised posterior predictive mean over draws ``idx`` (natural scale)."""
+    import jax
+    import jax.numpy as jnp
+
+    from calnet.calibration.network import term_data
+    from calnet.chain import ChainPlan
+    from calnet.predict import _draw_moments
+
+    net, post = ctx.network, ctx.post
+    ds = net.dataset(name)
+    plan = ChainPlan.from_network(net)
+    gps = {k: s.gp for k, s in ctx.sur.items.items()}
+    tr, _ = term_data(net, post.data[name])
+    thetas = {m: jnp.asarray(v[idx]) for m, v in post.theta.items()}
+    for m in plan.models:
+        if m.n_parameters == 0:
+            thetas[m.name] = jnp.zeros((len(idx), 0))
+    hyper = {h: jnp.asarray(v[idx]) for h, v in post.hyper[name].items()}
+    keys = [f"{m}.{i}" for m, i in net.process_inputs(ds.observed_model)]
+    log = net.model(ds.observed_model).output(ds.observed_output).transform == "log"
+
+    @jax.jit
+    def f(x):
+        xp = {k: x[:, j] for j, k in enumerate(keys)}
+        one = lambda th, hy: _draw_moments(plan, gps, ds.observed_model, ds.observes, tr,  # noqa: E731
+                                           xp, th, hy, {}, False)[0]
+        z = jax.vmap(one)(thetas, hyper) * tr["y_sd"] + tr["y_mean"]
+        return jnp.mean(jnp.exp(z) if log else z, axis=0)
+
+    return lambda x: np.asarray(f(jnp.asarray(x, dtype=float)))
+
+
+def sensitivity_and_maps(ctx, note) -> None:
+    """Sobol indices (with spread over posterior draws) and (P, v) maps per data set."""
+    from calnet.predict import predict
+    from calnet.report import figures
+    from calnet.sensitivity import sobol_indices, sobol_over_draws
+
+    n_base = 128 if ctx.quick else 512
+    sens, maps = {}, {}
+    total = ctx.post.n_draws
+    for name, d in ctx.data.items():
+        note(f"Sobol {name}")
+        box = _process_box(ctx, name)
+        names = [k.split(".")[1] for k in d.input_keys]
+        idx = np.linspace(0, total - 1, min(50, total)).astype(int)
+        res = sobol_indices(_mean_fn(ctx, name, idx), box, names=names, n_base=n_base,
+                            n_bootstrap=100, seed=ctx.seed)
+        draws = np.linspace(0, total - 1, 5 if ctx.quick else 20).astype(int)
+        spread = sobol_over_draws(lambda i, nm=name: _mean_fn(ctx, nm, np.array([i])), draws,
+                                  box, names=names, n_base=n_base // 2, seed=ctx.seed)
+        sens[name] = {"indices": res.to_dict(), "over_draws": spread.to_dict(),
+                      "box": box.tolist()}
+        ctx.figures[f"sobol {name}"] = figures.sobol_bars(
+            names, res.S1, res.S1_conf, res.ST, res.ST_conf,
+            ctx.out / "figures" / f"sobol_{name}.png", f"Sobol indices: {d.observes}")
+        if d.x.shape[1] != 2:
+            continue
+        note(f"map {name}")
+        g0, g1 = (np.linspace(box[j, 0], box[j, 1], GRID) for j in range(2))
+        mesh = np.array(np.meshgrid(g0, g1)).reshape(2, -1).T
+        crit = ctx.network.settings.criteria.get(name)
+        within = (crit.lower, crit.upper) if crit else None
+        pred = predict(ctx.network, ctx.sur, ctx.post, name, mesh, n_draws=60, seed=ctx.seed,
+                       n_samples=10, within=within)
+        out = ctx.network.model(d.observes.split(".")[0]).output(d.observes.split(".")[1])
+        points = np.column_stack([d.x[:, 0], d.x[:, 1]])
+        ctx.figures[f"map {name}"] = figures.predictive_map(
+            g0, g1, pred.mean.reshape(GRID, GRID), ctx.out / "figures" / f"map_{name}.png",
+            d.observes, out.unit, points=points)
+        maps[name] = {"P": g0.tolist(), "v": g1.tolist(),
+                      "mean": pred.mean.reshape(GRID, GRID).tolist()}
+        if pred.prob is not None:
+            label = f"P({crit.lower} <= {d.observes} <= {crit.upper})"
+            ctx.figures[f"process {name}"] = figures.process_map(
+                g0, g1, pred.prob.reshape(GRID, GRID),
+                ctx.out / "figures" / f"process_{name}.png", label, points=points)
+            maps[name].update(criterion={"lower": crit.lower, "upper": crit.upper},
+                              probability=pred.prob.reshape(GRID, GRID).tolist())
+    ctx.metrics["sensitivity"] = sens
+    ctx.metrics["maps"] = maps
+
+
+def posterior_summary(ctx) -> dict:
+    """Per model: range, mode (KDE), mean, sd, 95 % interval, R-hat, ESS, divergences."""
+    import arviz as az
+
+    from calnet.calibration.network import kde_mode
+
+    out = {}
+    for stage in ctx.post.stages:
+        post = stage.idata.posterior
+        rhat, ess_b, ess_t = az.rhat(post), az.ess(post, method="bulk"), az.ess(post, method="tail")
+        div = int(np.asarray(stage.idata.sample_stats["diverging"]).sum())
+        for model in stage.models:
+            m = ctx.network.model(model)
+            var = f"theta_{model}"
+            if var not in post:
+                continue
+            draws = ctx.post.theta[model]
+            rows = {}
+            for j, p in enumerate(m.parameters):
+                sel = {f"{model}_parameter": p.name}
+                rows[p.name] = {
+                    "unit": p.unit, "lower": p.lower, "upper": p.upper,
+                    "mode": kde_mode(draws[:, j]), "mean": float(draws[:, j].mean()),
+                    "sd": float(draws[:, j].std()),
+                    "q2.5": float(np.percentile(draws[:, j], 2.5)),
+                    "q97.5": float(np.percentile(draws[:, j], 97.5)),
+                    "rhat": float(rhat[var].sel(sel)), "ess_bulk": float(ess_b[var].sel(sel)),
+                    "ess_tail": float(ess_t[var].sel(sel))}
+            all_rhat = max(float(rhat[v].max()) for v in post.data_vars)
+            all_ess = min(float(ess_b[v].min()) for v in post.data_vars)
+            out[model] = {"parameters": rows, "divergences": div, "max_rhat": all_rhat,
+                          "min_ess_bulk": all_ess, "stage": "+".join(stage.models),
+                          "datasets": list(stage.datasets),
+                          "sampling_time_s": float(stage.idata.attrs.get("sampling_time", 0)),
+                          "compile_time_s": float(stage.idata.attrs.get("compile_time", 0))}
+    for model in ctx.post.prior_only:
+        out[model] = {"prior_only": True}
+    return out
+
+
+def _prior_panels(ctx, model, summary):
+    from calnet.calibration.network import theta_prior
+
+    m = ctx.network.model(model)
+    panels = []
+    for j, p in enumerate(m.parameters):
+        xs = np.linspace(p.lower, p.upper, 200)
+        ys = np.exp(np.asarray(theta_prior(p).log_prob(xs)))
+        panels.append({"name": p.name, "unit": p.unit, "lower": p.lower, "upper": p.upper,
+                       "prior_pdf_x": xs, "prior_pdf_y": ys,
+                       "posterior_samples": ctx.post.theta[model][:, j],
+                       "mode": summary["parameters"][p.name]["mode"]})
+    return panels
+
+
+def write_outputs(ctx) -> None:
+    """Figures, report.html and metrics.json for a finished run."""
+    from calnet.report import figures
+
+    net, out = ctx.network, ctx.out
+    summary = posterior_summary(ctx)
+    ctx.metrics["calibration"] = {"mode": ctx.post.mode, "plug": ctx.post.plug,
+                                  "sampler": ctx.sampler.model_dump(), "models": summary}
+    ctx.metrics["predictions"] = {k: p.to_dict() for k, p in ctx.predictions.items()}
+    ctx.metrics["warnings"] = sorted(set(ctx.warnings))
+    fig = ctx.figures
+    fig["network"] = figures.network_diagram(
+        [{"name": m.name, "inputs": list(m.input_names), "outputs": list(m.output_names),
+          "measurable": [o.name for o in m.outputs if o.measurable]} for m in
+         (net.model(n) for n in net.order)],
+        [(ln.source_model, ln.target_model, f"{ln.source_var}->{ln.target_var}")
+         for ln in net.links], out / "figures" / "network.png")
+    two_d = {k: (d.x[:, 0], d.x[:, 1], d.is_test) for k, d in ctx.data.items()
+             if d.x.shape[1] == 2}
+    if two_d:
+        fig["data"] = figures.data_grid(None, None, two_d, out / "figures" / "data.png")
+    for model, s in summary.items():
+        if not s.get("prior_only"):
+            fig[f"posterior {model}"] = figures.prior_posterior_grid(
+                _prior_panels(ctx, model, s), out / "figures" / f"posterior_{model}.png",
+                title=f"{model}: prior vs posterior")
+    for name, d in ctx.data.items():
+        p = ctx.predictions[name]
+        unit = net.model(d.observes.split(".")[0]).output(d.observes.split(".")[1]).unit
+        fig[f"predictive {name}"] = figures.predictive_vs_observed(
+            d.y, p.mean, p.lower, p.upper, d.is_test, out / "figures" / f"predictive_{name}.png",
+            d.observes, unit)
+    write_metrics(out / "metrics.json", ctx.metrics)
+    write_report(out, title=f"calnet report: {net.name}", sections=_sections(ctx, summary),
+                 subtitle=net.description or None)
+
+
+def _sections(ctx, summary) -> list[Section]:
+    m, fig = ctx.metrics, ctx.figures
+    net = ctx.network
+    pick = lambda prefix: [(p, k) for k, p in fig.items() if k.startswith(prefix)]  # noqa: E731
+    overview = Section("Network and data", paragraphs=[
+        f"Models in topological order: {' -> '.join(net.order)}. Calibration: "
+        f"{ctx.post.mode}" + (f", upstream plugged in by {ctx.post.plug}"
+                              if ctx.post.mode == "segmented" else "") +
+        f". Total wall time {m['timings_s']['total']:.1f} s." +
+        (" Quick run: fewer draws, restarts and folds." if ctx.quick else "")],
+        tables=[Table("Data sets", ["data set", "observes", "points", "train", "test"],
+                      [[k, d.observes, len(d.y), int((~d.is_test).sum()), int(d.is_test.sum())]
+                       for k, d in ctx.data.items()]),
+                Table("Campaigns", ["model", "runs", "excluded", "status"],
+                      [[k, v["n_total"], v["n_excluded"], str(v["status_counts"])]
+                       for k, v in m["campaigns"].items()])],
+        figures=pick("network") + pick("data"))
+    sur = Section("Surrogates (k-fold cross-validation)", tables=[Table(
+        "GP surrogates", ["output", "runs", "excluded", "k", "MAPE %", "RMSE", "95% coverage"],
+        [[k, s["n_runs"], s["n_excluded"], s.get("cv", {}).get("k"), fmt(s.get("cv", {}).get("mape")),
+          fmt(s.get("cv", {}).get("rmse")), fmt(s.get("cv", {}).get("coverage95"))]
+         for k, s in m["surrogates"].items()])], figures=pick("cv "))
+    rows = []
+    for model, s in summary.items():
+        if s.get("prior_only"):
+            rows.append([model, "(no data: prior)"] + [""] * 7)
+            continue
+        for p, r in s["parameters"].items():
+            rows.append([model, p, f"[{fmt(r['lower'])}, {fmt(r['upper'])}]", fmt(r["mode"]),
+                         fmt(r["mean"]), f"[{fmt(r['q2.5'])}, {fmt(r['q97.5'])}]", r["unit"],
+                         fmt(r["rhat"]), fmt(r["ess_bulk"])])
+    diag = [[k, s.get("divergences", ""), fmt(s.get("max_rhat")), fmt(s.get("min_ess_bulk"))]
+            for k, s in summary.items()]
+    cal = Section("Calibration", paragraphs=[
+        "Estimates are posterior modes (KDE), as the reference study reports; intervals are "
+        "central 95 %."], tables=[
+        Table("Posterior summary", ["model", "parameter", "range", "mode", "mean", "95% interval",
+                                    "unit", "R-hat", "bulk ESS"], rows),
+        Table("Sampler diagnostics (all sampled variables)", ["model", "divergences",
+                                                                "max R-hat", "min bulk ESS"], diag)],
+        figures=pick("posterior "))
+    vrows = []
+    for name, v in m["validation"].items():
+        for split in ("train", "test"):
+            if split in v:
+                vrows.append([name, f"calnet ({split})", fmt(v[split]["mape"]),
+                              fmt(v[split]["se_pred"]), fmt(v[split].get("coverage95"))])
+        for base, r in v.get("baselines_test", {}).items():
+            vrows.append([name, f"{base} (test)", fmt(r.get("mape")), fmt(r.get("se_pred")),
+                          fmt(r.get("coverage95"))])
+        loo = v.get("loo", {})
+        if "calnet" in loo:
+            vrows.append([name, "calnet (leave-one-out)", fmt(loo["calnet"]["mape"]),
+                          fmt(loo["calnet"]["se_pred"]), fmt(loo["calnet"].get("coverage95"))])
+            vrows.append([name, "training mean (leave-one-out)",
+                          fmt(loo["training_mean"]["mape"]), fmt(loo["training_mean"]["se_pred"]), ""])
+    brows = [[name, src, fmt(share)] for name, v in m["validation"].items()
+             for src, share in v["variance_shares"].items()]
+    val = Section("Prediction and validation", tables=[
+        Table("Predictive accuracy", ["data set", "predictor", "MAPE %", "SE_pred", "95% coverage"],
+              vrows),
+        Table("Uncertainty budget (share of predictive variance, averaged over points)",
+              ["data set", "source", "share"], brows)], figures=pick("predictive "))
+    srows = []
+    for name, s in m["sensitivity"].items():
+        ind, sp = s["indices"], s["over_draws"]
+        for j, nm in enumerate(ind["names"]):
+            srows.append([name, nm, f"{fmt(ind['S1'][j])} ± {fmt(ind['S1_conf'][j])}",
+                          f"{fmt(ind['ST'][j])} ± {fmt(ind['ST_conf'][j])}",
+                          f"[{fmt(sp['ST_lower'][j])}, {fmt(sp['ST_upper'][j])}]"])
+    sens = Section("Sensitivity (Sobol indices of the calibrated chain)", tables=[Table(
+        "First-order and total-effect indices over the data's process box",
+        ["data set", "input", "S1", "ST", "ST over posterior draws (95 %)"], srows)],
+        figures=pick("sobol ") + pick("map ") + pick("process "))
+    sections = [overview, sur, cal, val, sens]
+    ref = reference_rows(ctx, summary)
+    if ref:
+        sections.append(Section("Comparison with the reference study", paragraphs=[
+            "Published values (method.md section 7) beside this run. The reference used a "
+            "commercial FE thermal model and a phase-field model; calnet ships its own "
+            "physics-based replacements, so parameter values need not coincide."],
+            tables=[Table("Reference vs calnet", ["quantity", "reference study", "calnet"], ref)]))
+    if m["warnings"]:
+        sections.append(Section("Warnings", paragraphs=m["warnings"]))
+    return sections
