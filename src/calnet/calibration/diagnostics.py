@@ -1,0 +1,182 @@
+"""Convergence diagnostics and posterior summaries of a calibration run.
+
+:func:`summarize` turns the ``InferenceData`` of :func:`~calnet.calibration.sampling.sample_nuts`
+into a frozen :class:`PosteriorSummary` (R-hat, bulk/tail ESS, divergences, means, sd,
+KDE posterior modes, HDIs; ArviZ underneath) whose ``to_dict()`` goes to metrics.json,
+and warns with :class:`~calnet.errors.CalibrationWarning` when R-hat > 1.01, bulk
+ESS < 400 or there are divergent transitions (method.md section 3: report them; the
+reference study reports posterior modes as point estimates).
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.stats import gaussian_kde
+
+from calnet.errors import CalibrationWarning
+
+__all__ = ["ParameterSummary", "PosteriorSummary", "summarize", "kde_mode",
+           "RHAT_MAX", "ESS_MIN"]
+
+RHAT_MAX = 1.01  # Vehtari et al. (2021)
+ESS_MIN = 400  # bulk ESS, 100 per chain for 4 chains (Vehtari et al. 2021)
+
+
+def kde_mode(draws, grid_size: int = 512) -> float:
+    """Posterior mode of 1-D draws: argmax of a Gaussian KDE on a grid over their range."""
+    x = np.asarray(draws, dtype=float).ravel()
+    lo, hi = float(x.min()), float(x.max())
+    if not hi > lo:  # constant draws
+        return lo
+    grid = np.linspace(lo, hi, grid_size)
+    return float(grid[np.argmax(gaussian_kde(x)(grid))])
+
+
+@dataclass(frozen=True)
+class ParameterSummary:
+    """Summary of one scalar posterior quantity (e.g. ``theta[K_S]``)."""
+
+    name: str
+    mean: float
+    sd: float
+    mode: float
+    hdi: dict[float, tuple[float, float]]
+    r_hat: float
+    ess_bulk: float
+    ess_tail: float
+    mcse_mean: float
+
+    def to_dict(self) -> dict:
+        d = {k: getattr(self, k) for k in ("mean", "sd", "mode", "r_hat", "ess_bulk",
+                                           "ess_tail", "mcse_mean")}
+        for prob, (lo, hi) in self.hdi.items():
+            d[f"hdi_{round(100 * prob)}"] = [lo, hi]
+        return d
+
+
+@dataclass(frozen=True)
+class PosteriorSummary:
+    """Diagnostics and summaries of one calibration run; see :func:`summarize`."""
+
+    model: str
+    parameters: tuple[ParameterSummary, ...]
+    n_chains: int
+    n_draws: int
+    divergences: int
+    sampling_time: float
+    compile_time: float
+
+    @property
+    def max_r_hat(self) -> float:
+        return max(p.r_hat for p in self.parameters)
+
+    @property
+    def min_ess_bulk(self) -> float:
+        return min(p.ess_bulk for p in self.parameters)
+
+    @property
+    def min_ess_tail(self) -> float:
+        return min(p.ess_tail for p in self.parameters)
+
+    @property
+    def converged(self) -> bool:
+        return (self.max_r_hat <= RHAT_MAX and self.min_ess_bulk >= ESS_MIN
+                and self.divergences == 0)
+
+    def __getitem__(self, name: str) -> ParameterSummary:
+        for p in self.parameters:
+            if p.name == name:
+                return p
+        raise KeyError(f"{name!r}; known: {[p.name for p in self.parameters]}")
+
+    def modes(self) -> dict[str, float]:
+        """``{name: posterior mode}``."""
+        return {p.name: p.mode for p in self.parameters}
+
+    def to_dict(self) -> dict:
+        """JSON-ready dict for metrics.json."""
+        return {"model": self.model, "n_chains": self.n_chains, "n_draws": self.n_draws,
+                "divergences": self.divergences, "max_r_hat": self.max_r_hat,
+                "min_ess_bulk": self.min_ess_bulk, "min_ess_tail": self.min_ess_tail,
+                "converged": self.converged, "sampling_time_s": self.sampling_time,
+                "compile_time_s": self.compile_time,
+                "parameters": {p.name: p.to_dict() for p in self.parameters}}
+
+
+def _scalar_names(da) -> list[tuple[str, dict]]:
+    """``(label, selection)`` for every scalar component of a posterior variable."""
+    extra = [d for d in da.dims if d not in ("chain", "draw")]
+    if not extra:
+        return [(da.name, {})]
+    (dim,) = extra  # calibration variables are at most 1-D per draw
+    return [(f"{da.name}[{c}]", {dim: c}) for c in da.coords[dim].values.tolist()]
+
+
+def summarize(idata, *, hdi_probs: tuple[float, ...] = (0.94, 0.95), warn: bool = True,
+              stacklevel: int = 2) -> PosteriorSummary:
+    """Summarise a calibration posterior; warn if it has not converged.
+
+    Parameters
+    ----------
+    idata : arviz.InferenceData
+        From :func:`~calnet.calibration.sampling.sample_nuts`.
+    hdi_probs : tuple of float
+        Probabilities of the highest-density intervals reported.
+    warn : bool
+        Emit :class:`~calnet.errors.CalibrationWarning` for R-hat > 1.01, bulk ESS < 400
+        or divergences > 0.
+    stacklevel : int
+        Passed to :func:`warnings.warn` (2: the caller of ``summarize``).
+
+    Returns
+    -------
+    PosteriorSummary
+    """
+    import arviz as az
+
+    post = idata.posterior
+    rhat, ess_b = az.rhat(post), az.ess(post, method="bulk")
+    ess_t, mcse = az.ess(post, method="tail"), az.mcse(post, method="mean")
+    hdis = {prob: az.hdi(post, hdi_prob=prob) for prob in hdi_probs}
+    params = []
+    for var in post.data_vars:
+        for label, sel in _scalar_names(post[var]):
+            draws = post[var].sel(sel).values
+            params.append(ParameterSummary(
+                name=label, mean=float(draws.mean()), sd=float(draws.std(ddof=1)),
+                mode=kde_mode(draws),
+                hdi={p: tuple(float(v) for v in hdis[p][var].sel(sel).values)
+                     for p in hdi_probs},
+                r_hat=float(rhat[var].sel(sel)), ess_bulk=float(ess_b[var].sel(sel)),
+                ess_tail=float(ess_t[var].sel(sel)), mcse_mean=float(mcse[var].sel(sel))))
+    ss = idata.sample_stats
+    summary = PosteriorSummary(
+        model=str(post.attrs.get("model", "model")), parameters=tuple(params),
+        n_chains=post.sizes["chain"], n_draws=post.sizes["draw"],
+        divergences=int(np.asarray(ss["diverging"]).sum()) if "diverging" in ss else 0,
+        sampling_time=float(post.attrs.get("sampling_time", np.nan)),
+        compile_time=float(post.attrs.get("compile_time", np.nan)))
+    if warn:
+        for message in convergence_problems(summary):
+            warnings.warn(message, CalibrationWarning, stacklevel=stacklevel)
+    return summary
+
+
+def convergence_problems(summary: PosteriorSummary) -> list[str]:
+    """One message per failed check (R-hat, bulk ESS, divergences); empty when fine."""
+    out, m = [], summary.model
+    if summary.max_r_hat > RHAT_MAX:
+        worst = max(summary.parameters, key=lambda p: p.r_hat)
+        out.append(f"{m}: R-hat {worst.r_hat:.3f} > {RHAT_MAX} for {worst.name}; chains "
+                   "disagree - run longer warm-up/draws or check for multimodality")
+    if summary.min_ess_bulk < ESS_MIN:
+        worst = min(summary.parameters, key=lambda p: p.ess_bulk)
+        out.append(f"{m}: bulk ESS {worst.ess_bulk:.0f} < {ESS_MIN} for {worst.name}; "
+                   "increase num_draws")
+    if summary.divergences > 0:
+        out.append(f"{m}: {summary.divergences} divergent transitions; raise target_accept "
+                   "(e.g. 0.95) or reparameterise")
+    return out

@@ -1,0 +1,383 @@
+"""NUTS sampling of a calibration log-density: several chains, compiled once, reused.
+
+The sampler is BlackJAX's NUTS kernel driven by Stan's windowed warm-up (dual averaging of
+the step size, Welford estimate of a diagonal or dense inverse mass matrix, Stan 2.x window
+schedule), the whole warm-up + sampling run of a chain being one XLA program. Chains run
+in parallel across XLA host devices (``pmap``) when there are at least two devices (see
+:func:`calnet.calibration.devices.configure_host_devices`), otherwise one after another
+inside one program (``sequential``) or in lock-step (``vectorized``).
+
+The compiled program takes the log-density's data as an *argument*: it is cached under
+the log-density's hashable ``spec``, the sampler settings and the data shapes, so that a
+second calibration with new data of the same shapes (leave-one-out folds, repeated runs)
+does not recompile (koh_anchor README, pitfall 4).
+
+Examples
+--------
+>>> import jax.numpy as jnp
+>>> from calnet.calibration.koh import build_logdensity
+>>> from calnet.calibration.priors import Normal
+>>> ld = build_logdensity(lambda th: th[0] * jnp.ones(4), jnp.zeros(4),
+...                       jnp.linspace(0, 1, 4)[:, None], theta_priors=[Normal(0, 1)],
+...                       fixed={"ell": 0.3, "sd2": 0.01, "se2": 0.1})
+>>> idata = sample_nuts(ld, seed=0, num_chains=2, num_warmup=50, num_draws=50)
+>>> idata.posterior["theta"].shape
+(2, 50, 1)
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+import time
+from collections import OrderedDict
+from collections.abc import Callable, Hashable
+from dataclasses import dataclass
+from functools import partial
+from typing import Any
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+from blackjax.adaptation.mass_matrix import mass_matrix_adaptation  # noqa: E402
+from blackjax.adaptation.step_size import dual_averaging_adaptation  # noqa: E402
+from blackjax.mcmc import nuts  # noqa: E402
+
+from calnet.calibration.koh import check_initial  # noqa: E402
+from calnet.errors import CalibrationError  # noqa: E402
+
+__all__ = ["sample_nuts", "clear_cache", "cache_info", "CHAIN_METHODS"]
+
+CHAIN_METHODS = ("auto", "parallel", "sequential", "vectorized")
+_CACHE_SIZE = 16
+
+
+@dataclass(frozen=True)
+class _Config:
+    """Everything that shapes the compiled program except the data shapes."""
+
+    spec: Hashable
+    dim: int
+    num_warmup: int
+    num_draws: int
+    thin: int
+    target_accept: float
+    max_tree_depth: int
+    dense_mass: bool
+    chain_method: str
+    groups: int  # number of devices the chains are spread over (parallel)
+    progress_every: int  # 0: no progress callbacks compiled in
+
+
+def stan_schedule(num_steps: int, init_buffer: int = 75, term_buffer: int = 50,
+                  base_window: int = 25) -> np.ndarray:
+    """Stan's warm-up schedule: rows ``(slow, ends_window)`` of shape (num_steps, 2).
+
+    Fast (step size only) initial and terminal buffers around slow windows (step size and
+    mass matrix) that double in size; the last slow window absorbs the remainder.
+    """
+    sched = np.zeros((num_steps, 2), dtype=np.int32)
+    if num_steps < 20:
+        return sched
+    if init_buffer + base_window + term_buffer > num_steps:
+        init_buffer, term_buffer = int(0.15 * num_steps), int(0.1 * num_steps)
+        base_window = num_steps - init_buffer - term_buffer
+    end_slow = num_steps - term_buffer
+    start, size = init_buffer, base_window
+    while start < end_slow:
+        if 3 * size > end_slow - start:  # too little room for the next one: extend this one
+            size = end_slow - start
+        sched[start:start + size, 0] = 1
+        sched[start + size - 1, 1] = 1
+        start, size = start + size, 2 * size
+    return sched
+
+
+# ----------------------------------------------------------------------------- progress
+_PROGRESS: dict[str, Any] = {"fn": None}
+_PROGRESS_LOCK = threading.Lock()
+
+
+def _emit(chain, iteration, total):
+    fn = _PROGRESS["fn"]
+    if fn is not None:
+        with _PROGRESS_LOCK:
+            fn(int(chain), int(iteration), int(total))
+
+
+class _TextProgress:
+    """A one-line text progress report on stderr (no dependency)."""
+
+    def __init__(self, name: str, num_chains: int, total: int):
+        self.name, self.total = name, total
+        self.done = [0] * num_chains
+        self.t0 = time.perf_counter()
+
+    def __call__(self, chain: int, iteration: int, total: int) -> None:
+        self.done[chain] = iteration
+        frac = sum(self.done) / (self.total * len(self.done))
+        bar = "#" * int(30 * frac)
+        sys.stderr.write(f"\r{self.name}: [{bar:<30}] {100 * frac:5.1f}% "
+                         f"{time.perf_counter() - self.t0:6.1f}s")
+        if frac >= 1.0:
+            sys.stderr.write("\n")
+        sys.stderr.flush()
+
+
+def _maybe_report(cfg: _Config, chain, i, total):
+    if cfg.progress_every:
+        jax.lax.cond((i + 1) % cfg.progress_every == 0,
+                     lambda: jax.debug.callback(_emit, chain, i + 1, total),
+                     lambda: None)
+
+
+# ----------------------------------------------------------------------------- one chain
+def _run_chain(cfg: _Config, data, key, u0, chain):
+    """Warm-up then sampling of one chain, as one scan (the NUTS kernel is traced once).
+
+    Returns the positions and transition statistics of every iteration (warm-up included,
+    sliced off by the caller), the final step size and inverse mass matrix.
+    """
+    logdensity = partial(cfg.spec.logdensity, data)
+    kernel = nuts.build_kernel()
+    mm_init, mm_update, mm_final = mass_matrix_adaptation(not cfg.dense_mass)
+    da_init, da_update, da_final = dual_averaging_adaptation(cfg.target_accept)
+    total = cfg.num_warmup + cfg.num_draws
+    # per iteration: (warm-up?, slow window?, ends a slow window?)
+    sched = np.zeros((total, 3), dtype=np.int32)
+    sched[:cfg.num_warmup, 0] = 1
+    sched[:cfg.num_warmup, 1:] = stan_schedule(cfg.num_warmup)
+
+    def one_step(carry, xs):
+        state, da, mm, step_size, imm = carry
+        k, (warm, slow, ends), i = xs
+        state, info = kernel(k, state, logdensity, step_size, imm,
+                             max_num_doublings=cfg.max_tree_depth)
+        # Stan windowed adaptation: dual averaging throughout the warm-up, Welford
+        # estimate of the mass matrix in slow windows, restart at each window end
+        da = jax.lax.cond(warm == 1, lambda d: da_update(d, info.acceptance_rate),
+                          lambda d: d, da)
+        mm = jax.lax.cond(slow == 1, lambda m: mm_update(m, state.position), lambda m: m, mm)
+        da, mm = jax.lax.cond(ends == 1, lambda d, m: (da_init(da_final(d)), mm_final(m)),
+                              lambda d, m: (d, m), da, mm)
+        last_warm = i == cfg.num_warmup - 1
+        step_size = jnp.where(warm == 1, jnp.where(last_warm, da_final(da),
+                                                   jnp.exp(da.log_step_size)), step_size)
+        imm = jnp.where(warm == 1, mm.inverse_mass_matrix, imm)
+        _maybe_report(cfg, chain, i, total)
+        stats = {"diverging": info.is_divergent, "energy": info.energy,
+                 "n_steps": info.num_integration_steps,
+                 "tree_depth": info.num_trajectory_expansions,
+                 "acceptance_rate": info.acceptance_rate, "lp": state.logdensity}
+        return (state, da, mm, step_size, imm), (state.position, stats)
+
+    mm = mm_init(cfg.dim)
+    carry = (nuts.init(u0, logdensity), da_init(1.0), mm, jnp.asarray(1.0),
+             mm.inverse_mass_matrix)
+    xs = (jax.random.split(key, total), jnp.asarray(sched), jnp.arange(total))
+    (_, _, _, step_size, imm), (positions, stats) = jax.lax.scan(one_step, carry, xs)
+    return positions, stats, step_size, imm
+
+
+def _build(cfg: _Config) -> Callable:
+    """The (not yet compiled) program ``(keys, u0, chain_ids, data) -> outputs``."""
+    one = partial(_run_chain, cfg)
+
+    def seq(keys, u0, ids, data):
+        return jax.lax.map(lambda a: one(data, *a), (keys, u0, ids))
+
+    if cfg.chain_method == "parallel":
+        def per_device(keys, u0, ids, data):  # (chains_per_device, ...)
+            return seq(keys, u0, ids, data)
+        return jax.pmap(per_device, in_axes=(0, 0, 0, None))
+    if cfg.chain_method == "vectorized":
+        return jax.jit(jax.vmap(lambda k, u, i, d: one(d, k, u, i), in_axes=(0, 0, 0, None)))
+    return jax.jit(seq)
+
+
+_COMPILED: OrderedDict = OrderedDict()
+_STATS = {"hits": 0, "misses": 0}
+
+
+def clear_cache() -> None:
+    """Forget all compiled samplers."""
+    _COMPILED.clear()
+    _STATS.update(hits=0, misses=0)
+
+
+def cache_info() -> dict[str, int]:
+    """``dict(hits, misses, size)`` of the compiled-sampler cache."""
+    return {**_STATS, "size": len(_COMPILED)}
+
+
+def _shape_key(tree) -> tuple:
+    leaves, treedef = jax.tree.flatten(tree)
+    return (treedef, tuple((jnp.shape(x), jnp.result_type(x).name) for x in leaves))
+
+
+def _compiled(cfg: _Config, args) -> tuple[Any, float]:
+    key = (cfg, _shape_key(args))
+    if key in _COMPILED:
+        _COMPILED.move_to_end(key)
+        _STATS["hits"] += 1
+        return _COMPILED[key], 0.0
+    _STATS["misses"] += 1
+    t0 = time.perf_counter()
+    exe = _build(cfg).lower(*args).compile()
+    seconds = time.perf_counter() - t0
+    _COMPILED[key] = exe
+    while len(_COMPILED) > _CACHE_SIZE:
+        _COMPILED.popitem(last=False)
+    return exe, seconds
+
+
+def _resolve_method(chain_method: str, num_chains: int) -> tuple[str, int]:
+    if chain_method not in CHAIN_METHODS:
+        raise CalibrationError(f"chain_method must be one of {CHAIN_METHODS}, "
+                               f"got {chain_method!r}")
+    n_dev = jax.local_device_count()
+    groups = max(g for g in range(1, min(n_dev, num_chains) + 1) if num_chains % g == 0)
+    if chain_method == "auto":
+        chain_method = "parallel" if groups > 1 else "sequential"
+    if chain_method == "parallel" and groups == 1:
+        chain_method = "sequential"  # one device: nothing to spread over
+    return chain_method, groups
+
+
+def _constrain_fn(spec):
+    return jax.jit(jax.vmap(jax.vmap(spec.constrain, in_axes=(None, 0)), in_axes=(None, 0)))
+
+
+_CONSTRAIN: OrderedDict = OrderedDict()
+
+
+def _constrain_draws(ld, positions) -> dict[str, np.ndarray]:
+    """Constrained draws (chain, draw, ...) from unconstrained positions (chain, draw, dim)."""
+    if ld.spec not in _CONSTRAIN:
+        _CONSTRAIN[ld.spec] = _constrain_fn(ld.spec)
+        while len(_CONSTRAIN) > _CACHE_SIZE:
+            _CONSTRAIN.popitem(last=False)
+    return jax.tree.map(np.asarray, _CONSTRAIN[ld.spec](ld.data, jnp.asarray(positions)))
+
+
+def _check_settings(num_chains, num_warmup, num_draws, thin, target_accept, max_tree_depth):
+    if num_chains < 1 or num_warmup < 0 or num_draws < 1 or thin < 1:
+        raise CalibrationError(
+            f"expected num_chains >= 1, num_warmup >= 0, num_draws >= 1 and thin >= 1, got "
+            f"{num_chains}, {num_warmup}, {num_draws}, {thin}")
+    if num_draws // thin < 1:
+        raise CalibrationError(f"thin={thin} keeps no draw out of num_draws={num_draws}")
+    if not 0.0 < target_accept < 1.0 or not 1 <= max_tree_depth <= 20:
+        raise CalibrationError(f"expected 0 < target_accept < 1 and 1 <= max_tree_depth <= 20, "
+                               f"got {target_accept}, {max_tree_depth}")
+
+
+def sample_nuts(
+    ld,
+    *,
+    seed: int = 0,
+    num_chains: int = 4,
+    num_warmup: int = 1000,
+    num_draws: int = 1000,
+    thin: int = 1,
+    init=None,
+    target_accept: float = 0.8,
+    max_tree_depth: int = 10,
+    dense_mass: bool = False,
+    chain_method: str = "auto",
+    progress: bool | Callable[[int, int, int], None] = False,
+):
+    """Sample a calibration log-density with NUTS; return an ArviZ ``InferenceData``.
+
+    Parameters
+    ----------
+    ld : KOHLogDensity (or an object with the same protocol, see :mod:`.koh`)
+    seed : int
+        Seed of the initial points and of the chains; the same seed gives identical draws.
+    num_chains, num_warmup, num_draws : int
+        Chains (default 4), warm-up iterations per chain (discarded), iterations after it.
+    thin : int
+        Keep every ``thin``-th iteration: ``num_draws // thin`` draws per chain.
+    init : array (num_chains, dim), optional
+        Initial points on the unconstrained scale; default: draws from the priors.
+    target_accept : float
+        Target acceptance rate of the step-size adaptation.
+    max_tree_depth : int
+        Maximum number of trajectory doublings.
+    dense_mass : bool
+        Adapt a dense inverse mass matrix instead of a diagonal one.
+    chain_method : {"auto", "parallel", "sequential", "vectorized"}
+        ``auto``: ``parallel`` (pmap over XLA host devices) when at least two devices can
+        share the chains, else ``sequential``.
+    progress : bool or callable
+        ``True`` for a text progress line on stderr, or ``fn(chain, iteration, total)``.
+
+    Returns
+    -------
+    arviz.InferenceData
+        ``posterior``: ``theta`` (chain, draw, theta_dim) with the parameter names as
+        coordinates, ``ell`` (chain, draw, ell_dim), ``sd2``, ``se2`` (chain, draw) (fixed
+        hyperparameters left out); ``sample_stats``: ``diverging``, ``energy``, ``n_steps``,
+        ``tree_depth``, ``acceptance_rate``, ``lp``, ``step_size``; ``observed_data``:
+        ``y``; attrs: model, sampler settings, ``compile_time`` and ``sampling_time`` (s).
+
+    Raises
+    ------
+    CalibrationError
+        Bad settings, or a non-finite log-density or gradient at the initial points.
+    """
+    import arviz as az
+
+    _check_settings(num_chains, num_warmup, num_draws, thin, target_accept, max_tree_depth)
+    method, groups = _resolve_method(chain_method, num_chains)
+    total = num_warmup + num_draws
+    every = max(1, total // 50) if progress else 0
+    cfg = _Config(ld.spec, ld.dim, num_warmup, num_draws, thin, float(target_accept),
+                  max_tree_depth, bool(dense_mass), method, groups, every)
+    u0 = jnp.asarray(ld.init(seed, num_chains) if init is None else init, dtype=float)
+    if u0.shape != (num_chains, ld.dim):
+        raise CalibrationError(f"{ld.name}: init must have shape ({num_chains}, {ld.dim}), "
+                               f"got {u0.shape}")
+    check_initial(ld, u0, ld.name)
+    keys = jax.random.split(jax.random.fold_in(jax.random.PRNGKey(seed), 1), num_chains)
+    ids = jnp.arange(num_chains)
+    if method == "parallel":  # (devices, chains per device, ...)
+        keys, u0, ids = (a.reshape((groups, num_chains // groups) + a.shape[1:])
+                         for a in (keys, u0, ids))
+    args = (keys, u0, ids, ld.data)
+    exe, t_compile = _compiled(cfg, args)
+    _PROGRESS["fn"] = (progress if callable(progress)
+                       else _TextProgress(ld.name, num_chains, total) if progress else None)
+    try:
+        t0 = time.perf_counter()
+        out = jax.block_until_ready(exe(*args))
+        t_sample = time.perf_counter() - t0
+    finally:
+        _PROGRESS["fn"] = None
+    if method == "parallel":  # back to (chains, ...)
+        out = jax.tree.map(lambda a: np.asarray(a).reshape((num_chains,) + a.shape[2:]), out)
+    positions, stats, step_size, _ = jax.tree.map(np.asarray, out)
+    keep = slice(num_warmup + thin - 1, None, thin)
+    constrained = _constrain_draws(ld, positions[:, keep])
+    posterior = {v: constrained[v] for v in ld.sampled_vars}
+    n_kept = num_draws // thin
+    # a kept draw is divergent if any transition since the previous kept draw was
+    div = stats["diverging"][:, num_warmup:num_warmup + n_kept * thin]
+    stats = {k: v[:, keep] for k, v in stats.items()}
+    stats["diverging"] = div.reshape(num_chains, n_kept, thin).any(axis=2)
+    stats["step_size"] = np.repeat(step_size[:, None], n_kept, axis=1)
+    attrs = {"model": ld.name, "inference_library": "calnet (BlackJAX NUTS)",
+             "seed": seed, "num_warmup": num_warmup, "num_draws": num_draws, "thin": thin,
+             "target_accept": target_accept, "max_tree_depth": max_tree_depth,
+             "dense_mass": int(dense_mass), "chain_method": method,
+             "compile_time": t_compile, "sampling_time": t_sample}
+    idata = az.from_dict(posterior=posterior, sample_stats=stats,
+                         observed_data={"y": np.asarray(ld.data["y"])},
+                         coords=ld.coords, dims={**ld.dims, "y": ["obs"]})
+    for group in ("posterior", "sample_stats"):
+        idata[group].attrs.update(attrs)
+    return idata
+
