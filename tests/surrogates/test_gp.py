@@ -133,3 +133,11 @@ def test_save_load_round_trip_is_exact(fitted, tmp_path):
         np.testing.assert_array_equal(np.asarray(leaf_a), np.asarray(leaf_b))
     np.testing.assert_array_equal(back.predict(x[:4])[0], gp.predict(x[:4])[0])
     assert load_gp(tmp_path / "sub" / "W.npz").n_train == gp.n_train
+
+
+def test_split_prediction_rejects_bad_control_shapes(fitted):
+    from calnet.errors import SurrogateError
+
+    gp, x, _ = fitted
+    with pytest.raises(SurrogateError, match=r"'W'.*0 < d_x < 4, got \(3, 4\)"):
+        gp.mean_fn_at(x[:3])

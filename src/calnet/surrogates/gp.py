@@ -23,6 +23,7 @@ jax.config.update("jax_enable_x64", True)
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
+from calnet.errors import SurrogateError  # noqa: E402
 from calnet.surrogates.kernels import matern32, matern32_from_sqdist, scaled_sqdist  # noqa: E402
 from calnet.surrogates.likelihood import neg_log_marginal_likelihood, predictive_solve  # noqa: E402
 
@@ -122,7 +123,7 @@ class FittedGP:
         theta : array, shape (d_theta,) or (m, d_theta)
             Calibration parameters (the remaining columns); a vector is used for every row.
         """
-        x = jnp.atleast_2d(jnp.asarray(x))
+        x = self._check_controls(x)
         theta = jnp.broadcast_to(jnp.asarray(theta), (x.shape[0], self.n_inputs - x.shape[1]))
         return self.predict(jnp.concatenate([x, theta], axis=1), include_nugget=include_nugget)
 
@@ -238,8 +239,16 @@ class FittedGP:
             var_s = var_s + self.nugget
         return self.y_mean + self.y_std * mean_s, self.y_std**2 * var_s
 
+    def _check_controls(self, x) -> jax.Array:
+        x = jnp.atleast_2d(jnp.asarray(x, dtype=jnp.float64))
+        if x.ndim != 2 or not 0 < x.shape[1] < self.n_inputs:
+            lab = f"output {self.name!r}" if self.name else "surrogate"
+            raise SurrogateError(f"{lab}: control inputs x must have shape (m, d_x) with "
+                                 f"0 < d_x < {self.n_inputs}, got {x.shape}")
+        return x
+
     def _split_distances(self, x: jax.Array):
-        x = jnp.atleast_2d(jnp.asarray(x))
+        x = self._check_controls(x)
         dx = x.shape[1]
         xs = (x - self.lower[:dx]) / (self.upper[:dx] - self.lower[:dx])
         r2_x = scaled_sqdist(xs, self.x_train[:, :dx], self.lengthscales[:dx])
