@@ -116,10 +116,19 @@ class Discretization:
         return np.array(cells), np.array(weights)
 
     def consolidated(self, T: np.ndarray) -> np.ndarray:
-        """Powder melted at or upstream of each cell (max over ``x' >= x``), dense True."""
-        T3 = T.reshape(self.mesh.shape)
-        hot = np.maximum.accumulate(T3[::-1], axis=0)[::-1] >= self.mat.T_solidus
-        return (~self.powder_cells | hot).ravel()
+        """True for dense cells and for powder melted at or upstream of the cell.
+
+        A powder column counts as melted once any of its cells reached ``T_S`` (the
+        30 um layer, about one particle diameter, collapses as a whole), and stays
+        consolidated downstream: the max over ``x' >= x`` of physics.md, taken over
+        the whole layer thickness.
+        """
+        T3 = T.reshape(self.mesh.shape)[:, :, : self.mesh.n_powder]
+        melted = T3.max(axis=2, initial=-np.inf) >= self.mat.T_solidus
+        melted = np.maximum.accumulate(melted[::-1], axis=0)[::-1]
+        out = ~self.powder_cells
+        out[:, :, : self.mesh.n_powder] |= melted[:, :, None]
+        return out.ravel()
 
     def surface_temperature(self, T: np.ndarray, laws: MaterialLaws
                             ) -> tuple[float, np.ndarray]:

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.interpolate import RegularGridInterpolator
@@ -70,52 +70,67 @@ def initial_field(mesh: Mesh, P: float, v: float, absorb: float, k: float,
     return np.minimum(T, mat.T_boil).ravel()
 
 
-def _box_from_geometry(g: PoolGeometry, opts: MeltPoolOptions, mat: AlloyProperties
+def _box_from_geometry(g: PoolGeometry, resolution: float, mat: AlloyProperties
                        ) -> PoolBox:
     return pool_box(-g.x_tail, max(g.x_front, 0.0), 0.5 * g.W, g.D,
-                    resolution=opts.resolution, beam_radius=mat.beam_radius)
+                    resolution=resolution, beam_radius=mat.beam_radius)
 
 
 def _needs_remesh(g: PoolGeometry, box: PoolBox) -> bool:
     if not all(np.isfinite([g.W, g.D, g.x_tail])):
         return False
-    outside = (-g.x_tail > box.tail - 2 * box.h or 0.5 * g.W > box.half_width - 2 * box.h
-               or g.D > box.depth - 2 * box.h)
-    return outside or min(0.5 * g.W, g.D) < 0.6 * box.h * 9.0 * 1.0 and False
+    return (-g.x_tail > box.tail - 2 * box.h or 0.5 * g.W > box.half_width - 2 * box.h
+            or g.D > box.depth - 2 * box.h)
+
+
+COARSE = 0.5  # resolution of the sizing pre-solve relative to the requested one
+G_WINDOW_CELLS = 3.0  # G0 window half-width, in cells of the resolution-1 mesh
+WARM_DT0 = 2e-5  # s, first pseudo time step of a warm-started solve
 
 
 def run(P: float, v: float, theta: dict[str, float], opts: MeltPoolOptions,
         mat: AlloyProperties = NI5NB) -> RunRecord:
-    """Solve one case; see :func:`calnet.simulators.melt_pool.simulate`."""
+    """Solve one case; see :func:`calnet.simulators.melt_pool.simulate`.
+
+    Coarse-to-fine: a pre-solve at half the resolution on a mesh sized by the Rosenthal
+    estimate sizes the fine mesh and warm-starts the fine solve; a further re-mesh
+    happens only if the fine pool still leaves its finely meshed box.
+    """
     start = time.monotonic()
     deadline = None if opts.time_limit is None else start + opts.time_limit
     a_mid = 0.5 * (theta["A_0"] + theta["A_max"])
     k_est = math.sqrt(theta["K_S"] * theta["K_L"])
     tail, front, half = estimate_pool(P, v, a_mid, k_est, mat)
-    box = pool_box(tail, front, half, half + mat.powder_thickness * opts.powder,
-                   resolution=opts.resolution, beam_radius=mat.beam_radius)
     k_p = mat.k_powder if opts.k_powder is None else opts.k_powder
     laws = build_laws(theta, mat, kvz_mode=opts.kvz_mode, anisotropy=opts.anisotropy,
                       w_vapour=opts.w_vapour, k_powder=k_p)
-    mesh = build_mesh(box, mat, resolution=opts.resolution, powder=opts.powder)
+    res = opts.resolution * COARSE if opts.adapt_mesh else opts.resolution
+    box = pool_box(tail, front, half, half + mat.powder_thickness * opts.powder,
+                   resolution=res, beam_radius=mat.beam_radius)
+    mesh = build_mesh(box, mat, resolution=res, powder=opts.powder)
     T0 = initial_field(mesh, P, v, a_mid, k_est, mat)
-    remeshed, geometry = 0, None
-    while True:
+    iterations, dt0, geometry = 0, None, None
+    for stage in range(3):
         disc = Discretization(mesh, mat, P, v)
         report = newton_solve(disc, laws, T0, absorptivity=_absorptivity(disc, laws, theta,
                               opts, mat), rtol=opts.rtol, ttol=opts.ttol,
-                              max_iter=opts.max_iter, max_update=opts.max_update,
-                              deadline=deadline)
+                              max_iter=opts.max_iter - iterations,
+                              max_update=opts.max_update, deadline=deadline,
+                              **({} if dt0 is None else {"dt0": dt0}))
+        iterations += report.iterations
         if not report.converged:
             break
-        geometry = extract(report.T, mesh, laws, v=v, T_liquidus=mat.T_liquidus)
-        if remeshed or not opts.adapt_mesh or not _needs_remesh(geometry, box):
+        geometry = extract(report.T, mesh, laws, v=v, T_liquidus=mat.T_liquidus,
+                           g_window=G_WINDOW_CELLS * box.h * res)
+        final = res == opts.resolution and (stage == 2 or not _needs_remesh(geometry, box))
+        if final or not opts.adapt_mesh or not np.isfinite(geometry.x_tail):
             break
-        box = _box_from_geometry(geometry, opts, mat)
-        new_mesh = build_mesh(box, mat, resolution=opts.resolution, powder=opts.powder)
-        T0 = _interpolate(report.T, mesh, new_mesh)
-        mesh, remeshed = new_mesh, remeshed + 1
-    return RunRecord(geometry if report.converged else None, report, mesh, remeshed,
+        res = opts.resolution
+        box = _box_from_geometry(geometry, res, mat)
+        new_mesh = build_mesh(box, mat, resolution=res, powder=opts.powder)
+        T0, mesh, dt0 = _interpolate(report.T, mesh, new_mesh), new_mesh, WARM_DT0
+    report = replace(report, iterations=iterations)
+    return RunRecord(geometry if report.converged else None, report, mesh, stage,
                      time.monotonic() - start)
 
 

@@ -86,26 +86,31 @@ def _crossing_1d(x: np.ndarray, f: np.ndarray, level: float) -> tuple[float, flo
     return float(lo), float(hi)
 
 
-def tail_gradient(T3: np.ndarray, mesh: Mesh, x_tail: float, half: int = 3
-                  ) -> tuple[float, float]:
-    """``(dT/dx, dT/dz)`` at ``(x_tail, 0, 0)`` by least squares over about +-3 cells.
+def tail_gradient(line: np.ndarray, T3: np.ndarray, mesh: Mesh, x_tail: float,
+                  half_width: float) -> tuple[float, float]:
+    """``(dT/dx, dT/dz)`` at the surface tail point ``(x_tail, 0, 0)``.
 
-    Quadratic model ``a + b X + c Z + d X^2 + e Z^2 + f X Z + g Y^2`` (even in ``y``
-    by symmetry) fitted to the ``(2 half + 1) x half x half`` cells nearest the tail.
+    ``dT/dx``: least-squares slope of the surface centreline temperature ``line`` over
+    the cells within ``x_tail +- half_width``. The window is fixed in metres (three
+    cells of the default mesh), not in cells: the tail straddles a steep solid side
+    (latent heat conducted away) and an almost isothermal liquid side, so a window
+    of a fixed number of cells would change its meaning under refinement.
+    ``dT/dz``: from the two top cell layers at the tail (small: the surface is nearly
+    adiabatic there). ``dT/dy = 0`` by symmetry.
     """
-    xc, yc, zc = (Mesh.centres(a) for a in (mesh.xf, mesh.yf, mesh.zf))
-    i0 = int(np.argmin(np.abs(xc - x_tail)))
-    ii = np.arange(max(i0 - half, 0), min(i0 + half + 1, xc.size))
-    X, Y, Z = np.meshgrid(xc[ii] - x_tail, yc[:half], zc[:half], indexing="ij")
-    scale = float(np.ptp(xc[ii])) or 1.0
-    X, Y, Z = X / scale, Y / scale, Z / scale
-    basis = np.stack([np.ones_like(X), X, Z, X**2, Z**2, X * Z, Y**2], axis=-1)
-    coef, *_ = np.linalg.lstsq(basis.reshape(-1, 7), T3[ii, :half, :half].ravel(), rcond=None)
-    return float(coef[1] / scale), float(coef[2] / scale)
+    xc, zc = Mesh.centres(mesh.xf), Mesh.centres(mesh.zf)
+    sel = np.abs(xc - x_tail) <= half_width
+    if sel.sum() < 3:
+        sel = np.argsort(np.abs(xc - x_tail))[:3]
+    gx = float(np.polyfit(xc[sel] - x_tail, line[sel], 1)[0])
+    col = T3[:, 0, :2]
+    gz_cells = (col[:, 1] - col[:, 0]) / (zc[1] - zc[0])
+    gz = float(np.interp(x_tail, xc, gz_cells))
+    return gx, gz
 
 
 def extract(T: np.ndarray, mesh: Mesh, laws: MaterialLaws, *, v: float,
-            T_liquidus: float) -> PoolGeometry:
+            T_liquidus: float, g_window: float) -> PoolGeometry:
     """Pool outputs from the cell temperatures ``T`` (n_cells,)."""
     T3 = T.reshape(mesh.shape)
     xc, yc, zc = (Mesh.centres(a) for a in (mesh.xf, mesh.yf, mesh.zf))
@@ -116,7 +121,8 @@ def extract(T: np.ndarray, mesh: Mesh, laws: MaterialLaws, *, v: float,
     D = _refined_max(xc, z_l)
     line = _symmetry_plane(Ts, yc)
     x_tail, x_front = _crossing_1d(xc, line, T_liquidus)
-    gx, gz = tail_gradient(T3, mesh, x_tail) if np.isfinite(x_tail) else (np.nan, np.nan)
+    gx, gz = ((np.nan, np.nan) if not np.isfinite(x_tail)
+              else tail_gradient(line, T3, mesh, x_tail, g_window))
     G0 = float(np.hypot(gx, gz))
     S0 = float(v * abs(gx) / G0) if G0 > 0 else float("nan")
     T0 = float(np.max(line))

@@ -3,7 +3,8 @@
 Each step solves ``(V rho c_eff / dt - J) dT = R`` (physics.md: exact Jacobian through
 Kirchhoff potentials, pseudo-transient continuation, temperature updates capped at
 ``max_update``). The pseudo time step follows switched evolution relaxation,
-``dt_k = dt_(k-1) clip(2 |R_(k-1)| / |R_k|, 1/4, 4)``, so the iteration turns into plain Newton as the
+``dt_k = dt_(k-1) clip(2 |R_(k-1)| / |R_k|, 1, 4)`` while the residual falls and
+``0.3 dt_(k-1)`` when it rises, so the iteration turns into plain Newton as the
 residual falls. The consolidation of the powder (a max over the upstream line) is
 lagged by one step and only grows (melted powder stays consolidated, as it would in a
 physical transient); convergence requires it to have stopped changing.
@@ -66,12 +67,12 @@ def linear_solve(M: sp.csr_matrix, b: np.ndarray, *, rtol: float) -> tuple[np.nd
 
 def newton_solve(disc: Discretization, laws: MaterialLaws, T0: np.ndarray, *,
                  absorptivity: AbsorptivityLaw, rtol: float, ttol: float,
-                 max_iter: int, max_update: float, deadline: float | None
-                 ) -> SolveReport:
+                 max_iter: int, max_update: float, deadline: float | None,
+                 dt0: float = DT0) -> SolveReport:
     """Drive the residual to ``max|R| <= rtol * A P / 2`` from the initial field ``T0``."""
     T = T0.copy()
     rho_c = None
-    dt, r0_norm, upd, lin_total = DT0, None, np.inf, 0
+    dt, r0_norm, upd, lin_total = dt0, None, np.inf, 0
     dense = ~disc.powder_cells.ravel()
     reason, it, rnorm = "iteration limit reached", 0, np.inf
     A, Ts = np.nan, np.nan
@@ -91,7 +92,8 @@ def newton_solve(disc: Discretization, laws: MaterialLaws, T0: np.ndarray, *,
         if rnorm <= rtol and upd <= ttol and not mask_changed:
             return SolveReport(T, True, "", it - 1, rnorm, upd, lin_total, A, Ts)
         if r0_norm is not None:  # grow dt while the residual falls (SER-like)
-            dt = min(dt * float(np.clip(2.0 * r0_norm / rnorm, 0.25, 4.0)), DT_MAX)
+            grow = 0.3 if rnorm > r0_norm else float(np.clip(2.0 * r0_norm / rnorm, 1.0, 4.0))
+            dt = min(dt * grow, DT_MAX)
         r0_norm = rnorm
         _, c = laws.enthalpy(T)
         rho_c = disc.density(dense) * c

@@ -1,0 +1,184 @@
+"""Tests of the M1 melt-pool simulator (calnet.simulators.melt_pool).
+
+Tiers: analytic oracles (exact Jacobian against finite differences, exact tabulated
+integrals, Rosenthal estimate), interface/validation, physics sanity at a coarse
+resolution (monotonicity in P and v, plausible G0, S0 and peak temperature),
+non-convergence reporting and determinism. Mesh convergence and speed are measured in
+benchmarks/melt_pool/, not here.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from calnet.simulators import melt_pool
+from calnet.simulators.materials import NI5NB
+from calnet.simulators.melt_pool.assembly import Discretization
+from calnet.simulators.melt_pool.mesh import build_mesh, estimate_pool, pool_box
+from calnet.simulators.melt_pool.model import initial_field
+from calnet.simulators.melt_pool.properties import (
+    absorptivity_of_temperature,
+    build_laws,
+)
+
+MID = {k: 0.5 * sum(melt_pool.BOUNDS[k]) for k in melt_pool.PARAMETERS}
+COARSE = {"resolution": 0.5}  # about 8x fewer cells than the default mesh
+
+
+def _laws(theta=MID, **kw):
+    opts = {"kvz_mode": "factor", "anisotropy": "vertical", "w_vapour": 75.0,
+            "k_powder": 1.0, **kw}
+    return build_laws(theta, NI5NB, **opts)
+
+
+def test_interface_attributes():
+    assert melt_pool.NAME == "melt_pool"
+    assert melt_pool.INPUTS == ("P", "v")
+    assert melt_pool.OUTPUTS == ("D", "W", "L", "T0", "S0", "G0")
+    names = melt_pool.INPUTS + melt_pool.PARAMETERS + melt_pool.OUTPUTS
+    assert set(melt_pool.UNITS) == set(names)
+    assert set(melt_pool.BOUNDS) == set(melt_pool.INPUTS + melt_pool.PARAMETERS)
+    lower = [melt_pool.BOUNDS[k][0] for k in melt_pool.PARAMETERS]
+    assert lower == [60, 100, 0.5, 5, 1000, 0.25, 0.6]
+    assert all(int(p) >= 0 for p in melt_pool.VERSION.split("."))
+
+
+@pytest.mark.parametrize("kvz_mode", ["factor", "absolute"])
+@pytest.mark.parametrize("anisotropy", ["vertical", "lateral"])
+def test_tables_are_exact_integrals(kvz_mode, anisotropy):
+    laws = _laws(kvz_mode=kvz_mode, anisotropy=anisotropy)
+    T = np.linspace(250.0, 5000.0, 997)
+    for table in (laws.phi_x, laws.phi_z, laws.enthalpy, laws.powder_x, laws.powder_z):
+        F, f = table(T)
+        eps = 1e-4
+        fd = (table(T + eps)[0] - table(T - eps)[0]) / (2 * eps)
+        np.testing.assert_allclose(fd, f, rtol=1e-6)
+        np.testing.assert_allclose(table.inverse(F), T, atol=1e-6)
+    # latent heat appears once across the mushy zone
+    h = laws.enthalpy(np.array([NI5NB.T_solidus - 1, NI5NB.T_liquidus + 1]))[0]
+    assert NI5NB.latent_fusion < h[1] - h[0] < NI5NB.latent_fusion + 20 * NI5NB.cp_liquid
+
+
+def test_conductivity_phases():
+    laws = _laws()
+    kz_liquid = laws.phi_z(np.array([2500.0]))[1][0]
+    kx_liquid = laws.phi_x(np.array([2500.0]))[1][0]
+    kz_vap = laws.phi_z(np.array([4000.0]))[1][0]
+    assert laws.phi_x(np.array([1000.0]))[1][0] == pytest.approx(MID["K_S"], rel=1e-9)
+    assert kx_liquid == pytest.approx(MID["K_L"], rel=1e-6)
+    assert kz_liquid == pytest.approx(MID["K_L"] * MID["K_Lz"], rel=1e-6)
+    assert kz_vap == pytest.approx(MID["K_V"] * MID["K_Vz"], rel=1e-3)
+    absolute = _laws(kvz_mode="absolute").phi_z(np.array([4000.0]))[1][0]
+    assert absolute == pytest.approx(MID["K_Vz"], rel=1e-3)
+    assert laws.powder_x(np.array([1000.0]))[1][0] == pytest.approx(1.0)
+
+
+def test_jacobian_matches_finite_differences():
+    """The Newton Jacobian is exact (physics.md: L_i diag(k_i) plus rank-one A(T_s))."""
+    box = pool_box(150e-6, 40e-6, 50e-6, 80e-6, resolution=0.35, beam_radius=40e-6)
+    mesh = build_mesh(box, NI5NB, resolution=0.35, powder=True)
+    disc = Discretization(mesh, NI5NB, 150.0, 0.5)
+    laws = _laws()
+    rng = np.random.default_rng(0)
+    T = initial_field(mesh, 150.0, 0.5, 0.5, 100.0, NI5NB) * (1 + 0.3 * rng.random(mesh.size))
+    dense = disc.consolidated(T) | (rng.random(mesh.size) < 0.5)  # many mixed faces
+
+    def residual(T):
+        ts, dts = disc.surface_temperature(T, laws)
+        A, dA = absorptivity_of_temperature(ts, MID, NI5NB, 150.0)
+        return disc.evaluate(T, dense, laws, A, dA * dts)
+
+    R, J = residual(T)
+    d = rng.standard_normal(mesh.size)
+    eps = 1e-3
+    fd = (residual(T + eps * d)[0] - residual(T - eps * d)[0]) / (2 * eps)
+    np.testing.assert_allclose(J @ d, fd, atol=1e-6 * np.abs(fd).max())
+
+
+def test_rosenthal_estimate_scales():
+    small = estimate_pool(100.0, 1.0, 0.5, 100.0, NI5NB)
+    large = estimate_pool(200.0, 1.0, 0.5, 100.0, NI5NB)
+    slow = estimate_pool(100.0, 0.2, 0.5, 100.0, NI5NB)
+    assert large[2] > small[2] and slow[2] > small[2]
+    # tail of the Rosenthal pool: R = A P / (2 pi k (T_L - T_inf)), exactly
+    assert small[0] == pytest.approx(0.5 * 100 / (2 * math.pi * 100 * 1395.0))
+
+
+def test_options_validated():
+    with pytest.raises(TypeError, match="unknown melt_pool option"):
+        melt_pool.simulate({"P": 100.0, "v": 1.0}, resolutoin=2)
+    with pytest.raises(ValueError, match="absorptivity"):
+        melt_pool.simulate({"P": 100.0, "v": 1.0}, absorptivity="linear")
+    with pytest.raises(ValueError, match="missing control inputs"):
+        melt_pool.simulate({"P": 100.0})
+    with pytest.raises(ValueError, match="unknown inputs"):
+        melt_pool.simulate({"P": 100.0, "v": 1.0, "K_X": 3.0})
+
+
+def test_nonconvergence_is_reported_not_hidden():
+    res = melt_pool.simulate({"P": 150.0, "v": 0.5}, max_iter=3, **COARSE)
+    assert res.status == "nonconverged"
+    assert "did not converge" in res.message
+    assert all(math.isnan(x) for x in res.outputs.values())
+    assert res.diagnostics["converged"] is False
+    assert res.checked(melt_pool.OUTPUTS).status == "nonconverged"
+    json.dumps(res.diagnostics)
+
+
+def test_time_limit_gives_timeout():
+    res = melt_pool.simulate({"P": 150.0, "v": 0.5}, time_limit=1e-6, **COARSE)
+    assert res.status == "timeout"
+    assert all(math.isnan(x) for x in res.outputs.values())
+
+
+@pytest.fixture(scope="module")
+def sweep():
+    """Coarse runs at mid parameters: a base point, more power, more speed."""
+    cases = {"base": (150.0, 0.8), "hot": (230.0, 0.8), "fast": (150.0, 1.6)}
+    return {k: melt_pool.simulate({"P": P, "v": v}, **COARSE) for k, (P, v) in cases.items()}
+
+
+def test_runs_converge_with_diagnostics(sweep):
+    for res in sweep.values():
+        assert res.status == "ok", res.message
+        d = res.diagnostics
+        assert d["converged"] and d["residual"] <= 1e-6
+        assert d["n_cells"] == int(np.prod(d["mesh_shape"]))
+        json.dumps({"outputs": res.outputs, "diagnostics": d})
+
+
+def test_width_increases_with_power_and_decreases_with_speed(sweep):
+    assert sweep["hot"].outputs["W"] > 1.1 * sweep["base"].outputs["W"]
+    assert sweep["fast"].outputs["W"] < 0.95 * sweep["base"].outputs["W"]
+    assert sweep["hot"].outputs["D"] > sweep["base"].outputs["D"]
+    assert sweep["fast"].outputs["L"] > 0  # a pool exists at all
+
+
+def test_outputs_in_plausible_ranges(sweep):
+    for res in sweep.values():
+        o = res.outputs
+        assert 1e5 < o["G0"] < 1e8  # K/m; prototype ~4e6 at 150 W, 0.5 m/s
+        assert NI5NB.T_liquidus < o["T0"] < 6000.0
+        assert NI5NB.T_liquidus < res.diagnostics["peak_temperature_K"] < 6000.0
+        v = 0.8 if res is not sweep["fast"] else 1.6
+        assert 0.8 * v < o["S0"] <= v * (1 + 1e-12)  # S0 = v cos(angle) at the tail
+        assert 20.0 < o["W"] < 400.0 and 10.0 < o["D"] < 400.0
+        assert o["L"] > 0.5 * o["W"]
+
+
+def test_deterministic_bit_for_bit():
+    a = melt_pool.simulate({"P": 120.0, "v": 1.2}, resolution=0.4)
+    b = melt_pool.simulate({"P": 120.0, "v": 1.2}, resolution=0.4)
+    assert a.status == "ok"
+    assert a.outputs == b.outputs
+
+
+def test_keyhole_depth_absorptivity_option_runs():
+    res = melt_pool.simulate({"P": 150.0, "v": 0.8}, absorptivity="keyhole_depth", **COARSE)
+    assert res.status == "ok", res.message
+    lo, hi = MID["A_0"], MID["A_max"]
+    assert lo <= res.diagnostics["absorptivity"] <= hi
