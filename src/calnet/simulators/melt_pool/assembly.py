@@ -7,9 +7,10 @@ Cell energy balance (W), positive for net inflow (physics.md, M1)::
         + A(T_s) Q_P - A_top (eps sigma (T^4 - T_inf^4) + h (T - T_inf))
 
 so ``dR/dT = L diag(k(T)) + advection + boundary terms + a rank-one absorptivity term``.
-Never-melted powder cells use their own law (``k_p`` below ``T_S``, liquid above); a
-face between a powder cell and a dense cell uses the series conductance of the two half
-cells, each with its own ``k(T)``.
+Never-melted powder cells use their own law (``k_p`` below ``T_S``, liquid above);
+partly consolidated cells a log blend of the powder and dense laws; a face between
+cells of different laws uses the series conductance of the two half cells, each with
+its own ``k(T)``.
 """
 
 from __future__ import annotations
@@ -23,6 +24,17 @@ from scipy.special import erf
 from calnet.simulators.materials import STEFAN_BOLTZMANN
 from calnet.simulators.melt_pool.mesh import Mesh
 from calnet.simulators.melt_pool.properties import MaterialLaws
+
+
+CONSOLIDATION_RAMP = 100.0  # K, width of the loose -> consolidated powder ramp below T_S
+
+
+def _blend(T: np.ndarray, f: np.ndarray, tabs, ev, idx: np.ndarray
+           ) -> tuple[np.ndarray, np.ndarray]:
+    """``k`` and ``dk/dT`` of partly consolidated cells: log blend with weight ``f``."""
+    kd, kl = ev[0][1][idx], ev[1][1][idx]
+    k = np.exp(f * np.log(kd) + (1 - f) * np.log(kl))
+    return k, k * (f * tabs[0].slope(T) / kd + (1 - f) * tabs[1].slope(T) / kl)
 
 
 @dataclass(frozen=True)
@@ -88,7 +100,13 @@ class Discretization:
         self.powder_cells = np.zeros(mesh.shape, bool)
         self.powder_cells[:, :, : mesh.n_powder] = True
         self.area_yz = np.broadcast_to(np.multiply.outer(dy, dz), mesh.shape).ravel()
-        self.x_up = (idx[:-1], idx[1:])  # (downstream P, upstream E) pairs
+        self.x_down, self.x_upstream = idx[:-1].ravel(), idx[1:].ravel()  # face pairs
+        xc = Mesh.centres(mesh.xf)
+        w_up = (mesh.xf[1:-1] - xc[:-1]) / np.diff(xc)  # central weight of the upstream cell
+        self.w_up = np.broadcast_to(w_up[:, None, None], (nx - 1, ny, nz)).ravel()
+        self.gx = np.broadcast_to((np.multiply.outer(dy, dz) / np.diff(xc)[:, None, None]),
+                                  (nx - 1, ny, nz)).ravel()  # area / distance (m)
+        self._t_ref = np.array([mat.T_ambient])
         self.outflow = idx[0].ravel()
         self.top = idx[:, :, 0].ravel()
         self.area_top = np.multiply.outer(dx, dy).ravel()
@@ -116,18 +134,21 @@ class Discretization:
         return np.array(cells), np.array(weights)
 
     def consolidated(self, T: np.ndarray) -> np.ndarray:
-        """True for dense cells and for powder melted at or upstream of the cell.
+        """Consolidated fraction of every cell (n_cells,), 1 for the substrate.
 
-        A powder column counts as melted once any of its cells reached ``T_S`` (the
-        30 um layer, about one particle diameter, collapses as a whole), and stays
-        consolidated downstream: the max over ``x' >= x`` of physics.md, taken over
-        the whole layer thickness.
+        A powder column counts as melted to the degree its hottest cell approached
+        ``T_S`` (the 30 um layer, about one particle diameter, collapses as a whole),
+        and stays so downstream: the max over ``x' >= x`` of physics.md, taken over the
+        layer thickness. The fraction ramps smoothly from 0 at ``T_S - CONSOLIDATION_RAMP``
+        to 1 at ``T_S`` so that the powder edge moves continuously with the mesh and
+        the parameters instead of jumping by whole cells.
         """
         T3 = T.reshape(self.mesh.shape)[:, :, : self.mesh.n_powder]
-        melted = T3.max(axis=2, initial=-np.inf) >= self.mat.T_solidus
-        melted = np.maximum.accumulate(melted[::-1], axis=0)[::-1]
-        out = ~self.powder_cells
-        out[:, :, : self.mesh.n_powder] |= melted[:, :, None]
+        hot = T3.max(axis=2, initial=-np.inf)
+        hot = np.maximum.accumulate(hot[::-1], axis=0)[::-1]
+        x = np.clip((hot - self.mat.T_solidus) / CONSOLIDATION_RAMP + 1.0, 0.0, 1.0)
+        out = np.ones(self.mesh.shape)
+        out[:, :, : self.mesh.n_powder] = (x * x * (3 - 2 * x))[:, :, None]
         return out.ravel()
 
     def surface_temperature(self, T: np.ndarray, laws: MaterialLaws
@@ -138,7 +159,7 @@ class Discretization:
         _, k_s = laws.phi_z(np.array([ts]))
         return ts, self.ts_weights * k / k_s[0]
 
-    def evaluate(self, T: np.ndarray, dense: np.ndarray, laws: MaterialLaws,
+    def evaluate(self, T: np.ndarray, frac: np.ndarray, laws: MaterialLaws,
                  absorb: float, dabsorb: np.ndarray | None
                  ) -> tuple[np.ndarray, sp.csr_matrix]:
         """Residual ``R`` (W per cell) and Jacobian ``dR/dT`` (W/K).
@@ -151,7 +172,7 @@ class Discretization:
         tables = {False: (laws.phi_x, laws.powder_x), True: (laws.phi_z, laws.powder_z)}
         evals = {d: [tab(T) for tab in tabs] for d, tabs in tables.items()}
         for fc in self.faces:
-            flux, dP, dN = self._conduction(fc, T, dense, tables[fc.vertical],
+            flux, dP, dN = self._conduction(fc, T, frac, tables[fc.vertical],
                                             evals[fc.vertical])
             interior = fc.nb >= 0
             R += np.bincount(fc.P, flux, self.n)
@@ -163,30 +184,33 @@ class Discretization:
             rows += [Pi, Ni, Ni]
             cols += [Ni, Ni, Pi]
             vals += [dN[interior], -dN[interior], -dP[interior]]
-        self._advection(T, dense, laws, R, rows, cols, vals)
+        self._advection(T, frac, laws, R, rows, cols, vals)
         self._surface(T, absorb, dabsorb, R, rows, cols, vals)
         J = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
                           shape=(self.n, self.n))
         return R, J
 
-    def _conduction(self, fc: Faces, T: np.ndarray, dense: np.ndarray, tabs, ev
+    def _conduction(self, fc: Faces, T: np.ndarray, frac: np.ndarray, tabs, ev
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Flux into ``P`` through each face and its derivatives by ``T_P``, ``T_nb``.
 
-        Same-law faces: ``G (Phi(T_nb) - Phi(T_P))`` (Kirchhoff, exact). Faces between
-        powder and dense cells: series conductance of the half cells with each side's
-        own ``k(T)``, differentiated exactly.
+        Faces between two dense (``frac = 1``) or two loose-powder (``frac = 0``) cells:
+        ``G (Phi(T_nb) - Phi(T_P))`` (Kirchhoff, exact). Other faces: series conductance
+        of the two half cells, each with its own ``k(T, frac)`` (log blend of the powder
+        and dense laws), differentiated exactly at fixed ``frac``.
         """
         interior = fc.nb >= 0
         nb = np.where(interior, fc.nb, fc.P)
         t_inf = np.array([self.mat.T_ambient])
-        lawP = np.where(dense[fc.P], 0, 1)
-        lawN = np.where(interior, np.where(dense[nb], 0, 1), lawP)
+        fP = frac[fc.P]
+        fN = np.where(interior, frac[nb], fP)
         out_flux = np.empty(fc.P.size)
         out_dP = np.empty(fc.P.size)
         out_dN = np.zeros(fc.P.size)
-        for law in (0, 1):
-            same = (lawP == law) & (lawN == law)
+        pure = np.zeros(fc.P.size, bool)
+        for law, f in ((0, 1.0), (1, 0.0)):
+            same = (fP == f) & (fN == f)
+            pure |= same
             if not same.any():
                 continue
             phi, k = ev[law]
@@ -196,13 +220,11 @@ class Discretization:
             out_flux[same] = fc.G[same] * (phi_n - phi[P])
             out_dP[same] = -fc.G[same] * k[P]
             out_dN[same] = np.where(I, fc.G[same] * k[N], 0.0)
-        mixed = lawP != lawN
+        mixed = ~pure & interior
         if mixed.any():
             P, N = fc.P[mixed], nb[mixed]
-            kP = np.where(lawP[mixed] == 0, ev[0][1][P], ev[1][1][P])
-            kN = np.where(lawN[mixed] == 0, ev[0][1][N], ev[1][1][N])
-            sP = np.where(lawP[mixed] == 0, tabs[0].slope(T[P]), tabs[1].slope(T[P]))
-            sN = np.where(lawN[mixed] == 0, tabs[0].slope(T[N]), tabs[1].slope(T[N]))
+            kP, sP = _blend(T[P], fP[mixed], tabs, ev, P)
+            kN, sN = _blend(T[N], fN[mixed], tabs, ev, N)
             hP, hN = fc.hP[mixed], fc.hN[mixed]
             area = fc.G[mixed] * (hP + hN)
             res = hP / kP + hN / kN
@@ -211,22 +233,49 @@ class Discretization:
             out_flux[mixed] = g * dT
             out_dP[mixed] = -g + dT * area / res**2 * hP * sP / kP**2
             out_dN[mixed] = g + dT * area / res**2 * hN * sN / kN**2
+        edge = ~pure & ~interior  # Dirichlet face of a partly consolidated cell
+        if edge.any():
+            P = fc.P[edge]
+            kP, _ = _blend(T[P], fP[edge], tabs, ev, P)
+            out_flux[edge] = fc.G[edge] * kP * (self.mat.T_ambient - T[P])
+            out_dP[edge] = -fc.G[edge] * kP  # k is constant below T_S, where these live
         return out_flux, out_dP, out_dN
 
-    def density(self, dense: np.ndarray) -> np.ndarray:
-        """Cell density (kg/m^3): powder packing for never-melted powder."""
-        return np.where(dense, 1.0, self.mat.powder_packing) * self.mat.rho
+    def density(self, frac: np.ndarray) -> np.ndarray:
+        """Cell density (kg/m^3): packing fraction for loose powder, blended by ``frac``."""
+        pack = self.mat.powder_packing
+        return (pack + (1.0 - pack) * frac) * self.mat.rho
 
-    def _advection(self, T, dense, laws, R, rows, cols, vals) -> None:
-        H, c = laws.enthalpy(T)
-        rho = self.density(dense)
-        m = self.v * self.area_yz * rho  # kg/s through the upstream face of each cell
-        P, E = (a.ravel() for a in self.x_up)
-        R[P] += m[E] * H[E]
-        R -= m * H
-        rows += [P, np.arange(self.n)]
-        cols += [E, np.arange(self.n)]
-        vals += [m[E] * c[E], -m * c]
+    def _advection(self, T, frac, laws, R, rows, cols, vals) -> None:
+        """Enthalpy advection towards ``-x`` through every x face.
+
+        Latent part upwind; sensible part blended between central and upwind with the
+        face weight ``beta = min(1, 1.8 / Pe_face)`` (hybrid scheme), where
+        ``Pe_face = v rho c_p,l dx / k_ref`` uses ``k_ref = K_S`` (``k_p`` next to loose
+        powder), so ``beta`` does not depend on ``T`` and the Jacobian stays exact:
+        central (second order, no numerical diffusion) in the pool region, upwind in
+        the stretched far field.
+        """
+        S, cp = laws.sensible(T)
+        Lh, dl = laws.latent(T)
+        rho = self.density(frac)
+        m = self.v * self.area_yz * rho  # kg/s through a cell's cross-section
+        P, E = self.x_down, self.x_upstream
+        mE = m[E]
+        k_d, k_l = laws.phi_x(self._t_ref)[1][0], laws.powder_x(self._t_ref)[1][0]
+        f_face = np.minimum(frac[P], frac[E])
+        k_ref = np.exp(f_face * np.log(k_d) + (1 - f_face) * np.log(k_l))
+        beta = np.minimum(1.0, 1.8 * self.gx * k_ref / (mE * self.mat.cp_liquid))
+        wE, wP = beta * self.w_up, beta * (1 - self.w_up)
+        F = mE * ((1 - beta) * S[E] + wE * S[E] + wP * S[P] + Lh[E])
+        R += np.bincount(P, F, self.n) - np.bincount(E, F, self.n)
+        dFE = mE * ((1 - beta + wE) * cp[E] + dl[E])
+        dFP = mE * wP * cp[P]
+        o = self.outflow
+        R[o] -= m[o] * (S[o] + Lh[o])
+        rows += [P, P, E, E, o]
+        cols += [E, P, E, P, o]
+        vals += [dFE, dFP, -dFE, -dFP, -m[o] * (cp[o] + dl[o])]
 
     def _surface(self, T, absorb, dabsorb, R, rows, cols, vals) -> None:
         mat = self.mat

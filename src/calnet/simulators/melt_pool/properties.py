@@ -81,6 +81,8 @@ class MaterialLaws:
         liquid values across the mushy zone (powder above ``T_S`` is liquid).
     enthalpy : Table
         ``H(T) - H(T_inf)`` (J/kg) including latent heat; derivative ``c_eff``.
+    sensible, latent : Table
+        The two parts of ``H``: ``int c_p dT`` and ``L_f f_l(T)`` (J/kg).
     """
 
     phi_x: Table
@@ -88,11 +90,28 @@ class MaterialLaws:
     enthalpy: Table
     powder_x: Table
     powder_z: Table
+    sensible: Table
+    latent: Table
+
+
+MUSHY_ROUNDING = 4.0  # K, width over which the corners of f_l at T_S and T_L are rounded
 
 
 def liquid_fraction(T: np.ndarray, mat: AlloyProperties) -> np.ndarray:
-    """``f_l`` linear from ``T_S`` to ``T_L`` (physics.md, governing equation)."""
-    return np.clip((T - mat.T_solidus) / (mat.T_liquidus - mat.T_solidus), 0.0, 1.0)
+    """``f_l`` linear from ``T_S`` to ``T_L`` (physics.md), corners rounded.
+
+    The linear ramp is convolved with a ``MUSHY_ROUNDING`` wide box, which keeps
+    ``f_l`` exact outside ``T_S +- 2 K`` and ``T_L +- 2 K`` and makes ``c_eff`` continuous
+    (a jump in ``c_eff`` lets Newton 2-cycle at cells near ``T_S``).
+    """
+    d, span = MUSHY_ROUNDING, mat.T_liquidus - mat.T_solidus
+
+    def ramp_integral(x: np.ndarray) -> np.ndarray:  # int of clip(x, 0, 1) (x in units)
+        return np.where(x < 0, 0.0, np.where(x > 1, x - 0.5, 0.5 * x**2))
+
+    x = (T - mat.T_solidus) / span
+    h = 0.5 * d / span
+    return (ramp_integral(x + h) - ramp_integral(x - h)) / (2 * h)
 
 
 def conductivities(T: np.ndarray, theta: dict[str, float], mat: AlloyProperties, *,
@@ -130,14 +149,17 @@ def build_laws(theta: dict[str, float], mat: AlloyProperties, *, kvz_mode: str,
     px, pz = conductivities(T, theta, mat, k_solid=k_powder, **kw)
     fl = liquid_fraction(T, mat)
     cp = (1 - fl) * mat.cp_solid + fl * mat.cp_liquid
-    dfl = np.where((T > mat.T_solidus) & (T < mat.T_liquidus),
-                   1.0 / (mat.T_liquidus - mat.T_solidus), 0.0)
-    c_eff = cp + mat.latent_fusion * dfl
-    enthalpy = Table.from_derivative(c_eff)
-    h_inf, _ = enthalpy(np.array([mat.T_ambient]))
-    enthalpy = Table(f=enthalpy.f, F=enthalpy.F - h_inf[0])
+    dfl = np.gradient(fl, T)
+    sensible, latent, enthalpy = (_from_ambient(Table.from_derivative(f), mat) for f in
+                                  (cp, mat.latent_fusion * dfl, cp + mat.latent_fusion * dfl))
     return MaterialLaws(*(Table.from_derivative(k) for k in (kx, kz)), enthalpy,
-                        *(Table.from_derivative(k) for k in (px, pz)))
+                        *(Table.from_derivative(k) for k in (px, pz)), sensible, latent)
+
+
+def _from_ambient(table: Table, mat: AlloyProperties) -> Table:
+    """Shift ``F`` so that ``F(T_inf) = 0`` (cold inflow carries no enthalpy)."""
+    f_inf, _ = table(np.array([mat.T_ambient]))
+    return Table(f=table.f, F=table.F - f_inf[0])
 
 
 def absorptivity_of_temperature(Ts: float, theta: dict[str, float], mat: AlloyProperties,

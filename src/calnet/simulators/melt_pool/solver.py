@@ -3,11 +3,12 @@
 Each step solves ``(V rho c_eff / dt - J) dT = R`` (physics.md: exact Jacobian through
 Kirchhoff potentials, pseudo-transient continuation, temperature updates capped at
 ``max_update``). The pseudo time step follows switched evolution relaxation,
-``dt_k = dt_(k-1) clip(2 |R_(k-1)| / |R_k|, 1, 4)`` while the residual falls and
-``0.3 dt_(k-1)`` when it rises, so the iteration turns into plain Newton as the
-residual falls. The consolidation of the powder (a max over the upstream line) is
-lagged by one step and only grows (melted powder stays consolidated, as it would in a
-physical transient); convergence requires it to have stopped changing.
+``dt_k = dt_(k-1) clip(1.5 |R_(k-1)| / |R_k|, 1, 4)`` while the residual falls and
+``dt_(k-1) / 4`` when it rises (this breaks Newton 2-cycles), so the iteration turns into plain Newton as the
+residual falls. The consolidated fraction of the powder (a max over the upstream line) is
+lagged by one step and never decreases (powder, once sintered, stays so, as in a
+physical transient; a reverting fraction makes the iteration 2-cycle); convergence
+requires it to have stopped changing.
 """
 
 from __future__ import annotations
@@ -27,7 +28,8 @@ import os
 
 _DEBUG = bool(os.environ.get("CALNET_MELT_POOL_DEBUG"))
 DT0 = 2e-6  # s, first pseudo time step
-DT_MAX = 1.0  # s; beyond this the step is effectively Newton
+DT_MAX = 1.0
+FRAC_TOL = 1e-4  # largest change of the consolidated fraction allowed at convergence  # s; beyond this the step is effectively Newton
 
 
 @dataclass(frozen=True)
@@ -73,18 +75,19 @@ def newton_solve(disc: Discretization, laws: MaterialLaws, T0: np.ndarray, *,
     T = T0.copy()
     rho_c = None
     dt, r0_norm, upd, lin_total = dt0, None, np.inf, 0
-    dense = ~disc.powder_cells.ravel()
+    frac = disc.consolidated(T)
     reason, it, rnorm = "iteration limit reached", 0, np.inf
     A, Ts = np.nan, np.nan
     for it in range(1, max_iter + 1):
         if deadline is not None and time.monotonic() > deadline:
             reason = "time limit reached"
             break
-        new_dense = dense | disc.consolidated(T)  # melted powder stays consolidated
-        mask_changed = bool(np.any(new_dense != dense))
-        dense = new_dense
+        new_frac = np.maximum(frac, disc.consolidated(T))  # consolidation never reverts
+        frac_change = float(np.abs(new_frac - frac).max())
+        mask_changed = frac_change > FRAC_TOL
+        frac = new_frac
         A, dA, Ts = absorptivity.evaluate(T)
-        R, J = disc.evaluate(T, dense, laws, A, dA)
+        R, J = disc.evaluate(T, frac, laws, A, dA)
         rnorm = float(np.abs(R).max() / (A * disc.P / 2))
         if not np.isfinite(rnorm):
             reason = "non-finite residual"
@@ -92,11 +95,11 @@ def newton_solve(disc: Discretization, laws: MaterialLaws, T0: np.ndarray, *,
         if rnorm <= rtol and upd <= ttol and not mask_changed:
             return SolveReport(T, True, "", it - 1, rnorm, upd, lin_total, A, Ts)
         if r0_norm is not None:  # grow dt while the residual falls (SER-like)
-            grow = 0.3 if rnorm > r0_norm else float(np.clip(2.0 * r0_norm / rnorm, 1.0, 4.0))
+            grow = 0.25 if rnorm > r0_norm else float(np.clip(1.5 * r0_norm / rnorm, 1.0, 4.0))
             dt = min(dt * grow, DT_MAX)
         r0_norm = rnorm
         _, c = laws.enthalpy(T)
-        rho_c = disc.density(dense) * c
+        rho_c = disc.density(frac) * c
         M = (sp.diags(disc.volume * rho_c / dt) - J).tocsr()
         if _DEBUG and os.environ.get("CALNET_MELT_POOL_DUMP") and dt > 1e-2:
             sp.save_npz("/tmp/mpool/M.npz", M)
@@ -113,5 +116,7 @@ def newton_solve(disc: Discretization, laws: MaterialLaws, T0: np.ndarray, *,
         upd = min(big, max_update)
         if _DEBUG:
             print(f"it {it} r {rnorm:.3e} dt {dt:.2e} dT {big:.1f} lin {n_lin} A {A:.3f} "
-                  f"Ts {Ts:.0f} Tmax {T.max():.0f} mask {mask_changed}", flush=True)
+                  f"Ts {Ts:.0f} Tmax {T.max():.0f} mask {mask_changed} "
+                  f"at {np.unravel_index(np.argmax(np.abs(dT)), disc.mesh.shape)} "
+                  f"T {T[np.argmax(np.abs(dT))]:.0f}", flush=True)
     return SolveReport(T, False, reason, it, rnorm, upd, lin_total, A, Ts)
