@@ -150,6 +150,87 @@ def _json_default(obj: Any) -> Any:
         return str(obj)
 
 
+def _register_campaign() -> None:
+    from calnet.campaign.command import campaign
+
+    app.command("campaign")(user_errors(campaign))
+
+
+_register_campaign()
+
+
+@app.command()
+@user_errors
+def surrogates(
+    spec: SpecArg,
+    out: Annotated[Path, typer.Option(help="folder for the GPs and parity plots")] = Path(
+        "out/surrogates"),
+    no_cv: Annotated[bool, typer.Option("--no-cv", help="skip cross-validation")] = False,
+) -> None:
+    """Fit a GP surrogate for every output the network needs; print the CV table."""
+    from rich.table import Table
+
+    from calnet.spec import load_spec
+    from calnet.surrogates.network import fit_surrogates
+    from calnet.surrogates.plots import parity_plot
+
+    network = load_spec(spec)
+    with console.status("fitting surrogates") as status:
+        sur = fit_surrogates(network, cv=not no_cv,
+                             progress=lambda m: status.update(f"fitting {m}"))
+    sur.save(out)
+    table = Table("output", "runs", "excluded", "k", "MAPE %", "RMSE", "95% coverage")
+    for key, s in sur.items.items():
+        cv = s.cv.metrics() if s.cv else {}
+        if s.cv:
+            parity_plot(s.cv, Path(out) / f"cv_{key}.png",
+                        units=network.model(s.model).output(s.output).unit)
+        table.add_row(key, str(s.n_runs), str(s.n_excluded), str(cv.get("k", "-")),
+                      *(f"{cv[k]:.4g}" if k in cv else "-" for k in ("mape", "rmse",
+                                                                      "coverage95")))
+    console.print(table)
+    console.print(f"surrogates and plots written to {out}")
+
+
+@app.command()
+@user_errors
+def calibrate(
+    spec: SpecArg,
+    mode: Annotated[str | None, typer.Option(help="segmented or joint")] = None,
+    plug: Annotated[str | None, typer.Option(help="mode or posterior (segmented)")] = None,
+    surrogates_dir: Annotated[Path, typer.Option("--surrogates", help="from calnet surrogates")
+                              ] = Path("out/surrogates"),
+    out: Annotated[Path, typer.Option(help="folder for posteriors and plots")] = Path(
+        "out/calibration"),
+) -> None:
+    """Calibrate the network (KOH per model, NUTS) and print the posterior summary."""
+    from calnet.calibration.network import calibrate as run_calibration
+    from calnet.calibration.network import kde_mode
+    from calnet.spec import load_spec
+    from calnet.surrogates.network import Surrogates
+
+    network = load_spec(spec)
+    sur = Surrogates.load(surrogates_dir)
+    with console.status("sampling") as status:
+        post = run_calibration(network, sur, mode=mode, plug=plug,
+                               progress=lambda m: status.update(m))
+    out.mkdir(parents=True, exist_ok=True)
+    from rich.table import Table
+
+    table = Table("model", "parameter", "range", "mode", "mean", "95% interval", "unit")
+    for model, draws in post.theta.items():
+        m = network.model(model)
+        for j, p in enumerate(m.parameters):
+            d = draws[:, j]
+            lo, hi = (float(x) for x in __import__("numpy").percentile(d, [2.5, 97.5]))
+            table.add_row(model, p.name, f"[{p.lower:g}, {p.upper:g}]", f"{kde_mode(d):.4g}",
+                          f"{d.mean():.4g}", f"[{lo:.4g}, {hi:.4g}]", p.unit)
+    for stage in post.stages:
+        stage.idata.to_netcdf(str(out / f"{'+'.join(stage.models)}.nc"))
+    console.print(table)
+    console.print(f"posteriors (ArviZ netCDF) written to {out}")
+
+
 @app.command()
 @user_errors
 def run(

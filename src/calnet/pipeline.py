@@ -54,7 +54,7 @@ def run_pipeline(spec: str | Path, *, out: Path, fresh: bool = False, quick: boo
         (out / sub).mkdir(parents=True, exist_ok=True)
     timings: dict[str, float] = {}
     ctx = _Context(network, out, quick, fresh, loo_max if loo_max is not None
-                   else (12 if quick else 15))
+                   else (8 if quick else 15))
     columns = (TextColumn("[bold]{task.description}"), BarColumn(), TextColumn("{task.fields[note]}"),
                TimeElapsedColumn())
     with Progress(*columns, console=console, transient=False) as bar:

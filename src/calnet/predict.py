@@ -12,6 +12,7 @@ gives the predictive distribution; the variance is split into its sources.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import partial
 
 import jax
 
@@ -100,6 +101,15 @@ def _draw_moments(plan, gps, model, key, tr, xp_new, thetas, hyper, eps, emu):
     return mean, var_delta, v_p / s**2, se2 * jnp.ones_like(mean)
 
 
+@partial(jax.jit, static_argnums=(0, 1, 2, 3, 4))
+def _moments_over_draws(plan, model, key, emu, eps_on, gps, tr, xp_new, thetas, hyper, eps):
+    """:func:`_draw_moments` for every posterior draw; one compiled program per shape."""
+    def one(th, hy, ep):
+        return _draw_moments(plan, gps, model, key, tr, xp_new, th, hy,
+                             {k: ep[k] for k in eps_on}, emu)
+    return jax.vmap(one)(thetas, hyper, eps)
+
+
 def predict(network: Network, surrogates: Surrogates, posterior: NetworkPosterior,
             dataset: str, x: np.ndarray, *, n_draws: int = 200, seed: int = 0,
             n_samples: int = 20,
@@ -146,10 +156,8 @@ def predict(network: Network, surrogates: Surrogates, posterior: NetworkPosterio
     model, key = ds.observed_model, ds.observes
 
     def run(eps_on):
-        def one(th, hy, ep):
-            return _draw_moments(plan, gps, model, key, tr, xp_new, th, hy,
-                                 {k: ep[k] for k in eps_on}, emu)
-        return jax.jit(jax.vmap(one))(thetas, hyper, eps)
+        return _moments_over_draws(plan, model, key, emu, tuple(eps_on), gps, tr, xp_new,
+                                   thetas, hyper, eps)
 
     mean0, var_delta, var_emu, noise = (np.asarray(a) for a in run(()))
     budget = {"parameters": mean0.var(axis=0)}
