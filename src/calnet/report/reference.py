@@ -15,6 +15,10 @@ PDAS_TEST_MAPE, PDAS_TEST_SE = 5.7, 0.023
 def reference_rows(ctx, summary) -> list[list[str]]:
     """Rows ``[quantity, reference, calnet]`` where the network matches the case study."""
     rows = []
+    names = {d.name: d.observes for d in ctx.network.data}
+    if names.get("pdas") != "solidification.lambda" and not any(
+            m in {x.name for x in ctx.network.models} for m in REFERENCE_MODES):
+        return rows
     v = ctx.metrics.get("validation", {}).get("pdas", {})
     if "test" in v:
         rows.append(["PDAS test MAPE %", fmt(PDAS_TEST_MAPE), fmt(v["test"]["mape"])])
