@@ -64,7 +64,7 @@ class InProcessExecutor:
 
 
 class ProcessExecutor:
-    """A pool of ``workers`` local processes (``forkserver`` start method).
+    """A pool of ``workers`` local processes (``spawn`` start method).
 
     A worker that dies (a simulator crashing the interpreter without a timeout set) stops
     the campaign with a :class:`CampaignError`; the runs in flight stay unfinished.
@@ -77,9 +77,10 @@ class ProcessExecutor:
         self._pool = self._new_pool()
 
     def _new_pool(self) -> ProcessPoolExecutor:
-        method = "forkserver" if "forkserver" in multiprocessing.get_all_start_methods() \
-            else "spawn"
-        return ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context(method))
+        # spawn: the workers are children of this process, so they die with it (see
+        # _die_with_parent) and never inherit a half-copied threaded state
+        return ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"),
+                                   initializer=_die_with_parent)
 
     def run(self, fn, tasks, on_submit=None):
         pending: dict[Future, Task] = {}
@@ -126,6 +127,18 @@ class ProcessExecutor:
     def __exit__(self, kind, *exc):
         # after an interrupt, do not wait for the runs in flight: they will be run again
         self.close(wait=kind is None)
+
+
+def _die_with_parent() -> None:
+    """Ask Linux to kill this worker when its parent dies (a campaign killed with -9), so
+    that no orphan keeps simulating; a no-op elsewhere."""
+    try:
+        import ctypes
+        import signal
+
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
 
 
 class DaskExecutor:
