@@ -10,6 +10,7 @@ the gaps, the old ones stay).
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import time
@@ -202,7 +203,16 @@ def _claim(db: RunStore, network: Network, model: Model, seed: int, simulator: s
                      "created_at": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
                      "design": "scipy.stats.qmc.LatinHypercube(optimization='random-cd')"})
     db.set_meta({"calnet_version": calnet.__version__, "simulator": simulator,
-                 "simulator_version": version, "spec": network.source})
+                 "simulator_version": version, "spec": network.source,
+                 "spec_sha256": _file_hash(network.source)})
+
+
+def _file_hash(path: str) -> str:
+    """sha256 of the spec file ("" for a network built in Python)."""
+    try:
+        return hashlib.sha256(Path(path).read_bytes()).hexdigest() if path else ""
+    except OSError:
+        return ""
 
 
 def _target_runs(runs: int | None, model: Model, network: Network, planned: int) -> int:
