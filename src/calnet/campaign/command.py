@@ -15,9 +15,9 @@ import typer
 def campaign(
     spec: Annotated[Path, typer.Argument(help="network YAML, or a folder holding network.yaml")],
     model: Annotated[str | None, typer.Option(
-        "--model", "-m", help="model to simulate [default: every model, parents first]")] = None,
+        "--model", "-m", help="model to simulate (default: every model, parents first)")] = None,
     runs: Annotated[int | None, typer.Option(
-        help="runs in the design [default: the spec's campaign.runs]; more than the store "
+        help="runs in the design (default: the spec's campaign.runs); more than the store "
              "plans augments it", min=1)] = None,
     workers: Annotated[int | None, typer.Option(
         help="parallel runs on this machine (local processes, or a Dask LocalCluster with "
@@ -25,11 +25,11 @@ def campaign(
     scheduler: Annotated[str | None, typer.Option(
         help="address of a running Dask scheduler, e.g. tcp://host:8786")] = None,
     store: Annotated[Path | None, typer.Option(
-        help="SQLite store [default: <spec folder>/campaigns/<model>.sqlite]")] = None,
+        help="SQLite store (default: <spec folder>/campaigns/<model>.sqlite)")] = None,
     executor: Annotated[str, typer.Option(
         help="auto, in-process, processes or dask")] = "auto",
     seed: Annotated[int | None, typer.Option(
-        help="design seed [default: the spec's settings.seed]", min=0)] = None,
+        help="design seed (default: the spec's settings.seed)", min=0)] = None,
     fresh: Annotated[bool, typer.Option(
         "--fresh", help="delete the store and simulate everything again")] = False,
     retry_failed: Annotated[bool, typer.Option(
