@@ -78,19 +78,21 @@ def test_conductivity_phases():
 
 
 def test_jacobian_matches_finite_differences():
-    """The Newton Jacobian is exact (physics.md: L_i diag(k_i) plus rank-one A(T_s))."""
+    """The Newton Jacobian is exact (physics.md: L_i diag(k_i) plus rank-one A(T_s)),
+    including powder/dense faces, hybrid advection and boundary terms."""
     box = pool_box(150e-6, 40e-6, 50e-6, 80e-6, resolution=0.35, beam_radius=40e-6)
     mesh = build_mesh(box, NI5NB, resolution=0.35, powder=True)
     disc = Discretization(mesh, NI5NB, 150.0, 0.5)
     laws = _laws()
     rng = np.random.default_rng(0)
     T = initial_field(mesh, 150.0, 0.5, 0.5, 100.0, NI5NB) * (1 + 0.3 * rng.random(mesh.size))
-    dense = disc.consolidated(T) | (rng.random(mesh.size) < 0.5)  # many mixed faces
+    # random partly consolidated powder: many mixed faces of all kinds
+    frac = np.maximum(disc.consolidated(T), rng.random(mesh.size) * (rng.random(mesh.size) < 0.5))
 
     def residual(T):
         ts, dts = disc.surface_temperature(T, laws)
         A, dA = absorptivity_of_temperature(ts, MID, NI5NB, 150.0)
-        return disc.evaluate(T, dense, laws, A, dA * dts)
+        return disc.evaluate(T, frac, laws, A, dA * dts)
 
     R, J = residual(T)
     d = rng.standard_normal(mesh.size)
@@ -137,8 +139,9 @@ def test_time_limit_gives_timeout():
 
 @pytest.fixture(scope="module")
 def sweep():
-    """Coarse runs at mid parameters: a base point, more power, more speed."""
-    cases = {"base": (150.0, 0.8), "hot": (230.0, 0.8), "fast": (150.0, 1.6)}
+    """Coarse runs at mid parameters: a base point, less and more power, more speed."""
+    cases = {"base": (150.0, 0.8), "cold": (90.0, 0.8), "hot": (240.0, 0.8),
+             "fast": (150.0, 1.6)}
     return {k: melt_pool.simulate({"P": P, "v": v}, **COARSE) for k, (P, v) in cases.items()}
 
 
@@ -152,8 +155,9 @@ def test_runs_converge_with_diagnostics(sweep):
 
 
 def test_width_increases_with_power_and_decreases_with_speed(sweep):
-    assert sweep["hot"].outputs["W"] > 1.1 * sweep["base"].outputs["W"]
-    assert sweep["fast"].outputs["W"] < 0.95 * sweep["base"].outputs["W"]
+    W = {k: r.outputs["W"] for k, r in sweep.items()}
+    assert W["cold"] < 0.98 * W["base"] < 0.98**2 * W["hot"]
+    assert W["fast"] < 0.95 * W["base"]
     assert sweep["hot"].outputs["D"] > sweep["base"].outputs["D"]
     assert sweep["fast"].outputs["L"] > 0  # a pool exists at all
 
@@ -164,7 +168,7 @@ def test_outputs_in_plausible_ranges(sweep):
         assert 1e5 < o["G0"] < 1e8  # K/m; prototype ~4e6 at 150 W, 0.5 m/s
         assert NI5NB.T_liquidus < o["T0"] < 6000.0
         assert NI5NB.T_liquidus < res.diagnostics["peak_temperature_K"] < 6000.0
-        v = 0.8 if res is not sweep["fast"] else 1.6
+        v = 1.6 if res is sweep["fast"] else 0.8
         assert 0.8 * v < o["S0"] <= v * (1 + 1e-12)  # S0 = v cos(angle) at the tail
         assert 20.0 < o["W"] < 400.0 and 10.0 < o["D"] < 400.0
         assert o["L"] > 0.5 * o["W"]

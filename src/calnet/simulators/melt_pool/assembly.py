@@ -133,18 +133,26 @@ class Discretization:
                     weights.append(wa * wb * wc)
         return np.array(cells), np.array(weights)
 
-    def consolidated(self, T: np.ndarray) -> np.ndarray:
+    def consolidated(self, T: np.ndarray, absorb: float = 0.0, k_powder: float = 1.0
+                     ) -> np.ndarray:
         """Consolidated fraction of every cell (n_cells,), 1 for the substrate.
 
-        A powder column counts as melted to the degree its hottest cell approached
+        A powder column counts as melted to the degree its hottest point approached
         ``T_S`` (the 30 um layer, about one particle diameter, collapses as a whole),
-        and stays so downstream: the max over ``x' >= x`` of physics.md, taken over the
-        layer thickness. The fraction ramps smoothly from 0 at ``T_S - CONSOLIDATION_RAMP``
-        to 1 at ``T_S`` so that the powder edge moves continuously with the mesh and
-        the parameters instead of jumping by whole cells.
+        the hottest point being a cell centre or the top surface, whose temperature
+        ``T_top + q dz / (2 k_p)`` follows from the absorbed flux ``q``: in the
+        insulating powder the centre of a top cell lags the surface by an amount that
+        scales with the cell size, so centres alone would move the powder edge with
+        the mesh; and stays so downstream: the max over ``x' >= x`` of physics.md, taken
+        over the layer thickness. The fraction ramps smoothly from 0 at
+        ``T_S - CONSOLIDATION_RAMP`` to 1 at ``T_S``.
         """
         T3 = T.reshape(self.mesh.shape)[:, :, : self.mesh.n_powder]
         hot = T3.max(axis=2, initial=-np.inf)
+        if self.mesh.n_powder:
+            dz0 = self.mesh.zf[1] - self.mesh.zf[0]
+            q = (absorb * self.q_top / self.area_top).reshape(hot.shape)
+            hot = np.maximum(hot, T3[:, :, 0] + q * dz0 / (2 * k_powder))
         hot = np.maximum.accumulate(hot[::-1], axis=0)[::-1]
         x = np.clip((hot - self.mat.T_solidus) / CONSOLIDATION_RAMP + 1.0, 0.0, 1.0)
         out = np.ones(self.mesh.shape)
@@ -154,8 +162,12 @@ class Discretization:
     def surface_temperature(self, T: np.ndarray, laws: MaterialLaws
                             ) -> tuple[float, np.ndarray]:
         """Reconstructed ``T_s`` at the beam centre and ``dT_s/dT`` on its stencil."""
-        phi, k = laws.phi_z(T[self.ts_cells])
+        Tc = T[self.ts_cells]
+        phi, k = laws.phi_z(Tc)
         ts = float(laws.phi_z.inverse(np.array([self.ts_weights @ phi]))[0])
+        lo, hi = Tc.min() - 200.0, Tc.max() + 200.0  # extrapolation guard (wild iterates)
+        if not lo <= ts <= hi:
+            return float(np.clip(ts, lo, hi)), np.zeros_like(k)
         _, k_s = laws.phi_z(np.array([ts]))
         return ts, self.ts_weights * k / k_s[0]
 

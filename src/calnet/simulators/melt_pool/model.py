@@ -15,7 +15,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.interpolate import RegularGridInterpolator
 
-from calnet.simulators.materials import NI5NB, AlloyProperties
+from calnet.simulators.materials import NI5NB, STEFAN_BOLTZMANN, AlloyProperties
 from calnet.simulators.melt_pool.assembly import Discretization
 from calnet.simulators.melt_pool.mesh import Mesh, PoolBox, build_mesh, estimate_pool, pool_box
 from calnet.simulators.melt_pool.options import MeltPoolOptions
@@ -57,6 +57,12 @@ def _absorptivity(disc: Discretization, laws: MaterialLaws, theta: dict[str, flo
 
     return AbsorptivityLaw(by_temperature if opts.absorptivity == "surface_temperature"
                            else by_keyhole)
+
+
+def _surface_loss(T: float, mat: AlloyProperties) -> float:
+    """Radiative and convective loss (W/m^2) of the top surface at ``T``."""
+    return (mat.emissivity * STEFAN_BOLTZMANN * (T**4 - mat.T_ambient**4)
+            + mat.h_conv * (T - mat.T_ambient))
 
 
 def initial_field(mesh: Mesh, P: float, v: float, absorb: float, k: float,
@@ -113,15 +119,16 @@ def run(P: float, v: float, theta: dict[str, float], opts: MeltPoolOptions,
     for stage in range(3):
         disc = Discretization(mesh, mat, P, v)
         report = newton_solve(disc, laws, T0, absorptivity=_absorptivity(disc, laws, theta,
-                              opts, mat), rtol=opts.rtol, ttol=opts.ttol,
+                              opts, mat), k_powder=k_p, rtol=opts.rtol, ttol=opts.ttol,
                               max_iter=opts.max_iter - iterations,
                               max_update=opts.max_update, deadline=deadline,
                               **({} if dt0 is None else {"dt0": dt0}))
         iterations += report.iterations
         if not report.converged:
             break
-        geometry = extract(report.T, mesh, laws, v=v, T_liquidus=mat.T_liquidus,
-                           g_window=G_WINDOW_CELLS * box.h * res)
+        geometry = extract(report.T, report.frac, mesh, laws, v=v, T_liquidus=mat.T_liquidus,
+                           g_window=G_WINDOW_CELLS * box.h * res,
+                           tail_flux=_surface_loss(mat.T_liquidus, mat))
         final = res == opts.resolution and (stage == 2 or not _needs_remesh(geometry, box))
         if final or not opts.adapt_mesh or not np.isfinite(geometry.x_tail):
             break

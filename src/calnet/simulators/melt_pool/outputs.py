@@ -75,6 +75,32 @@ def _refined_max(x: np.ndarray, y: np.ndarray) -> float:
     return float(min(c[2] - c[1] ** 2 / (4 * c[0]), y[i] + abs(y[i] - y[i - 1])))
 
 
+def _blended_k(table_d, table_p, T: np.ndarray, frac: np.ndarray) -> np.ndarray:
+    """Conductivity of cells with consolidated fraction ``frac`` (log blend)."""
+    kd, kp = table_d(T)[1], table_p(T)[1]
+    return np.exp(frac * np.log(kd) + (1 - frac) * np.log(kp))
+
+
+def _with_faces(F: np.ndarray, k: np.ndarray, s: np.ndarray, faces: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """Interleave cell values with flux-continuous face values along the last axis.
+
+    ``T_f = (k_a T_a / d_a + k_b T_b / d_b) / (k_a / d_a + k_b / d_b)`` (``d`` centre-face
+    distances): the temperature that makes the two half-cell fluxes equal. At the edge
+    of the pool, where liquid (high k) meets loose powder (k ~ 1 W/(m K)), ``T_f`` sits
+    near the liquid value, so the isotherm is found in the powder half cell rather than
+    halfway between the centres (an O(h) bias that made W grow under refinement).
+    """
+    da, db = faces[1:-1] - s[:-1], s[1:] - faces[1:-1]
+    wa, wb = k[..., :-1] / da, k[..., 1:] / db
+    Tf = (wa * F[..., :-1] + wb * F[..., 1:]) / (wa + wb)
+    V = np.empty(F.shape[:-1] + (2 * F.shape[-1] - 1,))
+    V[..., 0::2], V[..., 1::2] = F, Tf
+    S = np.empty(2 * s.size - 1)
+    S[0::2], S[1::2] = s, faces[1:-1]
+    return V, S
+
+
 def _crossing_1d(x: np.ndarray, f: np.ndarray, level: float) -> tuple[float, float]:
     """Outermost ``x`` positions (low, high) where ``f(x) = level`` (NaN if none)."""
     hot = np.flatnonzero(f >= level)
@@ -86,8 +112,8 @@ def _crossing_1d(x: np.ndarray, f: np.ndarray, level: float) -> tuple[float, flo
     return float(lo), float(hi)
 
 
-def tail_gradient(line: np.ndarray, T3: np.ndarray, mesh: Mesh, x_tail: float,
-                  half_width: float) -> tuple[float, float]:
+def tail_gradient(line: np.ndarray, mesh: Mesh, x_tail: float, half_width: float,
+                  surface_flux: float, k_z: float) -> tuple[float, float]:
     """``(dT/dx, dT/dz)`` at the surface tail point ``(x_tail, 0, 0)``.
 
     ``dT/dx``: least-squares slope of the surface centreline temperature ``line`` over
@@ -95,34 +121,38 @@ def tail_gradient(line: np.ndarray, T3: np.ndarray, mesh: Mesh, x_tail: float,
     cells of the default mesh), not in cells: the tail straddles a steep solid side
     (latent heat conducted away) and an almost isothermal liquid side, so a window
     of a fixed number of cells would change its meaning under refinement.
-    ``dT/dz``: from the two top cell layers at the tail (small: the surface is nearly
-    adiabatic there). ``dT/dy = 0`` by symmetry.
+    ``dT/dz`` from the boundary condition, ``k_z dT/dz = q_loss`` (W/m^2; the beam
+    contributes nothing this far behind it). ``dT/dy = 0`` by symmetry.
     """
-    xc, zc = Mesh.centres(mesh.xf), Mesh.centres(mesh.zf)
+    xc = Mesh.centres(mesh.xf)
     sel = np.abs(xc - x_tail) <= half_width
     if sel.sum() < 3:
         sel = np.argsort(np.abs(xc - x_tail))[:3]
     gx = float(np.polyfit(xc[sel] - x_tail, line[sel], 1)[0])
-    col = T3[:, 0, :2]
-    gz_cells = (col[:, 1] - col[:, 0]) / (zc[1] - zc[0])
-    gz = float(np.interp(x_tail, xc, gz_cells))
-    return gx, gz
+    return gx, surface_flux / k_z
 
 
-def extract(T: np.ndarray, mesh: Mesh, laws: MaterialLaws, *, v: float,
-            T_liquidus: float, g_window: float) -> PoolGeometry:
-    """Pool outputs from the cell temperatures ``T`` (n_cells,)."""
-    T3 = T.reshape(mesh.shape)
+def extract(T: np.ndarray, frac: np.ndarray, mesh: Mesh, laws: MaterialLaws, *, v: float,
+            T_liquidus: float, g_window: float, tail_flux: float) -> PoolGeometry:
+    """Pool outputs from the cell temperatures ``T`` and consolidated fractions ``frac``
+    (both (n_cells,)); isotherms are located on flux-continuous profiles."""
+    T3, f3 = T.reshape(mesh.shape), frac.reshape(mesh.shape)
     xc, yc, zc = (Mesh.centres(a) for a in (mesh.xf, mesh.yf, mesh.zf))
     Ts = surface_field(T3, mesh, laws)
-    y_l = _outer_crossing(Ts, yc, T_liquidus)
+    k_top = _blended_k(laws.phi_x, laws.powder_x, Ts, f3[:, :, 0])
+    y_l = _outer_crossing(*_with_faces(Ts, k_top, yc, mesh.yf), T_liquidus)
     W = 2 * _refined_max(xc, y_l)
-    z_l = _outer_crossing(_symmetry_plane(T3, yc), zc, T_liquidus)
+    col = _symmetry_plane(T3, yc)
+    k_col = _blended_k(laws.phi_z, laws.powder_z, col, f3[:, 0, :])
+    z_l = _outer_crossing(*_with_faces(col, k_col, zc, mesh.zf), T_liquidus)
     D = _refined_max(xc, z_l)
     line = _symmetry_plane(Ts, yc)
-    x_tail, x_front = _crossing_1d(xc, line, T_liquidus)
+    k_line = _blended_k(laws.phi_x, laws.powder_x, line, f3[:, 0, 0])
+    V, S = _with_faces(line, k_line, xc, mesh.xf)
+    x_tail, x_front = _crossing_1d(S, V, T_liquidus)
     gx, gz = ((np.nan, np.nan) if not np.isfinite(x_tail)
-              else tail_gradient(line, T3, mesh, x_tail, g_window))
+              else tail_gradient(line, mesh, x_tail, g_window, tail_flux,
+                                 float(laws.phi_z(np.array([T_liquidus]))[1][0])))
     G0 = float(np.hypot(gx, gz))
     S0 = float(v * abs(gx) / G0) if G0 > 0 else float("nan")
     T0 = float(np.max(line))

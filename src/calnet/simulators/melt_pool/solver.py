@@ -3,8 +3,8 @@
 Each step solves ``(V rho c_eff / dt - J) dT = R`` (physics.md: exact Jacobian through
 Kirchhoff potentials, pseudo-transient continuation, temperature updates capped at
 ``max_update``). The pseudo time step follows switched evolution relaxation,
-``dt_k = dt_(k-1) clip(1.5 |R_(k-1)| / |R_k|, 1, 4)`` while the residual falls and
-``dt_(k-1) / 4`` when it rises (this breaks Newton 2-cycles), so the iteration turns into plain Newton as the
+``dt_k = dt_(k-1) clip(1.5 |R_(k-1)| / |R_k|, 2, 4)`` unless the residual rises by
+more than 5 %, then ``dt_(k-1) / 4`` (this breaks Newton 2-cycles), so the iteration turns into plain Newton as the
 residual falls. The consolidated fraction of the powder (a max over the upstream line) is
 lagged by one step and never decreases (powder, once sintered, stays so, as in a
 physical transient; a reverting fraction makes the iteration 2-cycle); convergence
@@ -29,7 +29,8 @@ import os
 _DEBUG = bool(os.environ.get("CALNET_MELT_POOL_DEBUG"))
 DT0 = 2e-6  # s, first pseudo time step
 DT_MAX = 1.0
-FRAC_TOL = 1e-4  # largest change of the consolidated fraction allowed at convergence  # s; beyond this the step is effectively Newton
+DT_MIN = 1e-9  # s
+FRAC_TOL = 1e-4  # largest change of the consolidated fraction allowed at convergence
 
 
 @dataclass(frozen=True)
@@ -45,6 +46,7 @@ class SolveReport:
     linear_iterations: int
     absorptivity: float
     surface_temperature: float
+    frac: np.ndarray  # (n_cells,) consolidated fraction (1 in the substrate)
 
 
 @dataclass(frozen=True)
@@ -52,6 +54,21 @@ class AbsorptivityLaw:
     """``A`` and ``dA/dT`` on the reconstruction stencil (None: lagged) from ``T``."""
 
     evaluate: Callable[[np.ndarray], tuple[float, np.ndarray | None, float]]
+
+
+def _stop_at_kinks(T: np.ndarray, dT: np.ndarray, mat) -> np.ndarray:
+    """``T + dT``, but a cell crossing ``T_S`` or ``T_L`` stops 1 K beyond it.
+
+    The conductivity (up to 150x for powder) and ``c_eff`` change steeply across the
+    mushy zone; letting a cell jump across it in one Newton step makes the iteration
+    2-cycle. Cells land just past the kink and continue on the next step.
+    """
+    new = T + dT
+    for kink in (mat.T_solidus, mat.T_liquidus):
+        up = (T < kink - 1.0) & (new > kink + 1.0)
+        down = (T > kink + 1.0) & (new < kink - 1.0)
+        new = np.where(up, kink + 1.0, np.where(down, kink - 1.0, new))
+    return new
 
 
 def linear_solve(M: sp.csr_matrix, b: np.ndarray, *, rtol: float) -> tuple[np.ndarray, int]:
@@ -68,35 +85,36 @@ def linear_solve(M: sp.csr_matrix, b: np.ndarray, *, rtol: float) -> tuple[np.nd
 
 
 def newton_solve(disc: Discretization, laws: MaterialLaws, T0: np.ndarray, *,
-                 absorptivity: AbsorptivityLaw, rtol: float, ttol: float,
+                 absorptivity: AbsorptivityLaw, k_powder: float, rtol: float, ttol: float,
                  max_iter: int, max_update: float, deadline: float | None,
                  dt0: float = DT0) -> SolveReport:
     """Drive the residual to ``max|R| <= rtol * A P / 2`` from the initial field ``T0``."""
     T = T0.copy()
     rho_c = None
     dt, r0_norm, upd, lin_total = dt0, None, np.inf, 0
-    frac = disc.consolidated(T)
+    frac = disc.consolidated(T, 0.0, k_powder)
     reason, it, rnorm = "iteration limit reached", 0, np.inf
     A, Ts = np.nan, np.nan
     for it in range(1, max_iter + 1):
         if deadline is not None and time.monotonic() > deadline:
             reason = "time limit reached"
             break
-        new_frac = np.maximum(frac, disc.consolidated(T))  # consolidation never reverts
+        A, dA, Ts = absorptivity.evaluate(T)
+        new_frac = np.maximum(frac, disc.consolidated(T, A, k_powder))  # never reverts
         frac_change = float(np.abs(new_frac - frac).max())
         mask_changed = frac_change > FRAC_TOL
         frac = new_frac
-        A, dA, Ts = absorptivity.evaluate(T)
         R, J = disc.evaluate(T, frac, laws, A, dA)
         rnorm = float(np.abs(R).max() / (A * disc.P / 2))
         if not np.isfinite(rnorm):
             reason = "non-finite residual"
             break
         if rnorm <= rtol and upd <= ttol and not mask_changed:
-            return SolveReport(T, True, "", it - 1, rnorm, upd, lin_total, A, Ts)
+            return SolveReport(T, True, "", it - 1, rnorm, upd, lin_total, A, Ts, frac)
         if r0_norm is not None:  # grow dt while the residual falls (SER-like)
-            grow = 0.25 if rnorm > r0_norm else float(np.clip(1.5 * r0_norm / rnorm, 1.0, 4.0))
-            dt = min(dt * grow, DT_MAX)
+            rising = rnorm > 1.05 * r0_norm
+            grow = 0.25 if rising else float(np.clip(1.5 * r0_norm / rnorm, 2.0, 4.0))
+            dt = float(np.clip(dt * grow, DT_MIN, DT_MAX))
         r0_norm = rnorm
         _, c = laws.enthalpy(T)
         rho_c = disc.density(frac) * c
@@ -112,11 +130,11 @@ def newton_solve(disc: Discretization, laws: MaterialLaws, T0: np.ndarray, *,
             break
         if big > max_update:
             dT *= max_update / big
-        T = np.maximum(T + dT, 0.5 * disc.mat.T_ambient)
+        T = np.maximum(_stop_at_kinks(T, dT, disc.mat), 0.5 * disc.mat.T_ambient)
         upd = min(big, max_update)
         if _DEBUG:
             print(f"it {it} r {rnorm:.3e} dt {dt:.2e} dT {big:.1f} lin {n_lin} A {A:.3f} "
                   f"Ts {Ts:.0f} Tmax {T.max():.0f} mask {mask_changed} "
                   f"at {np.unravel_index(np.argmax(np.abs(dT)), disc.mesh.shape)} "
                   f"T {T[np.argmax(np.abs(dT))]:.0f}", flush=True)
-    return SolveReport(T, False, reason, it, rnorm, upd, lin_total, A, Ts)
+    return SolveReport(T, False, reason, it, rnorm, upd, lin_total, A, Ts, frac)

@@ -1,0 +1,114 @@
+"""Benchmarks of the M1 melt-pool simulator: mesh convergence, speed, sanity, robustness.
+
+Every run is a fresh subprocess (one at a time, one BLAS thread) so that wall time and
+peak memory (``ru_maxrss``) are per run. Results go to ``results/<phase>.json``;
+``report.py`` turns them into the markdown tables of ``benchmarks/README.md``.
+
+Usage (from the repository root)::
+
+    OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 \\
+        .venv/bin/python benchmarks/melt_pool/run_benchmarks.py convergence sanity corners
+"""
+
+from __future__ import annotations
+
+import csv
+import itertools
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+RESULTS = HERE / "results"
+DATA = Path("/work/shared/data/ninb_melt_pool_width.csv")
+SETTINGS = [(81.0, 1.5), (152.0, 0.32), (236.0, 0.23), (90.0, 2.3), (243.0, 1.15)]
+
+
+def _worker(spec: str) -> None:
+    """Run one simulation described by a JSON spec; print one JSON line."""
+    import resource
+
+    from calnet.simulators import melt_pool
+
+    job = json.loads(spec)
+    t0 = time.perf_counter()
+    res = melt_pool.simulate(job["inputs"], **job.get("options", {}))
+    wall = time.perf_counter() - t0
+    cpu = time.process_time()
+    rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # MiB on Linux
+    d = res.diagnostics
+    print(json.dumps({**job, "status": res.status, "message": res.message,
+                      "outputs": res.outputs, "wall_s": wall, "cpu_s": cpu,
+                      "peak_rss_mib": rss, "n_cells": d.get("n_cells"),
+                      "iterations": d.get("iterations"), "residual": d.get("residual"),
+                      "peak_temperature_K": d.get("peak_temperature_K"),
+                      "absorptivity": d.get("absorptivity")}))
+
+
+def run_one(inputs: dict, options: dict | None = None, tag: str = "") -> dict:
+    spec = json.dumps({"inputs": inputs, "options": options or {}, "tag": tag})
+    out = subprocess.run([sys.executable, __file__, "--worker", spec], capture_output=True,
+                         text=True, check=False)
+    if out.returncode != 0:
+        return {"inputs": inputs, "options": options or {}, "tag": tag, "status": "crashed",
+                "message": out.stderr[-2000:]}
+    rec = json.loads(out.stdout.strip().splitlines()[-1])
+    print(json.dumps({k: rec.get(k) for k in ("tag", "inputs", "status", "wall_s",
+                                                 "n_cells", "iterations")}),
+          {k: round(v, 3) for k, v in rec.get("outputs", {}).items()}, flush=True)
+    return rec
+
+
+def _save(name: str, records: list[dict]) -> None:
+    RESULTS.mkdir(exist_ok=True)
+    (RESULTS / f"{name}.json").write_text(json.dumps(records, indent=1))
+
+
+def convergence() -> None:
+    """Default resolution and the mesh spacing halved at the five settings."""
+    recs = []
+    for (P, v), res in itertools.product(SETTINGS, (1.0, 2.0)):
+        recs.append(run_one({"P": P, "v": v}, {"resolution": res, "time_limit": 900.0},
+                            tag=f"res{res:g}"))
+        _save("convergence", recs)
+
+
+def sanity() -> None:
+    """Mid-range parameters at the 40 experimental settings, default resolution."""
+    recs = []
+    with DATA.open() as fh:
+        rows = list(csv.DictReader(fh))
+    for r in rows:
+        rec = run_one({"P": float(r["power_W"]), "v": float(r["speed_m_per_s"])},
+                      tag=f"sample{r['sample']}")
+        rec["measured_W"] = float(r["width_um"])
+        rec["split"] = r["split"]
+        recs.append(rec)
+        _save("sanity", recs)
+
+
+def corners() -> None:
+    """Corners of P x v (80-250 W, 0.05-2.3 m/s) with all parameters at lower/upper."""
+    from calnet.simulators.melt_pool import BOUNDS, PARAMETERS
+
+    recs = []
+    for P, v, side in itertools.product((80.0, 250.0), (0.05, 2.3), (0, 1)):
+        theta = {k: BOUNDS[k][side] for k in PARAMETERS}
+        recs.append(run_one({"P": P, "v": v, **theta}, {"time_limit": 300.0},
+                            tag=f"theta_{'upper' if side else 'lower'}"))
+        _save("corners", recs)
+    for P, v in itertools.product((80.0, 250.0), (0.05, 2.3)):  # mixed: hot & insulating
+        theta = {k: BOUNDS[k][0] for k in PARAMETERS} | {"A_0": 0.4, "A_max": 0.8}
+        recs.append(run_one({"P": P, "v": v, **theta}, {"time_limit": 300.0},
+                            tag="theta_lowk_highA"))
+        _save("corners", recs)
+
+
+if __name__ == "__main__":
+    if sys.argv[1] == "--worker":
+        _worker(sys.argv[2])
+    else:
+        for phase in sys.argv[1:]:
+            {"convergence": convergence, "sanity": sanity, "corners": corners}[phase]()
