@@ -16,9 +16,14 @@ import numpy as np
 from calnet.simulators.materials import AlloyProperties
 
 X_AHEAD, X_BEHIND, Y_SIDE = 1.5e-3, 3.5e-3, 1.5e-3
-CELLS_PER_HALF_WIDTH = 9.0  # pool-region spacing h = min(W/2, D) / 9 at resolution 1
+CELLS_PER_HALF_WIDTH = 7.0  # pool-region spacing h = min(W/2, D) / 7 at resolution 1
+# The lateral pool edge in the powder layer (liquid next to 1 W/(m K) powder) needs a
+# finer y spacing than x and z: with h_y = h, W changed by 6 % when halving h; with
+# h_y = h / 2 by 3 % (benchmarks/README.md).
+Y_REFINE = 2.0
 STRETCH = 1.25  # far-field geometric growth ratio at resolution 1
-H_MIN, H_MAX = 1.5e-6, 12e-6  # bounds on the pool-region spacing (resolution 1)
+H_MIN, H_MAX = 2.5e-6, 12e-6
+POWDER_DEPTH_FLOOR = 30e-6  # m: pools shallower than the powder layer are sized by it  # bounds on the pool-region spacing (resolution 1)
 
 
 @dataclass(frozen=True)
@@ -84,7 +89,7 @@ def estimate_pool(P: float, v: float, absorb: float, k: float, mat: AlloyPropert
 def pool_box(tail: float, front: float, half_width: float, depth: float, *,
              resolution: float, beam_radius: float) -> PoolBox:
     """Fine region around a pool of the given size, with margins."""
-    h = min(half_width, depth) / CELLS_PER_HALF_WIDTH
+    h = min(half_width, max(depth, POWDER_DEPTH_FLOOR)) / CELLS_PER_HALF_WIDTH
     h = min(max(h, H_MIN), H_MAX) / resolution
     return PoolBox(tail=1.15 * tail + 3 * h, front=max(front, beam_radius) + 3 * h,
                    half_width=1.15 * half_width + 3 * h, depth=1.15 * depth + 3 * h, h=h)
@@ -119,7 +124,7 @@ def build_mesh(box: PoolBox, mat: AlloyProperties, *, resolution: float,
     tail = min(box.tail, 0.8 * X_BEHIND)
     front = min(box.front, 0.8 * X_AHEAD)
     xf = _axis(X_BEHIND, tail, front, X_AHEAD, h, ratio)
-    yf = _axis(0.0, 0.0, min(box.half_width, 0.8 * Y_SIDE), Y_SIDE, h, ratio)
+    yf = _axis(0.0, 0.0, min(box.half_width, 0.8 * Y_SIDE), Y_SIDE, h / Y_REFINE, ratio)
     t_p = mat.powder_thickness if powder else 0.0
     n_p = math.ceil(t_p / h) if powder else 0
     zp = np.linspace(0.0, t_p, n_p + 1) if powder else np.zeros(1)

@@ -90,7 +90,7 @@ def _needs_remesh(g: PoolGeometry, box: PoolBox) -> bool:
 
 
 COARSE = 0.5  # resolution of the sizing pre-solve relative to the requested one
-G_WINDOW_CELLS = 3.0  # G0 window half-width, in cells of the resolution-1 mesh
+G_WINDOW_CELLS = 3.0  # G0 window half-width, in x cells of the resolution-1 mesh
 WARM_DT0 = 2e-5  # s, first pseudo time step of a warm-started solve
 
 
