@@ -21,10 +21,9 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.special import erf
 
-from calnet.simulators.materials import STEFAN_BOLTZMANN
+from calnet.simulators.materials import STEFAN_BOLTZMANN, AlloyProperties
 from calnet.simulators.melt_pool.mesh import Mesh
 from calnet.simulators.melt_pool.properties import MaterialLaws
-
 
 CONSOLIDATION_RAMP = 100.0  # K, width of the loose -> consolidated powder ramp below T_S
 

@@ -92,6 +92,7 @@ def _needs_remesh(g: PoolGeometry, box: PoolBox) -> bool:
 COARSE = 0.5  # resolution of the sizing pre-solve relative to the requested one
 G_WINDOW_CELLS = 3.0  # G0 window half-width, in x cells of the resolution-1 mesh
 WARM_DT0 = 2e-5  # s, first pseudo time step of a warm-started solve
+COARSE_RTOL = 1e-4  # the sizing pre-solve only needs to place the pool
 
 
 def run(P: float, v: float, theta: dict[str, float], opts: MeltPoolOptions,
@@ -117,9 +118,12 @@ def run(P: float, v: float, theta: dict[str, float], opts: MeltPoolOptions,
     T0 = initial_field(mesh, P, v, a_mid, k_est, mat)
     iterations, dt0, geometry = 0, None, None
     for stage in range(3):
+        final_stage = res == opts.resolution
         disc = Discretization(mesh, mat, P, v)
         report = newton_solve(disc, laws, T0, absorptivity=_absorptivity(disc, laws, theta,
-                              opts, mat), k_powder=k_p, rtol=opts.rtol, ttol=opts.ttol,
+                              opts, mat), k_powder=k_p,
+                              rtol=opts.rtol if final_stage else max(opts.rtol, COARSE_RTOL),
+                              ttol=opts.ttol if final_stage else max(opts.ttol, 1.0),
                               max_iter=opts.max_iter - iterations,
                               max_update=opts.max_update, deadline=deadline,
                               **({} if dt0 is None else {"dt0": dt0}))

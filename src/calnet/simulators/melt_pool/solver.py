@@ -4,15 +4,17 @@ Each step solves ``(V rho c_eff / dt - J) dT = R`` (physics.md: exact Jacobian t
 Kirchhoff potentials, pseudo-transient continuation, temperature updates capped at
 ``max_update``). The pseudo time step follows switched evolution relaxation,
 ``dt_k = dt_(k-1) clip(1.5 |R_(k-1)| / |R_k|, 2, 4)`` unless the residual rises by
-more than 5 %, then ``dt_(k-1) / 4`` (this breaks Newton 2-cycles), so the iteration turns into plain Newton as the
-residual falls. The consolidated fraction of the powder (a max over the upstream line) is
-lagged by one step and never decreases (powder, once sintered, stays so, as in a
+more than 5 %, then ``dt_(k-1) / 4`` (this breaks Newton 2-cycles), so the iteration
+turns into plain Newton as the residual falls. Cells crossing ``T_S`` or ``T_L`` stop
+just past the kink. The consolidated fraction of the powder (a max over the upstream
+line) is lagged by one step and never decreases (powder, once sintered, stays so, as in a
 physical transient; a reverting fraction makes the iteration 2-cycle); convergence
 requires it to have stopped changing.
 """
 
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -23,8 +25,6 @@ import scipy.sparse as sp
 
 from calnet.simulators.melt_pool.assembly import Discretization
 from calnet.simulators.melt_pool.properties import MaterialLaws
-
-import os
 
 _DEBUG = bool(os.environ.get("CALNET_MELT_POOL_DEBUG"))
 DT0 = 2e-6  # s, first pseudo time step
@@ -71,17 +71,35 @@ def _stop_at_kinks(T: np.ndarray, dT: np.ndarray, mat) -> np.ndarray:
     return new
 
 
-def linear_solve(M: sp.csr_matrix, b: np.ndarray, *, rtol: float) -> tuple[np.ndarray, int]:
-    """Solve ``M x = b`` with GMRES preconditioned by classical (Ruge-Stuben) AMG.
+class LinearSolver:
+    """GMRES preconditioned by classical (Ruge-Stuben) AMG, the hierarchy reused.
 
     ``M`` is an M-matrix (upwind advection, Kirchhoff conduction); classical AMG handles
     its advection-dominated far field far better than smoothed aggregation (measured:
-    10 vs 50 GMRES iterations and 0.2 vs 2 s setup at 73k cells).
+    10 vs 50 GMRES iterations and 0.2 vs 2 s setup at 73k cells). The AMG hierarchy of
+    an earlier Newton matrix stays a good preconditioner while the iterates change
+    little, so it is rebuilt only when GMRES needed more than ``REBUILD_ITS``
+    iterations or after ``MAX_AGE`` reuses.
     """
-    ml = pyamg.ruge_stuben_solver(M, max_coarse=400)
-    res: list[float] = []
-    x = ml.solve(b, tol=rtol, accel="gmres", maxiter=60, residuals=res)
-    return x, len(res)
+
+    REBUILD_ITS, MAX_AGE = 12, 4
+
+    def __init__(self) -> None:
+        self._ml = None
+        self._age = 0
+        self._last_its = 0
+
+    def __call__(self, M: sp.csr_matrix, b: np.ndarray, *, rtol: float
+                 ) -> tuple[np.ndarray, int]:
+        if (self._ml is None or self._last_its > self.REBUILD_ITS
+                or self._age >= self.MAX_AGE or self._ml.levels[0].A.shape != M.shape):
+            self._ml, self._age = pyamg.ruge_stuben_solver(M, max_coarse=400), 0
+        self._age += 1
+        res: list[float] = []
+        x, _ = pyamg.krylov.gmres(M, b, tol=rtol, maxiter=80, M=self._ml.aspreconditioner(),
+                                  residuals=res)
+        self._last_its = len(res)
+        return x, len(res)
 
 
 def newton_solve(disc: Discretization, laws: MaterialLaws, T0: np.ndarray, *,
@@ -95,6 +113,7 @@ def newton_solve(disc: Discretization, laws: MaterialLaws, T0: np.ndarray, *,
     frac = disc.consolidated(T, 0.0, k_powder)
     reason, it, rnorm = "iteration limit reached", 0, np.inf
     A, Ts = np.nan, np.nan
+    linear_solve = LinearSolver()
     for it in range(1, max_iter + 1):
         if deadline is not None and time.monotonic() > deadline:
             reason = "time limit reached"
