@@ -186,3 +186,17 @@ def test_keyhole_depth_absorptivity_option_runs():
     assert res.status == "ok", res.message
     lo, hi = MID["A_0"], MID["A_max"]
     assert lo <= res.diagnostics["absorptivity"] <= hi
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("P", "v", "side"), [(250.0, 0.05, 1), (80.0, 2.3, 0)])
+def test_corners_converge_or_say_why(P, v, side):
+    """Corners of the design box with every parameter at a bound (coarse mesh)."""
+    theta = {k: melt_pool.BOUNDS[k][side] for k in melt_pool.PARAMETERS}
+    res = melt_pool.simulate({"P": P, "v": v, **theta}, resolution=0.4, time_limit=60.0)
+    if res.status != "ok":
+        assert res.message and all(math.isnan(x) for x in res.outputs.values())
+        return
+    o = res.outputs
+    assert all(math.isfinite(x) and x > 0 for x in o.values())
+    assert NI5NB.T_liquidus < o["T0"] < 8000.0 and 1e4 < o["G0"] < 1e9

@@ -116,7 +116,7 @@ def run(P: float, v: float, theta: dict[str, float], opts: MeltPoolOptions,
                    resolution=res, beam_radius=mat.beam_radius)
     mesh = build_mesh(box, mat, resolution=res, powder=opts.powder)
     T0 = initial_field(mesh, P, v, a_mid, k_est, mat)
-    iterations, dt0, geometry = 0, None, None
+    iterations, dt0, geometry, frac0 = 0, None, None, None
     for stage in range(3):
         final_stage = res == opts.resolution
         disc = Discretization(mesh, mat, P, v)
@@ -126,7 +126,7 @@ def run(P: float, v: float, theta: dict[str, float], opts: MeltPoolOptions,
                               ttol=opts.ttol if final_stage else max(opts.ttol, 1.0),
                               max_iter=opts.max_iter - iterations,
                               max_update=opts.max_update, deadline=deadline,
-                              **({} if dt0 is None else {"dt0": dt0}))
+                              frac0=frac0, **({} if dt0 is None else {"dt0": dt0}))
         iterations += report.iterations
         if not report.converged:
             break
@@ -139,7 +139,7 @@ def run(P: float, v: float, theta: dict[str, float], opts: MeltPoolOptions,
         res = opts.resolution
         box = _box_from_geometry(geometry, res, mat)
         new_mesh = build_mesh(box, mat, resolution=res, powder=opts.powder)
-        T0, mesh, dt0 = _interpolate(report.T, mesh, new_mesh), new_mesh, WARM_DT0
+        T0, dt0, mesh = _interpolate(report.T, mesh, new_mesh), WARM_DT0, new_mesh
     report = replace(report, iterations=iterations)
     return RunRecord(geometry if report.converged else None, report, mesh, stage,
                      time.monotonic() - start)

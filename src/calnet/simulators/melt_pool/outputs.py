@@ -33,11 +33,18 @@ class PoolGeometry:
 
 
 def surface_field(T3: np.ndarray, mesh: Mesh, laws: MaterialLaws) -> np.ndarray:
-    """Reconstructed surface temperature, shape ``(nx, ny)`` (K)."""
+    """Reconstructed surface temperature, shape ``(nx, ny)`` (K).
+
+    Linear extrapolation of ``Phi_z`` from the two top layers, or of ``T`` where that
+    stays closer to the top cell: across the vapour switch ``k_z`` rises 100-fold
+    between the two layers and a ``Phi_z`` extrapolation would overshoot by ~400 K.
+    """
     zc = Mesh.centres(mesh.zf)
     w = surface_weights(zc[0], zc[1], even=False)
-    phi = w[0] * laws.phi_z(T3[:, :, 0])[0] + w[1] * laws.phi_z(T3[:, :, 1])[0]
-    return laws.phi_z.inverse(phi)
+    top, second = T3[:, :, 0], T3[:, :, 1]
+    by_phi = laws.phi_z.inverse(w[0] * laws.phi_z(top)[0] + w[1] * laws.phi_z(second)[0])
+    by_t = w[0] * top + w[1] * second
+    return np.where(np.abs(by_phi - top) <= np.abs(by_t - top), by_phi, by_t)
 
 
 def _symmetry_plane(F: np.ndarray, yc: np.ndarray) -> np.ndarray:
