@@ -46,13 +46,16 @@ def speed_table() -> str:
     wall = [r["wall_s"] for r in recs if "wall_s" in r]
     five = [r["wall_s"] for r in _load("convergence") if r["tag"] == "res1"]
     rss = [r["peak_rss_mib"] for r in recs if "peak_rss_mib" in r]
+    cpu = [r["cpu_s"] for r in recs if "cpu_s" in r]
     cells = [r["n_cells"] for r in recs if r.get("n_cells")]
     its = [r["iterations"] for r in recs if r.get("iterations")]
     return "\n".join([
-        "| runs | converged | wall median (s) | wall max (s) | 5-setting median / max (s) "
-        "| peak RSS max (MiB) | cells median | Newton its median |",
-        "|---|---|---|---|---|---|---|---|",
+        "| runs | converged | wall median (s) | wall max (s) | CPU median (s) "
+        "| 5-setting wall median / max (s) | peak RSS max (MiB) | cells median "
+        "| Newton its median |",
+        "|---|---|---|---|---|---|---|---|---|",
         f"| {len(recs)} | {len(ok)} | {statistics.median(wall):.1f} | {max(wall):.1f} "
+        f"| {statistics.median(cpu):.1f} "
         f"| {statistics.median(five) if five else float('nan'):.1f} / "
         f"{max(five) if five else float('nan'):.1f} | {max(rss):.0f} "
         f"| {statistics.median(cells):.0f} | {statistics.median(its):.0f} |"])

@@ -70,8 +70,8 @@ def convergence() -> None:
     """Default resolution and the mesh spacing halved at the five settings."""
     recs = []
     for (P, v), res in itertools.product(SETTINGS, (1.0, 2.0)):
-        recs.append(run_one({"P": P, "v": v}, {"resolution": res, "time_limit": 900.0},
-                            tag=f"res{res:g}"))
+        opts = {"resolution": res, "time_limit": 900.0, "max_iter": 300 if res > 1 else 120}
+        recs.append(run_one({"P": P, "v": v}, opts, tag=f"res{res:g}"))
         _save("convergence", recs)
 
 
@@ -96,12 +96,12 @@ def corners() -> None:
     recs = []
     for P, v, side in itertools.product((80.0, 250.0), (0.05, 2.3), (0, 1)):
         theta = {k: BOUNDS[k][side] for k in PARAMETERS}
-        recs.append(run_one({"P": P, "v": v, **theta}, {"time_limit": 300.0},
+        recs.append(run_one({"P": P, "v": v, **theta}, {"time_limit": 60.0},
                             tag=f"theta_{'upper' if side else 'lower'}"))
         _save("corners", recs)
     for P, v in itertools.product((80.0, 250.0), (0.05, 2.3)):  # mixed: hot & insulating
         theta = {k: BOUNDS[k][0] for k in PARAMETERS} | {"A_0": 0.4, "A_max": 0.8}
-        recs.append(run_one({"P": P, "v": v, **theta}, {"time_limit": 300.0},
+        recs.append(run_one({"P": P, "v": v, **theta}, {"time_limit": 60.0},
                             tag="theta_lowk_highA"))
         _save("corners", recs)
 

@@ -27,7 +27,7 @@ from calnet.simulators.melt_pool.model import run
 from calnet.simulators.melt_pool.options import MeltPoolOptions
 
 NAME = "melt_pool"
-VERSION = "0.3.1"
+VERSION = "0.3.2"
 INPUTS = ("P", "v")
 PARAMETERS = ("K_S", "K_L", "K_Lz", "K_V", "K_Vz", "A_0", "A_max")
 OUTPUTS = ("D", "W", "L", "T0", "S0", "G0")
@@ -90,7 +90,13 @@ def simulate(inputs: Mapping[str, float], **options: Any) -> SimResult:
     """
     opts = MeltPoolOptions.from_kwargs(**options)
     P, v, theta = _check_inputs(inputs)
-    rec = run(P, v, theta, opts)
+    try:
+        rec = run(P, v, theta, opts)
+    except (ValueError, FloatingPointError, np.linalg.LinAlgError, RuntimeError) as err:
+        return SimResult({k: float("nan") for k in OUTPUTS}, "failed",
+                         f"melt_pool raised {type(err).__name__}: {err}",
+                         {"converged": False, "theta": theta, "options": opts.to_dict(),
+                          "version": VERSION})
     rep = rec.report
     diag: dict[str, Any] = {
         "converged": rep.converged, "iterations": rep.iterations,
@@ -114,6 +120,9 @@ def simulate(inputs: Mapping[str, float], **options: Any) -> SimResult:
                "G0": g.G0}
     bad = [k for k, x in outputs.items() if not math.isfinite(x)]
     if bad:
-        return SimResult(outputs, "failed", f"converged, but outputs {bad} could not be "
-                         "extracted (no liquidus isotherm on the surface?)", diag)
+        diag["partial_outputs"] = {k: (x if math.isfinite(x) else None)
+                                   for k, x in outputs.items()}
+        return SimResult(nan, "failed", f"converged, but outputs {bad} could not be "
+                         "extracted (pool too shallow for the mesh, or no liquidus "
+                         "isotherm on the surface)", diag)
     return SimResult(outputs, "ok", "", diag).checked(OUTPUTS)

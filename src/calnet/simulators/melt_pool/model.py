@@ -134,10 +134,13 @@ def run(P: float, v: float, theta: dict[str, float], opts: MeltPoolOptions,
                            g_window=G_WINDOW_CELLS * box.h * res,
                            tail_flux=_surface_loss(mat.T_liquidus, mat))
         final = res == opts.resolution and (stage == 2 or not _needs_remesh(geometry, box))
-        if final or not opts.adapt_mesh or not np.isfinite(geometry.x_tail):
+        if final or not opts.adapt_mesh:
             break
+        sized = all(np.isfinite([geometry.W, geometry.D, geometry.x_tail, geometry.x_front]))
         res = opts.resolution
-        box = _box_from_geometry(geometry, res, mat)
+        box = (_box_from_geometry(geometry, res, mat) if sized else  # else: Rosenthal box
+               pool_box(tail, front, half, half + mat.powder_thickness * opts.powder,
+                        resolution=res, beam_radius=mat.beam_radius))
         new_mesh = build_mesh(box, mat, resolution=res, powder=opts.powder)
         T0, dt0, mesh = _interpolate(report.T, mesh, new_mesh), WARM_DT0, new_mesh
     report = replace(report, iterations=iterations)
