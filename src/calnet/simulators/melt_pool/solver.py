@@ -154,9 +154,6 @@ def newton_solve(disc: Discretization, laws: MaterialLaws, T0: np.ndarray, *,
         _, c = laws.enthalpy(T)
         rho_c = disc.density(frac) * c
         M = (sp.diags(disc.volume * rho_c / dt) - J).tocsr()
-        if _DEBUG and os.environ.get("CALNET_MELT_POOL_DUMP") and dt > 1e-2:
-            sp.save_npz("/tmp/mpool/M.npz", M)
-            np.save("/tmp/mpool/R.npy", R)
         dT, n_lin = linear_solve(M, R, rtol=min(1e-3, max(1e-10, 0.1 * rnorm)))
         lin_total += n_lin
         big = float(np.abs(dT).max())
