@@ -12,10 +12,11 @@ HERE = Path(__file__).resolve().parent
 
 def toy_spec(folder: Path, simulator: str | dict = "python:toy_sims:quadratic", *,
              runs: int = 12, timeout: float | None = None, seed: int = 0,
-             x_upper: float = 1.0) -> Path:
+             x_upper: float = 1.0, x_scale: str = "linear") -> Path:
     """Write a one-model spec (inputs x; parameters a, b; outputs y, z) and return it."""
     model = {"simulator": simulator,
-             "inputs": {"x": {"lower": 0.0, "upper": x_upper}},
+             "inputs": {"x": {"lower": 0.0 if x_scale == "linear" else 0.01,
+                              "upper": x_upper, "scale": x_scale}},
              "parameters": {"a": {"lower": 0.0, "upper": 1.0}, "b": {"lower": -1.0, "upper": 1.0}},
              "outputs": {"y": {}, "z": {}},
              "campaign": {"runs": runs, **({"timeout": timeout} if timeout else {})}}

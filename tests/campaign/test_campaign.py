@@ -119,6 +119,8 @@ def test_load_runs_errors_name_the_fix(tmp_path):
         load_runs(moved, "toy")
     with pytest.raises(CampaignError, match="different 'toy' spec"):
         run_campaign(moved, "toy", progress=False)
+    with pytest.raises(CampaignError, match="scale of 'x' changed to log"):
+        load_runs(toy_network(tmp_path, runs=4, x_scale="log"), "toy")
     with pytest.raises(CampaignError, match="no model named 'nope'"):
         load_runs(net, "nope")
 

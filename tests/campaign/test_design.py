@@ -62,3 +62,17 @@ def test_bad_sizes_say_what_to_do():
         latin_hypercube(_model(), 0, seed=0)
     with pytest.raises(CampaignError, match="seed must be >= 0"):
         latin_hypercube(_model(), 5, seed=-1)
+
+
+def test_log_scale_inputs_are_stratified_in_log_x():
+    m = Model(name="m", simulator=SimulatorRef(kind="python", target="a:f"),
+              inputs=[Input(name="G", lower=1e4, upper=1e8, scale="log")],
+              parameters=[Parameter(name="k", lower=0, upper=1)], outputs=[Output(name="y")])
+    d = latin_hypercube(m, 40, seed=0)
+    g = d.points[:, 0]
+    assert (g >= 1e4).all() and (g <= 1e8).all()
+    bins = np.floor((np.log10(g) - 4) / 4 * 40).astype(int)
+    assert sorted(bins) == list(range(40))  # one point per decade-quarter stratum
+    more = augment(d, 5, seed=0, model_name="m")
+    np.testing.assert_allclose(more.points[:40], d.points)
+    assert (more.points[40:, 0] >= 1e4).all() and (more.points[40:, 0] <= 1e8).all()

@@ -23,7 +23,15 @@ from typing import Any
 import numpy as np
 
 import calnet
-from calnet.campaign.design import Design, augment, design_columns, latin_hypercube, model_box
+from calnet.campaign.design import (
+    Design,
+    augment,
+    design_columns,
+    latin_hypercube,
+    log_columns,
+    model_box,
+    to_unit,
+)
 from calnet.campaign.executors import make_executor
 from calnet.campaign.runners import (
     RunRecord,
@@ -231,9 +239,9 @@ def _plan(db: RunStore, model: Model, runs: int, seed: int) -> Design:
         design = latin_hypercube(model, runs, seed=seed)
     else:
         lower, upper = model_box(model)
-        columns = design_columns(model)
+        columns, log = design_columns(model), log_columns(model)
         x = np.array([[r["inputs"][c] for c in columns] for r in db.rows()])
-        old = Design(columns, lower, upper, (x - lower) / (upper - lower))
+        old = Design(columns, lower, upper, to_unit(x, lower, upper, log), log)
         design = augment(old, runs - planned, seed=seed, model_name=model.name)
     db.plan(((i, design.row(i)) for i in range(len(design))), seed=seed)
     return design

@@ -31,17 +31,20 @@ class Design:
         Bounds of the box, in the variables' declared units.
     unit : ndarray, shape (n_runs, n_columns)
         Points in the unit cube.
+    log : ndarray of bool, shape (n_columns,)
+        Columns declared ``scale: log``: the unit cube maps to ``ln x`` for them.
     """
 
     columns: tuple[str, ...]
     lower: np.ndarray
     upper: np.ndarray
     unit: np.ndarray
+    log: np.ndarray | None = None
 
     @property
     def points(self) -> np.ndarray:
         """Points in declared units, shape ``(n_runs, n_columns)``."""
-        return self.lower + self.unit * (self.upper - self.lower)
+        return from_unit(self.unit, self.lower, self.upper, self.log)
 
     def __len__(self) -> int:
         return len(self.unit)
@@ -49,6 +52,26 @@ class Design:
     def row(self, i: int) -> dict[str, float]:
         """Run ``i`` as ``{name: value}`` (plain floats)."""
         return {c: float(v) for c, v in zip(self.columns, self.points[i], strict=True)}
+
+
+def from_unit(unit: np.ndarray, lower: np.ndarray, upper: np.ndarray,
+              log: np.ndarray | None = None) -> np.ndarray:
+    """Map unit-cube points to the box; log-scale columns are uniform in ``ln x``."""
+    x = lower + unit * (upper - lower)
+    if log is not None and log.any():
+        lo, hi = np.log(lower[log]), np.log(upper[log])
+        x[..., log] = np.exp(lo + unit[..., log] * (hi - lo))
+    return x
+
+
+def to_unit(x: np.ndarray, lower: np.ndarray, upper: np.ndarray,
+            log: np.ndarray | None = None) -> np.ndarray:
+    """Inverse of :func:`from_unit`."""
+    u = (x - lower) / (upper - lower)
+    if log is not None and log.any():
+        lo, hi = np.log(lower[log]), np.log(upper[log])
+        u[..., log] = (np.log(x[..., log]) - lo) / (hi - lo)
+    return u
 
 
 def design_columns(model: Model) -> tuple[str, ...]:
@@ -61,6 +84,12 @@ def model_box(model: Model) -> tuple[np.ndarray, np.ndarray]:
     variables = (*model.inputs, *model.parameters)
     return (np.array([v.lower for v in variables], dtype=float),
             np.array([v.upper for v in variables], dtype=float))
+
+
+def log_columns(model: Model) -> np.ndarray:
+    """Which design columns are declared ``scale: log``, shape ``(n_columns,)``."""
+    return np.array([getattr(v, "scale", "linear") == "log"
+                     for v in (*model.inputs, *model.parameters)], dtype=bool)
 
 
 def design_rng(seed: int, model_name: str, runs: int) -> np.random.Generator:
@@ -89,6 +118,7 @@ def latin_hypercube(model: Model, runs: int, *, seed: int) -> Design:
     Design
         ``unit`` has shape ``(runs, n_inputs + n_parameters)``; the centred discrepancy
         is minimised by random coordinate swaps (``scipy.stats.qmc``, ``random-cd``).
+        Inputs declared ``scale: log`` are stratified in ``ln x``.
 
     Examples
     --------
@@ -104,7 +134,7 @@ def latin_hypercube(model: Model, runs: int, *, seed: int) -> Design:
     lower, upper = model_box(model)
     rng = design_rng(seed, model.name, runs)
     sampler = qmc.LatinHypercube(d=len(lower), optimization="random-cd", rng=rng)
-    return Design(design_columns(model), lower, upper, sampler.random(runs))
+    return Design(design_columns(model), lower, upper, sampler.random(runs), log_columns(model))
 
 
 def augment(design: Design, extra: int, *, seed: int, model_name: str,
@@ -148,4 +178,4 @@ def augment(design: Design, extra: int, *, seed: int, model_name: str,
         chosen.append(cand[j])
         dist = np.minimum(dist, ((cand - cand[j]) ** 2).sum(-1))
         dist[j] = -1.0
-    return Design(design.columns, design.lower, design.upper, np.asarray(chosen))
+    return Design(design.columns, design.lower, design.upper, np.asarray(chosen), design.log)

@@ -65,9 +65,12 @@ CREATE TABLE IF NOT EXISTS runs (
 
 def model_fingerprint(model: Model) -> dict[str, Any]:
     """What a store's runs depend on: the model's input and parameter boxes (name, bounds,
-    unit, declaration order), its outputs and its simulator reference (the timeout aside)."""
-    def box(variables) -> list[list[Any]]:
-        return [[v.name, float(v.lower), float(v.upper), v.unit] for v in variables]
+    unit, log scale, declaration order), its outputs and its simulator reference (the
+    timeout aside)."""
+    def box(variables) -> list[list[Any]]:  # "log" appended only for log-scale inputs
+        return [[v.name, float(v.lower), float(v.upper), v.unit]
+                + (["log"] if getattr(v, "scale", "linear") == "log" else [])
+                for v in variables]
 
     return {"model": model.name, "inputs": box(model.inputs),
             "parameters": box(model.parameters), "outputs": list(model.output_names),
@@ -100,6 +103,9 @@ def describe_change(old: Mapping[str, Any], new: Mapping[str, Any]) -> str:
             if before[name][3] != after[name][3]:
                 changes.append(f"unit of '{name}' changed from '{before[name][3]}' to "
                                f"'{after[name][3]}'")
+            if before[name][4:] != after[name][4:]:
+                changes.append(f"scale of '{name}' changed to "
+                               f"{(after[name][4:] or ['linear'])[0]}")
         if not changes and [v[0] for v in old.get(group, [])] != list(after):
             changes.append(f"order of the {group} changed")
     if old.get("outputs") != new.get("outputs"):
