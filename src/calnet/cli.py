@@ -207,8 +207,8 @@ def calibrate(
         "out/calibration"),
 ) -> None:
     """Calibrate the network (KOH per model, NUTS) and print the posterior summary."""
+    from calnet.calibration.diagnostics import kde_mode
     from calnet.calibration.network import calibrate as run_calibration
-    from calnet.calibration.network import kde_mode
     from calnet.spec import load_spec
     from calnet.surrogates.network import Surrogates
 

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 import jax.numpy as jnp
 import numpy as np
 
+from calnet.calibration.diagnostics import kde_mode
 from calnet.calibration.network_density import (
     NetworkKOHSpec,
     NetworkLogDensity,
@@ -265,17 +266,6 @@ def _plug(theta, ancestors, plug, n_up, rng) -> dict[str, np.ndarray]:
         d = min(v.shape[0] for v in out.values())
         out = {m: v[:d] for m, v in out.items()}
     return out
-
-
-def kde_mode(samples: np.ndarray, grid: int = 512) -> float:
-    """Posterior mode of 1-D draws from a Gaussian KDE (as the reference study reports)."""
-    from scipy.stats import gaussian_kde
-
-    samples = np.asarray(samples, dtype=float)
-    if np.ptp(samples) == 0:
-        return float(samples[0])
-    xs = np.linspace(samples.min(), samples.max(), grid)
-    return float(xs[np.argmax(gaussian_kde(samples)(xs))])
 
 
 def _posterior(network, mode, plug, stages, theta, data, ld, prior_only) -> NetworkPosterior:

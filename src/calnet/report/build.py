@@ -116,7 +116,7 @@ def posterior_summary(ctx) -> dict:
     """Per model: range, mode (KDE), mean, sd, 95 % interval, R-hat, ESS, divergences."""
     import arviz as az
 
-    from calnet.calibration.network import kde_mode
+    from calnet.calibration.diagnostics import kde_mode
 
     out = {}
     for stage in ctx.post.stages:
