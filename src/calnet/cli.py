@@ -204,7 +204,7 @@ def calibrate(
     surrogates_dir: Annotated[Path, typer.Option("--surrogates", help="from calnet surrogates")
                               ] = Path("out/surrogates"),
     out: Annotated[Path, typer.Option(help="folder for posteriors and plots")] = Path(
-        "out/calibration"),
+        "out/posterior"),
 ) -> None:
     """Calibrate the network (KOH per model, NUTS) and print the posterior summary."""
     from calnet.calibration.diagnostics import kde_mode
@@ -230,8 +230,131 @@ def calibrate(
                           f"{d.mean():.4g}", f"[{lo:.4g}, {hi:.4g}]", p.unit)
     for stage in post.stages:
         stage.idata.to_netcdf(str(out / f"{'+'.join(stage.models)}.nc"))
+    from calnet.calibration.persist import save_posterior
+
+    save_posterior(post, out)
     console.print(table)
     console.print(f"posteriors (ArviZ netCDF) written to {out}")
+
+
+@app.command()
+@user_errors
+def predict(
+    spec: SpecArg,
+    at: Annotated[list[str], typer.Option(
+        "--at", help="process settings NAME=VALUE[,NAME=VALUE...]; repeat for more points")
+    ] = [],  # noqa: B006
+    csv: Annotated[Path | None, typer.Option(help="CSV of points, one column per input")
+                   ] = None,
+    dataset: Annotated[list[str], typer.Option(
+        "--dataset", "-d", help="data set whose output to predict (default: every one)")
+    ] = [],  # noqa: B006
+    run_dir: Annotated[Path, typer.Option(
+        "--run", help="folder written by calnet run / calibrate (surrogates/, posterior/)")
+    ] = Path("out"),
+    draws: Annotated[int, typer.Option(min=1, help="posterior draws used")] = 200,
+    seed: Annotated[int | None, typer.Option(help="seed (default: the spec's)")] = None,
+    as_json: Annotated[bool, typer.Option("--json", help="print JSON instead of a table")
+                       ] = False,
+    output: Annotated[Path | None, typer.Option(help="also write the predictions as CSV")
+                      ] = None,
+) -> None:
+    """Predict measurable outputs at new process settings, with 95 % bands and the
+    uncertainty budget (upstream parameters, each emulator, discrepancy, noise)."""
+    from calnet.calibration.persist import load_posterior
+    from calnet.predict import parse_points, settings_matrix
+    from calnet.predict import predict as run_predict
+    from calnet.spec import load_spec
+    from calnet.surrogates.network import Surrogates
+
+    network = load_spec(spec)
+    rows = [parse_points(a) for a in at] + (_read_points(csv) if csv else [])
+    if not rows:
+        raise CalnetError("give the settings to predict at: --at P=200,v=0.5 (repeatable) "
+                          "or --csv points.csv")
+    sur_dir = run_dir / "surrogates"
+    if not (sur_dir / "surrogates.json").is_file():
+        raise CalnetError(f"no fitted surrogates in '{sur_dir}'; run 'calnet run SPEC --out "
+                          f"{run_dir}' first, or pass --run DIR")
+    post = load_posterior(run_dir / "posterior", network)
+    names = dataset or list(post.hyper)
+    unknown = [d for d in names if d not in post.hyper]
+    if unknown:
+        raise CalnetError(f"no calibrated data set {unknown}; choose from {list(post.hyper)}")
+    sur = Surrogates.load(sur_dir)
+    seed = network.settings.seed if seed is None else seed
+    results, table_rows = [], []
+    for name in names:
+        x, notes = settings_matrix(network, name, rows)
+        for note in dict.fromkeys(notes):
+            warnings.warn(note, stacklevel=1)
+        pred = run_predict(network, sur, post, name, x, n_draws=draws, seed=seed)
+        results.append(pred.to_dict() | {"variance_share_per_point": _point_shares(pred)})
+        unit = network.model(network.dataset(name).observed_model).output(
+            network.dataset(name).observed_output).unit
+        for i in range(len(x)):
+            top = sorted(_point_shares(pred)[i].items(), key=lambda kv: -kv[1])[:3]
+            table_rows.append((pred.observes, ", ".join(f"{k.split('.', 1)[1]}={v:g}" for k, v
+                                                        in zip(pred.input_keys, x[i],
+                                                               strict=True)),
+                               f"{pred.mean[i]:.4g}", f"[{pred.lower[i]:.4g}, "
+                               f"{pred.upper[i]:.4g}]", unit,
+                               ", ".join(f"{k} {v:.0%}" for k, v in top)))
+    if output:
+        _write_predictions(output, results)
+    if as_json:
+        print(json.dumps({"predictions": results}, indent=2, default=_json_default))
+        return
+    from rich.table import Table
+
+    table = Table("output", "settings", "mean", "95% band", "unit", "largest variance shares")
+    for r in table_rows:
+        table.add_row(*r)
+    console.print(table)
+    if output:
+        console.print(f"predictions written to {output}")
+
+
+def _read_points(path: Path) -> list[dict[str, float]]:
+    import pandas as pd
+
+    if not path.is_file():
+        raise CalnetError(f"--csv: no file '{path}'")
+    try:
+        frame = pd.read_csv(path)
+    except Exception as err:  # noqa: BLE001 - any parse failure is the user's file
+        raise CalnetError(f"--csv {path}: cannot read it as CSV ({err})") from None
+    bad = [c for c in frame.columns if not pd.api.types.is_numeric_dtype(frame[c])]
+    if bad:
+        raise CalnetError(f"--csv {path}: column(s) {bad} are not numeric")
+    if frame.empty:
+        raise CalnetError(f"--csv {path}: no rows")
+    return [{str(k): float(v) for k, v in row.items()} for row in frame.to_dict("records")]
+
+
+def _point_shares(pred) -> list[dict[str, float]]:
+    import numpy as np
+
+    total = sum(pred.budget.values())
+    safe = np.where(total > 0, total, 1.0)
+    return [{k: float(v[i] / safe[i]) for k, v in pred.budget.items()}
+            for i in range(len(pred.mean))]
+
+
+def _write_predictions(path: Path, results: list[dict]) -> None:
+    import csv as csv_mod
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("w", newline="") as fh:
+        writer = csv_mod.writer(fh)
+        keys = list(dict.fromkeys(k for r in results for k in r["inputs"]))
+        writer.writerow(["dataset", "output", *keys, "mean", "lower95", "upper95"])
+        for r in results:
+            for x, m, lo, hi in zip(r["x"], r["mean"], r["lower95"], r["upper95"],
+                                    strict=True):
+                given = dict(zip(r["inputs"], x, strict=True))
+                writer.writerow([r["dataset"], r["observes"], *(given.get(k, "") for k in keys),
+                                 m, lo, hi])
 
 
 @app.command()

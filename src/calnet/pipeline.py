@@ -139,6 +139,9 @@ class _Context:
                               sampler=self.sampler, progress=note)
         for stage in self.post.stages:
             stage.idata.to_netcdf(str(self.out / "posterior" / f"{'+'.join(stage.models)}.nc"))
+        from calnet.calibration.persist import save_posterior
+
+        save_posterior(self.post, self.out / "posterior")
 
     def prediction(self, note) -> None:
         from calnet.predict import predict

@@ -198,3 +198,64 @@ def metrics(y: np.ndarray, mean: np.ndarray, lower: np.ndarray | None = None,
     if lower is not None and upper is not None:
         out["coverage95"] = float(np.mean((y >= lower) & (y <= upper)))
     return out
+
+
+def parse_points(text: str) -> dict[str, float]:
+    """``"P=200,v=0.5"`` -> ``{"P": 200.0, "v": 0.5}`` (the ``--at`` syntax)."""
+    out: dict[str, float] = {}
+    for item in filter(None, (s.strip() for s in text.split(","))):
+        key, sep, val = item.partition("=")
+        if not sep or not key.strip():
+            raise CalnetError(f"--at expects NAME=VALUE[,NAME=VALUE...], got '{text}'")
+        try:
+            out[key.strip()] = float(val)
+        except ValueError:
+            raise CalnetError(f"--at {key.strip()}: '{val}' is not a number") from None
+    if not out:
+        raise CalnetError("--at is empty; write e.g. --at P=200,v=0.5")
+    return out
+
+
+def settings_matrix(network: Network, dataset: str,
+                    rows: list[dict[str, float]]) -> tuple[np.ndarray, list[str]]:
+    """Process settings for ``dataset``'s prediction as an array ``(n, k)``.
+
+    Each row maps input names (bare ``P`` or qualified ``melt_pool.P``) to values. Every
+    process input must be given; names that are not process inputs of the data set's
+    chain are an error. Returns the array and a list of warnings for values outside the
+    declared bounds (the surrogates extrapolate there).
+    """
+    ds = network.dataset(dataset)
+    pairs = network.process_inputs(ds.observed_model)
+    keys = [f"{m}.{i}" for m, i in pairs]
+    x = np.empty((len(rows), len(keys)))
+    notes: list[str] = []
+    for r, row in enumerate(rows):
+        given: dict[str, float] = {}
+        for name, value in row.items():
+            try:
+                key = network.resolve_column_key(ds, name, keys)
+            except ValueError:
+                raise CalnetError(f"'{name}' is not a process input of '{ds.observes}'; "
+                                  f"give {_names(keys)}") from None
+            given[key] = value
+        missing = [k for k in keys if k not in given]
+        if missing:
+            raise CalnetError(f"point {r + 1}: missing {_names(missing)}; '{ds.observes}' "
+                              f"needs {_names(keys)}")
+        for j, (key, (m, i)) in enumerate(zip(keys, pairs, strict=True)):
+            value = given[key]
+            if not np.isfinite(value):
+                raise CalnetError(f"point {r + 1}: {key} = {value} is not a finite number")
+            var = network.model(m).variable(i)
+            if not var.lower <= value <= var.upper:
+                notes.append(f"point {r + 1}: {key} = {value:g} lies outside its bounds "
+                             f"[{var.lower:g}, {var.upper:g}] {var.unit}; the surrogates "
+                             "extrapolate there")
+            x[r, j] = value
+    return x, notes
+
+
+def _names(keys: list[str]) -> str:
+    bare = [k.split(".", 1)[1] for k in keys]
+    return ", ".join(bare if len(set(bare)) == len(bare) else keys)

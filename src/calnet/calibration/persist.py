@@ -1,0 +1,107 @@
+"""Save and load a :class:`~calnet.calibration.network.NetworkPosterior` without pickle.
+
+What prediction needs is kept: the parameter draws per model, the discrepancy and noise
+hyperparameter draws per data set, and the training data each data set was calibrated
+on (so a later ``calnet predict`` conditions on exactly the same points even if the CSV
+changes). Arrays go to one ``.npz``; names and settings to a JSON file beside it. The
+per-stage ArviZ posteriors are written separately as netCDF.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from calnet.errors import CalibrationError
+from calnet.spec import ExperimentalData, Network
+
+FILE = "network_posterior"
+FORMAT = 1
+
+
+def save_posterior(post, folder: str | Path) -> Path:
+    """Write ``post`` to ``folder/network_posterior.{npz,json}``; returns the JSON path."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    arrays: dict[str, np.ndarray] = {}
+    for model, draws in post.theta.items():
+        arrays[f"theta/{model}"] = np.asarray(draws, float)
+    for ds, hyper in post.hyper.items():
+        for h, v in hyper.items():
+            arrays[f"hyper/{ds}/{h}"] = np.asarray(v, float)
+    data_meta = {}
+    for ds, d in post.data.items():
+        arrays[f"data/{ds}/x"] = np.asarray(d.x, float)
+        arrays[f"data/{ds}/y"] = np.asarray(d.y, float)
+        data_meta[ds] = {"observes": d.observes, "input_keys": list(d.input_keys),
+                         "labels": list(d.labels)}
+    np.savez_compressed(folder / f"{FILE}.npz", **arrays)
+    meta = {"format": FORMAT, "mode": post.mode, "plug": post.plug,
+            "prior_only": list(post.prior_only), "models": list(post.theta),
+            "hyper": {ds: list(h) for ds, h in post.hyper.items()},
+            "data": data_meta,
+            "standardisation": {k: list(map(float, v)) for k, v in post.standardisation.items()},
+            "timings": dict(post.timings)}
+    path = folder / f"{FILE}.json"
+    path.write_text(json.dumps(meta, indent=1))
+    return path
+
+
+def load_posterior(folder: str | Path, network: Network | None = None):
+    """Read a posterior written by :func:`save_posterior`.
+
+    ``network``, when given, is checked against it: every model and data set of the
+    posterior must exist with the same number of parameters and inputs.
+    """
+    from calnet.calibration.network import NetworkPosterior
+
+    folder = Path(folder)
+    meta_path, npz_path = folder / f"{FILE}.json", folder / f"{FILE}.npz"
+    if not meta_path.is_file() or not npz_path.is_file():
+        raise CalibrationError(
+            f"no calibrated posterior in '{folder}' (expected {FILE}.json and {FILE}.npz); "
+            "run 'calnet calibrate SPEC' or 'calnet run SPEC' first, or point --run at the "
+            "folder they wrote")
+    meta = json.loads(meta_path.read_text())
+    if meta.get("format") != FORMAT:
+        raise CalibrationError(f"'{meta_path}' has format {meta.get('format')!r}; this "
+                               f"calnet reads format {FORMAT}; calibrate again")
+    with np.load(npz_path) as z:
+        arrays = {k: z[k] for k in z.files}
+    theta = {m: arrays[f"theta/{m}"] for m in meta["models"]}
+    hyper = {ds: {h: arrays[f"hyper/{ds}/{h}"] for h in hs} for ds, hs in meta["hyper"].items()}
+    data = {}
+    for ds, dm in meta["data"].items():
+        y = arrays[f"data/{ds}/y"]
+        data[ds] = ExperimentalData(ds, dm["observes"], tuple(dm["input_keys"]),
+                                    arrays[f"data/{ds}/x"], y, np.zeros(len(y), bool),
+                                    tuple(dm["labels"]))
+    post = NetworkPosterior(meta["mode"], meta["plug"], (), theta, hyper, data,
+                            {k: tuple(v) for k, v in meta["standardisation"].items()},
+                            tuple(meta["prior_only"]), meta.get("timings", {}))
+    if network is not None:
+        _check_matches(post, network, folder)
+    return post
+
+
+def _check_matches(post, network: Network, folder: Path) -> None:
+    names = {m.name for m in network.models}
+    for model, draws in post.theta.items():
+        if model not in names or draws.shape[1] != len(network.model(model).parameters):
+            raise CalibrationError(
+                f"the posterior in '{folder}' does not fit this spec (model '{model}' is "
+                "missing or has other parameters); calibrate again")
+    for ds, d in post.data.items():
+        try:
+            spec_ds = network.dataset(ds)
+        except KeyError:
+            raise CalibrationError(f"the posterior in '{folder}' was calibrated on data set "
+                                   f"'{ds}', which this spec does not declare; calibrate "
+                                   "again") from None
+        keys = [f"{m}.{i}" for m, i in network.process_inputs(spec_ds.observed_model)]
+        if list(d.input_keys) != keys or d.observes != spec_ds.observes:
+            raise CalibrationError(f"the posterior in '{folder}': data set '{ds}' has inputs "
+                                   f"{list(d.input_keys)} but the spec gives {keys}; "
+                                   "calibrate again")

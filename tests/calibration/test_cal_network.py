@@ -1,0 +1,164 @@
+"""Network calibration (segmented and joint) on small analytic two-model networks.
+
+Oracle for the agreement test: the link carries an upstream output that does not depend
+on the upstream parameter, so the downstream data carry no information about it and the
+joint posterior factorises into p(a | upstream data) p(b | downstream data), which is
+exactly what the segmented calibration computes. Joint and segmented must then agree
+within Monte Carlo error (tolerances from the effective sample sizes).
+"""
+
+from __future__ import annotations
+
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+
+from calnet.calibration.network import calibrate
+from calnet.calibration.persist import load_posterior, save_posterior
+from calnet.campaign import run_campaign
+from calnet.errors import CalibrationError
+from calnet.spec import load_spec, read_all
+from calnet.spec.models import SamplerSettings
+from calnet.surrogates.network import fit_surrogates
+
+SIMS = '''
+def up(inputs):
+    x, a = inputs["x"], inputs["a"]
+    return {"y": a * (1.0 + x) + 0.3 * x * x, "z": 1.0 + x}
+
+
+def down(inputs):
+    s, b = inputs["s"], inputs["b"]
+    return {"w": b * s * s - 0.5 * s}
+'''
+
+SPEC = '''
+name: indep
+models:
+  up:
+    simulator: python:indep_sims:up
+    inputs: {x: {lower: 0, upper: 1}}
+    parameters: {a: {lower: 0.5, upper: 1.5}}
+    outputs: {y: {measurable: true}, z: {}}
+    campaign: {runs: 30}
+  down:
+    simulator: python:indep_sims:down
+    inputs: {s: {lower: 1, upper: 2}}
+    parameters: {b: {lower: 0.5, upper: 1.5}}
+    outputs: {w: {measurable: true}}
+    campaign: {runs: 20}
+links:
+  - {from: up.z, to: down.s}
+data:
+  ydata: {path: y.csv, observes: up.y, columns: {x: x, y: y}}
+  wdata: {path: w.csv, observes: down.w, columns: {x: x, w: w}}
+settings:
+  seed: 11
+  surrogate: {cv_folds: 5, restarts: 2}
+'''
+
+A_TRUE, B_TRUE = 1.1, 0.9
+
+
+@pytest.fixture(scope="module")
+def indep(tmp_path_factory):
+    root = tmp_path_factory.mktemp("indep")
+    (root / "indep_sims.py").write_text(SIMS)
+    (root / "network.yaml").write_text(textwrap.dedent(SPEC))
+    rng = np.random.default_rng(5)
+    x = np.linspace(0.05, 0.95, 8)
+    y = A_TRUE * (1 + x) + 0.3 * x**2 + 0.02 * rng.standard_normal(8)
+    s = 1 + x
+    w = B_TRUE * s**2 - 0.5 * s + 0.05 * rng.standard_normal(8)
+    (root / "y.csv").write_text("x,y\n" + "".join(f"{a},{b}\n" for a, b in zip(x, y)))
+    (root / "w.csv").write_text("x,w\n" + "".join(f"{a},{b}\n" for a, b in zip(x, w)))
+    sys.path.insert(0, str(root))
+    try:
+        network = load_spec(root)
+        for m in network.order:
+            run_campaign(network, m, executor="in-process", progress=False)
+        sur = fit_surrogates(network, seed=1, cv=False)
+        yield network, sur, root
+    finally:
+        sys.path.remove(str(root))
+
+
+SAMPLER = SamplerSettings(chains=2, warmup=500, draws=1000)
+
+
+@pytest.fixture(scope="module")
+def both(indep):
+    network, sur, _ = indep
+    seg = calibrate(network, sur, mode="segmented", plug="posterior", sampler=SAMPLER, seed=2)
+    joint = calibrate(network, sur, mode="joint", sampler=SAMPLER, seed=3)
+    return seg, joint
+
+
+def _ess(draws: np.ndarray) -> float:
+    import arviz as az
+
+    return float(az.ess(draws.reshape(SAMPLER.chains, -1)))
+
+
+def test_joint_and_segmented_agree_when_downstream_is_uninformative(both):
+    seg, joint = both
+    assert len(seg.stages) == 2 and len(joint.stages) == 1
+    for model in ("up", "down"):
+        s, j = seg.theta[model][:, 0], joint.theta[model][:, 0]
+        stage = [st for st in seg.stages if st.models == (model,)][0]
+        s_raw = stage.draws(f"theta_{model}")[:, 0]  # before resampling to a common count
+        ess_s, ess_j = _ess(s_raw), _ess(j)
+        se = np.sqrt(s_raw.var() / ess_s + j.var() / ess_j)
+        assert abs(s_raw.mean() - j.mean()) < 4 * se, (model, s_raw.mean(), j.mean(), se)
+        ratio_tol = 4 * np.sqrt(1 / (2 * ess_s) + 1 / (2 * ess_j))
+        assert abs(s_raw.std() / j.std() - 1) < ratio_tol, (model, s_raw.std(), j.std())
+        assert seg.theta[model].shape == seg.theta["up"].shape  # draws aligned across models
+
+
+def test_twin_values_are_recovered(both):
+    for post in both:
+        for model, true in (("up", A_TRUE), ("down", B_TRUE)):
+            lo, hi = np.percentile(post.theta[model][:, 0], [2.5, 97.5])
+            assert lo <= true <= hi, (post.mode, model, lo, hi)
+
+
+def test_posterior_round_trips_through_disk(both, indep, tmp_path):
+    network = indep[0]
+    seg = both[0]
+    save_posterior(seg, tmp_path)
+    back = load_posterior(tmp_path, network)
+    assert back.mode == "segmented" and back.plug == "posterior"
+    for m in seg.theta:
+        np.testing.assert_array_equal(back.theta[m], seg.theta[m])
+    for ds in seg.hyper:
+        for h in seg.hyper[ds]:
+            np.testing.assert_array_equal(back.hyper[ds][h], seg.hyper[ds][h])
+        np.testing.assert_array_equal(back.data[ds].x, seg.data[ds].x)
+        np.testing.assert_array_equal(back.data[ds].y, seg.data[ds].y)
+
+
+def test_loading_a_posterior_checks_the_spec(both, indep, tmp_path):
+    network, _, root = indep
+    with pytest.raises(CalibrationError, match="no calibrated posterior"):
+        load_posterior(tmp_path / "nothing", network)
+    save_posterior(both[0], tmp_path)
+    changed = root / "changed.yaml"
+    changed.write_text(textwrap.dedent(SPEC).replace("ydata:", "yd:"))
+    with pytest.raises(CalibrationError, match="ydata"):
+        load_posterior(tmp_path, load_spec(changed))
+
+
+def test_prediction_matches_calibration_data_scale(both, indep):
+    from calnet.predict import predict
+
+    network, sur, _ = indep
+    seg = both[0]
+    data = read_all(network)["wdata"]
+    pred = predict(network, sur, seg, "wdata", data.x, n_draws=100, seed=0)
+    # the KOH predictive at the training points follows the data within the noise
+    assert np.all(pred.lower <= pred.upper)
+    assert np.mean((data.y >= pred.lower) & (data.y <= pred.upper)) >= 0.75
+    assert set(pred.budget) == {"parameters", "emulator up.z", "emulator down.w",
+                                "discrepancy", "noise"}
