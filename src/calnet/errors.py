@@ -52,6 +52,10 @@ class CalibrationWarning(UserWarning):
     """Sampler diagnostics are poor (R-hat, ESS, divergences) or data are scarce."""
 
 
+class CampaignWarning(UserWarning):
+    """A campaign store that is usable but not what the installed simulator would make."""
+
+
 class SurrogateWarning(UserWarning):
     """A surrogate was fitted with caveats (runs excluded, nugget raised)."""
 

@@ -161,3 +161,20 @@ def test_store_is_plain_sqlite(tmp_path):
         status = [s for (s,) in db.execute("SELECT status FROM runs ORDER BY idx")]
     db.close()
     assert status == ["ok", "ok", "ok"]
+
+
+def test_a_store_made_by_another_simulator_version_is_not_mixed(tmp_path):
+    net = toy_network(tmp_path, runs=6)
+    path = run_campaign(net, "toy", progress=False).store_path
+    with sqlite3.connect(path) as db:  # as if an older simulator had made these runs
+        db.execute("UPDATE runs SET simulator_version = 'toy-0'")
+    from calnet.errors import CampaignWarning
+
+    with pytest.warns(CampaignWarning, match="6 runs with toy_sims:quadratic toy-0.*toy-1"):
+        summary = run_campaign(net, "toy", progress=False)  # complete: used, with a warning
+    assert summary.ran == 0
+    with pytest.raises(CampaignError, match="mix two versions.*--fresh"):
+        run_campaign(net, "toy", runs=9, progress=False)
+    assert RunStore(path, readonly=True).status_counts() == {"ok": 6, "unfinished": 3}
+    summary = run_campaign(net, "toy", runs=9, progress=False, fresh=True)
+    assert summary.status_counts == {"ok": 9}

@@ -14,6 +14,7 @@ import hashlib
 import json
 import math
 import time
+import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -41,7 +42,7 @@ from calnet.campaign.runners import (
     simulator_version,
 )
 from calnet.campaign.store import RunStore, describe_change, fingerprint_hash, model_fingerprint
-from calnet.errors import CampaignError
+from calnet.errors import CampaignError, CampaignWarning
 from calnet.spec.models import Model
 from calnet.spec.network import Network
 
@@ -156,6 +157,7 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
         if retry_failed:
             db.reset_failed()
         todo = db.unfinished()
+        _check_versions(db, sim.name, version, bool(todo))
         skipped = len(design) - len(todo)
         in_flight = sum(was for _, _, was in todo)
         timeout = run_timeout(network, model)
@@ -174,6 +176,21 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
     return CampaignSummary(model_name, path, len(design), skipped, len(todo), in_flight,
                            counts, failures, time.perf_counter() - start, ex.name, ex.workers,
                            seed)
+
+
+def _check_versions(db: RunStore, simulator: str, version: str, more_to_run: bool) -> None:
+    """Refuse to mix simulator versions in one design; warn when a finished store is old."""
+    other = {v: n for v, n in db.versions().items() if v and version and v != version}
+    if not other:
+        return
+    made = ", ".join(f"{n} runs with {simulator} {v}" for v, n in sorted(other.items()))
+    msg = f"the store '{db.path}' holds {made}; the installed {simulator} is {version}"
+    if more_to_run:
+        raise CampaignError(msg + "; finishing it would mix two versions in one design. "
+                            "Re-simulate with --fresh (or a new --store), or install the "
+                            "version that made it")
+    warnings.warn(msg + "; its runs are used as they are (re-simulate with --fresh to use "
+                  "the installed version)", CampaignWarning, stacklevel=3)
 
 
 def remove_store(path: Path) -> None:

@@ -228,6 +228,12 @@ class RunStore:
                  rec.wall_time, simulator, version, time.time(), rec.index))
 
     # ---------------------------------------------------------------- reading
+    def versions(self) -> dict[str, int]:
+        """Simulator version -> number of finished runs made with it."""
+        rows = self._db.execute("SELECT COALESCE(simulator_version, ''), COUNT(*) FROM runs "
+                                "WHERE status IS NOT NULL GROUP BY 1")
+        return {v: int(n) for v, n in rows}
+
     def status_counts(self) -> dict[str, int]:
         rows = self._db.execute("SELECT COALESCE(status, 'unfinished'), COUNT(*) FROM runs "
                                 "GROUP BY 1")
