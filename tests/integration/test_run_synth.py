@@ -42,3 +42,34 @@ def test_quick_run_on_three_model_network(tmp_path, monkeypatch):
     for model, name, true in (("thermal", "a", 1.2), ("micro", "b", 0.8), ("hardness", "c", 2.0)):
         row = m["calibration"]["models"][model]["parameters"][name]
         assert row["q2.5"] <= true <= row["q97.5"], (model, row)
+    _check_predict(work, out, tmp_path)
+
+
+def _check_predict(work: Path, out: Path, tmp_path: Path) -> None:
+    """``calnet predict`` on the folder ``calnet run`` wrote: --at, --csv, JSON, errors."""
+    runner = CliRunner()
+    res = runner.invoke(app, ["predict", str(work), "--run", str(out), "--at", "P=200,v=0.5",
+                              "--at", "thermal.P=120,v=1.2", "-d", "pdas", "--json"])
+    assert res.exit_code == 0, res.output
+    doc = json.loads(res.output)["predictions"]
+    assert len(doc) == 1 and doc[0]["observes"] == "micro.lam"
+    assert doc[0]["x"] == [[200.0, 0.5], [120.0, 1.2]]
+    for lo, m, hi in zip(doc[0]["lower95"], doc[0]["mean"], doc[0]["upper95"], strict=True):
+        assert 0 < lo < m < hi
+    shares = doc[0]["variance_shares"]
+    assert abs(sum(shares.values()) - 1) < 1e-9 and "emulator thermal.G" in shares
+    points = tmp_path / "points.csv"
+    points.write_text("P,v\n150,0.8\n300,0.5\n")
+    table = tmp_path / "pred.csv"
+    res = runner.invoke(app, ["predict", str(work), "--run", str(out), "--csv", str(points),
+                              "--output", str(table)])
+    assert res.exit_code == 0, res.output
+    assert "outside its bounds" in res.output  # P = 300 W extrapolates: said, not hidden
+    lines = table.read_text().splitlines()
+    assert lines[0] == "dataset,output,thermal.P,thermal.v,mean,lower95,upper95"
+    assert len(lines) == 1 + 2 * 3  # two points for each of the three data sets
+    res = runner.invoke(app, ["predict", str(work), "--run", str(out), "--at", "P=200"])
+    assert res.exit_code == 1 and "missing v" in res.output
+    res = runner.invoke(app, ["predict", str(work), "--run", str(tmp_path / "none"),
+                              "--at", "P=200,v=1"])
+    assert res.exit_code == 1 and "no fitted surrogates" in res.output
