@@ -206,9 +206,14 @@ def calibrate(
     out: Annotated[Path, typer.Option(help="folder for posteriors and plots")] = Path(
         "out/posterior"),
 ) -> None:
-    """Calibrate the network (KOH per model, NUTS) and print the posterior summary."""
-    from calnet.calibration.diagnostics import kde_mode
+    """Calibrate the network (KOH per model, NUTS): posteriors (ArviZ netCDF), a summary
+    table with diagnostics, and prior-vs-posterior plots per model."""
+    from rich.table import Table
+
     from calnet.calibration.network import calibrate as run_calibration
+    from calnet.calibration.persist import save_posterior
+    from calnet.report import figures
+    from calnet.report.build import posterior_summary, prior_panels
     from calnet.spec import load_spec
     from calnet.surrogates.network import Surrogates
 
@@ -218,23 +223,32 @@ def calibrate(
         post = run_calibration(network, sur, mode=mode, plug=plug,
                                progress=lambda m: status.update(m))
     out.mkdir(parents=True, exist_ok=True)
-    from rich.table import Table
-
-    table = Table("model", "parameter", "range", "mode", "mean", "95% interval", "unit")
-    for model, draws in post.theta.items():
-        m = network.model(model)
-        for j, p in enumerate(m.parameters):
-            d = draws[:, j]
-            lo, hi = (float(x) for x in __import__("numpy").percentile(d, [2.5, 97.5]))
-            table.add_row(model, p.name, f"[{p.lower:g}, {p.upper:g}]", f"{kde_mode(d):.4g}",
-                          f"{d.mean():.4g}", f"[{lo:.4g}, {hi:.4g}]", p.unit)
     for stage in post.stages:
         stage.idata.to_netcdf(str(out / f"{'+'.join(stage.models)}.nc"))
-    from calnet.calibration.persist import save_posterior
-
     save_posterior(post, out)
+    summary = posterior_summary(network, post)
+    (out / "summary.json").write_text(json.dumps(summary, indent=1, default=_json_default))
+    table = Table("model", "parameter", "range", "mode", "mean", "95% interval", "unit",
+                  "R-hat", "ESS bulk", title=f"{post.mode} calibration"
+                  + (f", upstream plugged in by its {post.plug}" if post.mode == "segmented"
+                     else ""))
+    for model, s in summary.items():
+        if s.get("prior_only"):
+            table.add_row(model, "(no data: prior kept)", *[""] * 7)
+            continue
+        for name, r in s["parameters"].items():
+            table.add_row(model, name, f"[{r['lower']:g}, {r['upper']:g}]", f"{r['mode']:.4g}",
+                          f"{r['mean']:.4g}", f"[{r['q2.5']:.4g}, {r['q97.5']:.4g}]",
+                          r["unit"], f"{r['rhat']:.3f}", f"{r['ess_bulk']:.0f}")
+        figures.prior_posterior_grid(prior_panels(network, post, model, s),
+                                     out / f"posterior_{model}.png",
+                                     title=f"{model}: prior vs posterior")
     console.print(table)
-    console.print(f"posteriors (ArviZ netCDF) written to {out}")
+    for model, s in summary.items():
+        if not s.get("prior_only") and s["divergences"]:
+            console.print(f"[yellow]{model}: {s['divergences']} divergent transitions[/]")
+    console.print(f"posteriors (ArviZ netCDF, network_posterior.*), summary.json and "
+                  f"prior-vs-posterior plots written to {out}")
 
 
 @app.command()

@@ -57,6 +57,7 @@ data:
 settings:
   seed: 11
   surrogate: {cv_folds: 5, restarts: 2}
+  sampler: {chains: 2, warmup: 300, draws: 300}
 '''
 
 A_TRUE, B_TRUE = 1.1, 0.9
@@ -162,3 +163,27 @@ def test_prediction_matches_calibration_data_scale(both, indep):
     assert np.mean((data.y >= pred.lower) & (data.y <= pred.upper)) >= 0.75
     assert set(pred.budget) == {"parameters", "emulator up.z", "emulator down.w",
                                 "discrepancy", "noise"}
+
+
+def test_calibrate_command_writes_posteriors_summary_and_plots(indep, tmp_path):
+    import json
+
+    from typer.testing import CliRunner
+
+    from calnet.cli import app
+
+    network, sur, root = indep
+    sur.save(tmp_path / "surrogates")
+    out = tmp_path / "posterior"
+    res = CliRunner().invoke(app, ["calibrate", str(root), "--surrogates",
+                                   str(tmp_path / "surrogates"), "--out", str(out),
+                                   "--mode", "joint"])
+    assert res.exit_code == 0, res.output
+    for rel in ("up+down.nc", "network_posterior.json", "network_posterior.npz",
+                "summary.json", "posterior_up.png", "posterior_down.png"):
+        assert (out / rel).is_file(), rel
+    assert "joint calibration" in res.output and "R-hat" in res.output
+    summary = json.loads((out / "summary.json").read_text())
+    row = summary["up"]["parameters"]["a"]
+    assert row["lower"] == 0.5 and row["upper"] == 1.5 and row["q2.5"] < row["q97.5"]
+    assert load_posterior(out, network).mode == "joint"

@@ -178,3 +178,25 @@ def test_a_store_made_by_another_simulator_version_is_not_mixed(tmp_path):
     assert RunStore(path, readonly=True).status_counts() == {"ok": 6, "unfinished": 3}
     summary = run_campaign(net, "toy", runs=9, progress=False, fresh=True)
     assert summary.status_counts == {"ok": 9}
+
+
+def test_resume_keeps_stored_inputs_bit_for_bit(tmp_path):
+    """A stored design is never recomputed: points whose last bits would not survive a
+    round trip through the unit cube (another machine, another SciPy) still resume, and
+    augmenting only plans the new points."""
+    from calnet.campaign.store import input_hash
+
+    net = toy_network(tmp_path, runs=6)
+    path = run_campaign(net, "toy", progress=False).store_path
+    with sqlite3.connect(path) as db:
+        for idx, text in db.execute("SELECT idx, inputs FROM runs").fetchall():
+            inputs = {k: float(np.nextafter(v, np.inf)) for k, v in json.loads(text).items()}
+            db.execute("UPDATE runs SET inputs = ?, input_hash = ? WHERE idx = ?",
+                       (json.dumps(inputs), input_hash(inputs), idx))
+        before = db.execute("SELECT inputs FROM runs ORDER BY idx").fetchall()
+    assert run_campaign(net, "toy", progress=False).ran == 0
+    summary = run_campaign(net, "toy", runs=8, progress=False)
+    assert summary.ran == 2 and summary.status_counts == {"ok": 8}
+    with sqlite3.connect(path) as db:
+        assert db.execute("SELECT inputs FROM runs WHERE idx < 6 ORDER BY idx").fetchall() \
+            == before

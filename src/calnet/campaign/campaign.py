@@ -259,8 +259,11 @@ def _plan(db: RunStore, model: Model, runs: int, seed: int) -> Design:
         columns, log = design_columns(model), log_columns(model)
         x = np.array([[r["inputs"][c] for c in columns] for r in db.rows()])
         old = Design(columns, lower, upper, to_unit(x, lower, upper, log), log)
+        if runs <= planned:  # the stored points are the design: never recomputed, so a
+            return old      # unit-cube round trip cannot change their last bits
         design = augment(old, runs - planned, seed=seed, model_name=model.name)
-    db.plan(((i, design.row(i)) for i in range(len(design))), seed=seed)
+    # only new points are planned; the stored ones keep their exact inputs
+    db.plan(((i, design.row(i)) for i in range(planned, len(design))), seed=seed)
     return design
 
 

@@ -112,23 +112,24 @@ def sensitivity_and_maps(ctx, note) -> None:
     ctx.metrics["maps"] = maps
 
 
-def posterior_summary(ctx) -> dict:
+def posterior_summary(network, post) -> dict:
     """Per model: range, mode (KDE), mean, sd, 95 % interval, R-hat, ESS, divergences."""
     import arviz as az
 
     from calnet.calibration.diagnostics import kde_mode
 
     out = {}
-    for stage in ctx.post.stages:
-        post = stage.idata.posterior
-        rhat, ess_b, ess_t = az.rhat(post), az.ess(post, method="bulk"), az.ess(post, method="tail")
+    for stage in post.stages:
+        idata_post = stage.idata.posterior
+        rhat, ess_b = az.rhat(idata_post), az.ess(idata_post, method="bulk")
+        ess_t = az.ess(idata_post, method="tail")
         div = int(np.asarray(stage.idata.sample_stats["diverging"]).sum())
         for model in stage.models:
-            m = ctx.network.model(model)
+            m = network.model(model)
             var = f"theta_{model}"
-            if var not in post:
+            if var not in idata_post:
                 continue
-            draws = ctx.post.theta[model]
+            draws = post.theta[model]
             rows = {}
             for j, p in enumerate(m.parameters):
                 sel = {f"{model}_parameter": p.name}
@@ -140,29 +141,30 @@ def posterior_summary(ctx) -> dict:
                     "q97.5": float(np.percentile(draws[:, j], 97.5)),
                     "rhat": float(rhat[var].sel(sel)), "ess_bulk": float(ess_b[var].sel(sel)),
                     "ess_tail": float(ess_t[var].sel(sel))}
-            all_rhat = max(float(rhat[v].max()) for v in post.data_vars)
-            all_ess = min(float(ess_b[v].min()) for v in post.data_vars)
+            all_rhat = max(float(rhat[v].max()) for v in idata_post.data_vars)
+            all_ess = min(float(ess_b[v].min()) for v in idata_post.data_vars)
             out[model] = {"parameters": rows, "divergences": div, "max_rhat": all_rhat,
                           "min_ess_bulk": all_ess, "stage": "+".join(stage.models),
                           "datasets": list(stage.datasets),
                           "sampling_time_s": float(stage.idata.attrs.get("sampling_time", 0)),
                           "compile_time_s": float(stage.idata.attrs.get("compile_time", 0))}
-    for model in ctx.post.prior_only:
+    for model in post.prior_only:
         out[model] = {"prior_only": True}
     return out
 
 
-def _prior_panels(ctx, model, summary):
+def prior_panels(network, post, model, summary):
+    """Prior density and posterior draws of each parameter of ``model`` (for figures)."""
     from calnet.calibration.network import theta_prior
 
-    m = ctx.network.model(model)
+    m = network.model(model)
     panels = []
     for j, p in enumerate(m.parameters):
         xs = np.linspace(p.lower, p.upper, 200)
         ys = np.exp(np.asarray(theta_prior(p).log_prob(xs)))
         panels.append({"name": p.name, "unit": p.unit, "lower": p.lower, "upper": p.upper,
                        "prior_pdf_x": xs, "prior_pdf_y": ys,
-                       "posterior_samples": ctx.post.theta[model][:, j],
+                       "posterior_samples": post.theta[model][:, j],
                        "mode": summary["parameters"][p.name]["mode"]})
     return panels
 
@@ -172,7 +174,7 @@ def write_outputs(ctx) -> None:
     from calnet.report import figures
 
     net, out = ctx.network, ctx.out
-    summary = posterior_summary(ctx)
+    summary = posterior_summary(ctx.network, ctx.post)
     ctx.metrics["calibration"] = {"mode": ctx.post.mode, "plug": ctx.post.plug,
                                   "sampler": ctx.sampler.model_dump(), "models": summary}
     ctx.metrics["predictions"] = {k: p.to_dict() for k, p in ctx.predictions.items()}
@@ -191,7 +193,8 @@ def write_outputs(ctx) -> None:
     for model, s in summary.items():
         if not s.get("prior_only"):
             fig[f"posterior {model}"] = figures.prior_posterior_grid(
-                _prior_panels(ctx, model, s), out / "figures" / f"posterior_{model}.png",
+                prior_panels(ctx.network, ctx.post, model, s),
+                out / "figures" / f"posterior_{model}.png",
                 title=f"{model}: prior vs posterior")
     for name, d in ctx.data.items():
         p = ctx.predictions[name]
