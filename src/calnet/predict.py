@@ -22,6 +22,7 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 from calnet.calibration.network import NetworkPosterior  # noqa: E402
+from calnet.calibration.network_density import se_kernel  # noqa: E402
 from calnet.chain import ChainPlan  # noqa: E402
 from calnet.errors import CalnetError  # noqa: E402
 from calnet.spec import Network  # noqa: E402
@@ -72,11 +73,6 @@ class Prediction:
                 "variance_shares": self.shares()}
 
 
-def _se(xa, xb, ell):
-    d2 = (xa[:, None, :] - xb[None, :, :]) ** 2
-    return jnp.exp(-0.5 * jnp.sum(d2 / ell**2, axis=-1))
-
-
 def _link_keys(plan: ChainPlan) -> tuple[str, ...]:
     return tuple(dict.fromkeys(src[2] for m in plan.models for src in m.sources
                                if src[0] == "output"))
@@ -89,9 +85,9 @@ def _draw_moments(plan, gps, model, key, tr, xp_new, thetas, hyper, eps, emu):
     s = tr["y_sd"]
     ue, up = plan.unit_inputs(model, x_e), plan.unit_inputs(model, x_p)
     ell, sd2, se2 = hyper["ell"], hyper["sd2"], hyper["se2"]
-    K = sd2 * _se(ue, ue, ell) + jnp.diag(se2 + (v_e / s**2 if emu else 0.0) + 1e-10
+    K = sd2 * se_kernel(ue, ue, ell) + jnp.diag(se2 + (v_e / s**2 if emu else 0.0) + 1e-10
                                           + jnp.zeros(ue.shape[0]))
-    kpe = sd2 * _se(up, ue, ell)
+    kpe = sd2 * se_kernel(up, ue, ell)
     L = jnp.linalg.cholesky(K)
     resid = tr["y"] - (m_e - tr["y_mean"]) / s
     w = jax.scipy.linalg.cho_solve((L, True), resid)

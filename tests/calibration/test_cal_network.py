@@ -73,8 +73,8 @@ def indep(tmp_path_factory):
     y = A_TRUE * (1 + x) + 0.3 * x**2 + 0.02 * rng.standard_normal(8)
     s = 1 + x
     w = B_TRUE * s**2 - 0.5 * s + 0.05 * rng.standard_normal(8)
-    (root / "y.csv").write_text("x,y\n" + "".join(f"{a},{b}\n" for a, b in zip(x, y)))
-    (root / "w.csv").write_text("x,w\n" + "".join(f"{a},{b}\n" for a, b in zip(x, w)))
+    (root / "y.csv").write_text("x,y\n" + "".join(f"{a},{b}\n" for a, b in zip(x, y, strict=True)))
+    (root / "w.csv").write_text("x,w\n" + "".join(f"{a},{b}\n" for a, b in zip(x, w, strict=True)))
     sys.path.insert(0, str(root))
     try:
         network = load_spec(root)
@@ -107,7 +107,7 @@ def test_joint_and_segmented_agree_when_downstream_is_uninformative(both):
     seg, joint = both
     assert len(seg.stages) == 2 and len(joint.stages) == 1
     for model in ("up", "down"):
-        s, j = seg.theta[model][:, 0], joint.theta[model][:, 0]
+        j = joint.theta[model][:, 0]
         stage = [st for st in seg.stages if st.models == (model,)][0]
         s_raw = stage.draws(f"theta_{model}")[:, 0]  # before resampling to a common count
         ess_s, ess_j = _ess(s_raw), _ess(j)

@@ -38,7 +38,13 @@ import jax.numpy as jnp  # noqa: E402
 import jax.scipy.linalg as jsl  # noqa: E402
 import numpy as np  # noqa: E402
 
-from calnet.calibration.priors import InverseGamma, LogNormal, Prior, stack_priors  # noqa: E402
+from calnet.calibration.priors import (  # noqa: E402
+    InverseGamma,
+    LogNormal,
+    Prior,
+    init_from_priors,
+    stack_priors,
+)
 from calnet.errors import CalibrationError, CalibrationWarning  # noqa: E402
 
 __all__ = ["KOHSpec", "KOHLogDensity", "build_logdensity", "check_initial", "HYPERPARAMETERS"]
@@ -198,9 +204,7 @@ class KOHSpec:
 
     def init(self, seed, n_chains: int):
         """Prior draws on the unconstrained scale, (n_chains, dim); ``seed``: int or Generator."""
-        rng = np.random.default_rng(seed)
-        priors = [pr for _, block in self._blocks() for pr in block]
-        return np.stack([pr.sample_unconstrained(rng, (n_chains,)) for pr in priors], axis=1)
+        return init_from_priors(self._blocks(), seed, n_chains)
 
 
 @dataclass(frozen=True)

@@ -28,7 +28,7 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 from calnet.calibration.koh import mvn_logpdf_chol  # noqa: E402
-from calnet.calibration.priors import Prior  # noqa: E402
+from calnet.calibration.priors import Prior, init_from_priors  # noqa: E402
 from calnet.chain import ChainPlan  # noqa: E402
 
 
@@ -110,10 +110,9 @@ class NetworkKOHSpec:
         s = tdata["y_sd"]
         r = tdata["y"] - (m_bar - tdata["y_mean"]) / s
         xu = self.plan.unit_inputs(term.model, x)
-        d2 = (xu[:, None, :] - xu[None, :, :]) ** 2
         ell, sd2, se2 = c[f"ell_{term.name}"], c[f"sd2_{term.name}"], c[f"se2_{term.name}"]
         # method.md section 3: SE discrepancy + noise (+ emulator and upstream variance)
-        K = sd2 * jnp.exp(-0.5 * jnp.sum(d2 / ell**2, axis=-1)) + c_up / s**2
+        K = sd2 * se_kernel(xu, xu, ell) + c_up / s**2
         diag = se2 + (var / s**2 if term.emulator_variance else 0.0)
         K = K + jnp.diag(diag * jnp.ones(r.shape[0]) + 1e-10)
         return mvn_logpdf_chol(r, K)
@@ -131,9 +130,7 @@ class NetworkKOHSpec:
 
     def init(self, seed, n_chains: int):
         """Prior draws on the unconstrained scale, (n_chains, dim); seed: int or Generator."""
-        rng = np.random.default_rng(seed)
-        priors = [pr for _, block in self._blocks() for pr in block]
-        return np.stack([pr.sample_unconstrained(rng, (n_chains,)) for pr in priors], axis=1)
+        return init_from_priors(self._blocks(), seed, n_chains)
 
 
 @dataclass(frozen=True)
@@ -175,6 +172,12 @@ class NetworkLogDensity:
 
     def init(self, seed: int, n_chains: int):
         return self.spec.init(seed, n_chains)
+
+
+def se_kernel(xa, xb, ell):
+    """Squared-exponential correlation ``exp(-0.5 sum_d (xa_d - xb_d)^2 / ell_d^2)``, (na, nb)."""
+    d2 = (xa[:, None, :] - xb[None, :, :]) ** 2
+    return jnp.exp(-0.5 * jnp.sum(d2 / ell**2, axis=-1))
 
 
 def standardise(y: np.ndarray) -> tuple[float, float]:

@@ -363,3 +363,14 @@ def stack_priors(priors) -> list[tuple[int, int, Prior]]:
         out.append((start, stop, stacked))
         start = stop
     return out
+
+
+def init_from_priors(blocks, seed, n_chains: int) -> np.ndarray:
+    """Initial points drawn from the priors on the unconstrained scale, (n_chains, dim).
+
+    ``blocks`` is a sequence of ``(name, priors)``, in the order of the flat parameter
+    vector; ``seed`` is an int or a :class:`numpy.random.Generator`.
+    """
+    rng = np.random.default_rng(seed)
+    priors = [pr for _, block in blocks for pr in block]
+    return np.stack([pr.sample_unconstrained(rng, (n_chains,)) for pr in priors], axis=1)

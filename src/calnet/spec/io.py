@@ -183,7 +183,7 @@ def _element_model(cls: type[BaseModel] | None) -> type[BaseModel] | None:
 
 def check_simulators(network: Network) -> None:
     """Check that built-in simulators know every declared input, parameter and output."""
-    from calnet.simulators.registry import builtin_names, builtin_info
+    from calnet.simulators.registry import builtin_info, builtin_names
 
     for model in network.models:
         sim = model.simulator

@@ -8,10 +8,10 @@ from pydantic import Field, PositiveInt, field_validator, model_validator
 
 from calnet.spec.variables import (
     Frozen,
+    Input,
     InverseGammaPrior,
     LogNormalPrior,
     Name,
-    Input,
     Output,
     Parameter,
 )

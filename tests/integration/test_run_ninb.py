@@ -1,0 +1,54 @@
+"""End to end on the shipped case study: ``calnet run --quick examples/ninb`` from the
+shipped campaign stores (nothing is re-simulated), then ``calnet predict`` on its output."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from calnet.cli import app
+
+NINB = Path(__file__).resolve().parents[2] / "examples" / "ninb"
+
+
+@pytest.mark.integration
+def test_quick_run_on_the_case_study(tmp_path):
+    work = tmp_path / "ninb"
+    shutil.copytree(NINB, work, ignore=shutil.ignore_patterns("*.sqlite-wal", "*.sqlite-shm",
+                                                              "__pycache__"))
+    out = tmp_path / "out"
+    result = CliRunner().invoke(app, ["run", str(work), "--out", str(out), "--quick"])
+    assert result.exit_code == 0, result.output
+    for rel in ("report.html", "metrics.json", "posterior/melt_pool.nc",
+                "posterior/solidification.nc", "posterior/network_posterior.json",
+                "figures/data.png", "figures/cv_melt_pool.W.png",
+                "figures/cv_solidification.lambda.png", "figures/posterior_melt_pool.png",
+                "figures/posterior_solidification.png", "surrogates/surrogates.json"):
+        assert (out / rel).is_file(), rel
+    m = json.loads((out / "metrics.json").read_text())
+    # nothing was simulated: the shipped stores are complete
+    for name, c in m["campaigns"].items():
+        assert c["n_total"] == {"melt_pool": 238, "solidification": 100}[name]
+    assert set(m["surrogates"]) == {"melt_pool.W", "melt_pool.G0", "solidification.lambda"}
+    for key in ("mape", "rmse", "coverage95", "n"):
+        assert key in m["surrogates"]["melt_pool.W"]["cv"], key
+    assert set(m["calibration"]["models"]) == {"melt_pool", "solidification"}
+    assert set(m["calibration"]["models"]["melt_pool"]["parameters"]) == {
+        "K_S", "K_L", "K_Lz", "K_V", "K_Vz", "A_0", "A_max"}
+    for ds, n_test in (("width", 10), ("pdas", 3)):
+        v = m["validation"][ds]
+        assert v["test"]["n"] == n_test
+        assert {"mape", "se_pred", "rmse", "coverage95"} <= set(v["test"])
+        assert {"training_mean", "direct_gp"} <= set(v["baselines_test"])
+    assert "calnet" in m["validation"]["pdas"]["loo"]
+    assert set(m["sensitivity"]["pdas"]["indices"]["names"]) == {"P", "v"}
+    res = CliRunner().invoke(app, ["predict", str(work), "--run", str(out), "--at",
+                                   "P=200,v=0.5", "--json"])
+    assert res.exit_code == 0, res.output
+    preds = {p["dataset"]: p for p in json.loads(res.output)["predictions"]}
+    assert set(preds) == {"width", "pdas"}
+    assert 0 < preds["pdas"]["lower95"][0] < preds["pdas"]["upper95"][0]
