@@ -18,10 +18,11 @@ from typing import Annotated, Any
 import typer
 from rich.console import Console
 
-from calnet.calibration.devices import configure_host_devices
+from calnet.calibration.devices import configure_host_devices, enable_compilation_cache
 from calnet.errors import CalnetError, SpecError
 
 configure_host_devices(4)  # before jax is imported: chains run in parallel (pmap)
+enable_compilation_cache()  # compiled samplers and predictors reused across runs
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
                   help="Bayesian calibration of networks of coupled simulation models.")

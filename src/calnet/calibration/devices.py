@@ -13,7 +13,7 @@ import re
 import sys
 from dataclasses import dataclass
 
-__all__ = ["HostDevices", "configure_host_devices"]
+__all__ = ["HostDevices", "configure_host_devices", "enable_compilation_cache"]
 
 _FLAG = "--xla_force_host_platform_device_count"
 
@@ -80,3 +80,22 @@ def configure_host_devices(n: int | None = None) -> HostDevices:
     return HostDevices(n, False, "too late",
                        f"jax already started with {have} device(s); set XLA_FLAGS="
                        f"{_FLAG}={n} before importing jax to run {n} chains in parallel")
+
+
+def enable_compilation_cache() -> str | None:
+    """Keep XLA's compiled programs on disk, so a second run skips most compilation.
+
+    Uses ``$CALNET_JAX_CACHE`` if set (``off`` disables it), else
+    ``$XDG_CACHE_HOME/calnet/jax`` (``~/.cache/calnet/jax``). Works through jax's own
+    environment variables, so it must run before jax is imported to take effect; a
+    value the user already set in ``JAX_COMPILATION_CACHE_DIR`` wins. Returns the folder,
+    or None when disabled.
+    """
+    setting = os.environ.get("CALNET_JAX_CACHE", "").strip()
+    if setting.lower() in ("off", "0", "no", "false"):
+        return None
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    path = setting or os.path.join(base, "calnet", "jax")
+    os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", path)
+    os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.5")
+    return os.environ["JAX_COMPILATION_CACHE_DIR"]
