@@ -27,6 +27,9 @@ def baselines(network: Network, train: ExperimentalData, test: ExperimentalData,
     from calnet.surrogates import fit_gp
 
     out = {"training_mean": metrics(test.y, np.full(len(test.y), train.y.mean()))}
+    power = _power_law(train, test)
+    if power is not None:
+        out["power_law"] = power
     keys = train.input_keys
     lower = np.array([network.model(k.split(".")[0]).variable(k.split(".")[1]).lower
                       for k in keys])
@@ -42,6 +45,19 @@ def baselines(network: Network, train: ExperimentalData, test: ExperimentalData,
     except Exception as err:  # too few points for a GP is a result, not a failure
         out["direct_gp"] = {"error": str(err)}
     return out
+
+
+def _power_law(train: ExperimentalData, test: ExperimentalData) -> dict | None:
+    """``y = c prod_j x_j^b_j`` by least squares on the logs (only for positive data); the
+    reference study's second naive baseline (method.md section 7)."""
+    if (train.x <= 0).any() or (test.x <= 0).any() or (train.y <= 0).any():
+        return None
+    A = np.column_stack([np.ones(len(train.y)), np.log(train.x)])
+    if len(train.y) <= A.shape[1]:
+        return None
+    coef, *_ = np.linalg.lstsq(A, np.log(train.y), rcond=None)
+    pred = np.exp(np.column_stack([np.ones(len(test.y)), np.log(test.x)]) @ coef)
+    return {**metrics(test.y, pred), "exponents": coef[1:].tolist()}
 
 
 def leave_one_out(network: Network, surrogates: Surrogates, posterior: NetworkPosterior,

@@ -26,6 +26,9 @@ def reference_rows(ctx, summary) -> list[list[str]]:
         base = v.get("baselines_test", {}).get("training_mean", {})
         if base:
             rows.append(["PDAS test MAPE %, training-mean baseline", "6.9", fmt(base["mape"])])
+        power = v.get("baselines_test", {}).get("power_law", {})
+        if power:
+            rows.append(["PDAS test MAPE %, power-law baseline", "6.6", fmt(power["mape"])])
     sens = ctx.metrics.get("sensitivity", {}).get("pdas")
     if sens:
         ind = sens["indices"]
