@@ -54,7 +54,7 @@ def run_pipeline(spec: str | Path, *, out: Path, fresh: bool = False, quick: boo
         (out / sub).mkdir(parents=True, exist_ok=True)
     timings: dict[str, float] = {}
     ctx = _Context(network, out, quick, fresh, loo_max if loo_max is not None
-                   else (8 if quick else 15))
+                   else (12 if quick else 15))
     columns = (TextColumn("[bold]{task.description}"), BarColumn(), TextColumn("{task.fields[note]}"),
                TimeElapsedColumn())
     with Progress(*columns, console=console, transient=False) as bar:
@@ -168,9 +168,17 @@ class _Context:
                                                     seed=self.seed)
             if len(d.y) <= self.loo_max:
                 note(f"leave-one-out {name}")
+                # each left-out point re-samples the observing model's stage; 4 x 500
+                # draws are plenty for a predictive mean and band
+                loo_sampler = self.sampler.model_copy(update={
+                    "warmup": min(self.sampler.warmup, 500),
+                    "draws": min(self.sampler.draws, 500)})
                 entry["loo"] = leave_one_out(
-                    self.network, self.sur, self.post, d, sampler=self.sampler,
+                    self.network, self.sur, self.post, d, sampler=loo_sampler,
                     seed=self.seed, progress=lambda i, n, nm=name: note(f"LOO {nm} {i + 1}/{n}"))
+                entry["loo"]["sampler"] = {"chains": loo_sampler.chains,
+                                           "warmup": loo_sampler.warmup,
+                                           "draws": loo_sampler.draws}
             else:
                 entry["loo"] = {"skipped": f"{len(d.y)} points > loo_max {self.loo_max}"}
             entry["variance_shares"] = self.predictions[name].shares()
