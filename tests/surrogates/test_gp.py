@@ -141,3 +141,23 @@ def test_split_prediction_rejects_bad_control_shapes(fitted):
     gp, x, _ = fitted
     with pytest.raises(SurrogateError, match=r"'W'.*0 < d_x < 4, got \(3, 4\)"):
         gp.mean_fn_at(x[:3])
+
+
+def test_warm_start_from_an_optimum_stays_there():
+    import numpy as np
+    import pytest
+
+    from calnet.errors import SurrogateError
+    from calnet.surrogates import fit_gp
+
+    rng = np.random.default_rng(4)
+    X = rng.uniform(0, 1, (40, 3))
+    y = np.sin(3 * X[:, 0]) + X[:, 1] ** 2 + 0.01 * rng.standard_normal(40)
+    kw = dict(lower=[0, 0, 0], upper=[1, 1, 1])
+    full = fit_gp(X, y, n_restarts=3, seed=1, **kw)
+    warm = fit_gp(X, y, n_restarts=0, init=np.asarray(full.log_params), **kw)
+    assert float(warm.nlml) <= float(full.nlml) + 1e-6
+    np.testing.assert_allclose(np.asarray(warm.lengthscales), np.asarray(full.lengthscales),
+                               rtol=1e-3)
+    with pytest.raises(SurrogateError, match="init must be 5 finite"):
+        fit_gp(X, y, n_restarts=0, init=[0.0, 0.0], **kw)

@@ -133,6 +133,7 @@ def fit_gp(
     nugget_bounds: tuple[float, float] = NUGGET_BOUNDS,
     name: str = "",
     min_points: int = 0,
+    init=None,
 ) -> FittedGP:
     """Fit a Matern 3/2 ARD GP surrogate to one output by maximum marginal likelihood.
 
@@ -166,6 +167,10 @@ def fit_gp(
         Output name for messages and for the result.
     min_points : int, default 0
         Extra minimum on ``n`` (cross-validation passes its ``k``).
+    init : array, shape (d + 2,), optional
+        Log hyperparameters ``(log ell_1..d, log signal_var, log nugget)`` to start from
+        instead of the default start (e.g. a fit on more data: CV folds warm-start from
+        the full-data optimum); the ``n_restarts`` random starts are added as usual.
 
     Returns
     -------
@@ -203,6 +208,12 @@ def fit_gp(
                                                          tuple(np.log(nugget_bounds))]
     starts = _starts(d, n_restarts, np.random.default_rng(seed), lengthscale_bounds,
                      signal_var_bounds, nugget_bounds)
+    if init is not None:
+        init = np.asarray(init, dtype=np.float64)
+        if init.shape != (d + 2,) or not np.all(np.isfinite(init)):
+            raise SurrogateError(f"{_label(name)}: init must be {d + 2} finite log "
+                                 f"hyperparameters, got shape {init.shape}")
+        starts[0] = np.clip(init, [b[0] for b in bounds], [b[1] for b in bounds])
     p, _ = _optimise(xs, ys, starts, bounds)
     return _condition_with_retries(x, y, xs, ys, p, lower=lower, upper=upper,
                                    transform=transform, name=name)

@@ -172,8 +172,12 @@ def fit_surrogates(network: Network, *, stores: Mapping[str, Path] | None = None
                       n_restarts=restarts or settings.restarts, seed=seed,
                       name=f"{name}.{out.name}")
             gp = fit_gp(x[ok], y[ok], **kw)
+            # folds re-optimise from the full-data optimum (one start each): k refits
+            # at the cost of about k / (restarts + 1) full fits
             cvr = (cross_validate(x[ok], y[ok], k=min(cv_folds or settings.cv_folds,
-                                                      int(ok.sum())), **kw)
+                                                      int(ok.sum())),
+                                  **{**kw, "n_restarts": 0},
+                                  init=np.asarray(gp.log_params))
                    if cv else None)
             items[f"{name}.{out.name}"] = OutputSurrogate(name, out.name, gp, cvr,
                                                           int(ok.sum()), n_excl)
