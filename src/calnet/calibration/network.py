@@ -151,7 +151,8 @@ def _sample(ld: NetworkLogDensity, sampler: SamplerSettings, seed: int, progress
 
     return sample_nuts(ld, seed=seed, num_chains=sampler.chains, num_warmup=sampler.warmup,
                        num_draws=sampler.draws, thin=sampler.thin,
-                       target_accept=sampler.target_accept, progress=progress or False)
+                       target_accept=sampler.target_accept, chain_method=sampler.chain_method,
+                       progress=progress or False)
 
 
 def calibrate(network: Network, surrogates: Surrogates, *, data=None, mode: str | None = None,

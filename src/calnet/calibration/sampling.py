@@ -27,6 +27,7 @@ Examples
 
 from __future__ import annotations
 
+import os
 import sys
 import threading
 import time
@@ -241,7 +242,12 @@ def _resolve_method(chain_method: str, num_chains: int) -> tuple[str, int]:
     n_dev = jax.local_device_count()
     groups = max(g for g in range(1, min(n_dev, num_chains) + 1) if num_chains % g == 0)
     if chain_method == "auto":
-        chain_method = "parallel" if groups > 1 else "sequential"
+        # pmap over host devices pays only with spare cores: on 2 cores, 4 chains of the
+        # ninb thermal stage took 150 s in parallel and 34 s one after another
+        # (benchmarks/README.md, "Chains on CPU")
+        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") \
+            else (os.cpu_count() or 1)
+        chain_method = "parallel" if groups > 1 and cores >= 2 * groups else "sequential"
     if chain_method == "parallel" and groups == 1:
         chain_method = "sequential"  # one device: nothing to spread over
     return chain_method, groups
@@ -311,7 +317,9 @@ def sample_nuts(
         Adapt a dense inverse mass matrix instead of a diagonal one.
     chain_method : {"auto", "parallel", "sequential", "vectorized"}
         ``auto``: ``parallel`` (pmap over XLA host devices) when at least two devices can
-        share the chains, else ``sequential``.
+        share the chains and there are at least two CPU cores per device, else
+        ``sequential`` (on fewer cores the devices' threads contend and parallel chains
+        ran up to 4x slower than sequential ones).
     progress : bool or callable
         ``True`` for a text progress line on stderr, or ``fn(chain, iteration, total)``.
 

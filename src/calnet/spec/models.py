@@ -249,6 +249,9 @@ class SamplerSettings(Frozen):
     draws: int = Field(1000, ge=10)
     thin: int = Field(1, ge=1)
     target_accept: float = Field(0.8, gt=0, lt=1)
+    chain_method: Literal["auto", "sequential", "parallel", "vectorized"] = Field(
+        "auto", description="how chains share the CPU (auto: parallel only with >= 2 "
+        "cores per XLA device)")
 
 
 class CalibrationSettings(Frozen):
