@@ -187,3 +187,18 @@ def test_calibrate_command_writes_posteriors_summary_and_plots(indep, tmp_path):
     row = summary["up"]["parameters"]["a"]
     assert row["lower"] == 0.5 and row["upper"] == 1.5 and row["q2.5"] < row["q97.5"]
     assert load_posterior(out, network).mode == "joint"
+
+
+def test_a_short_run_warns_about_its_diagnostics(indep):
+    from calnet.errors import CalibrationWarning
+
+    network, sur, _ = indep
+    short = SamplerSettings(chains=2, warmup=10, draws=20)
+    import warnings
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        calibrate(network, sur, mode="joint", sampler=short, seed=4)
+    messages = [str(w.message) for w in caught if issubclass(w.category, CalibrationWarning)]
+    assert any("bulk ESS" in m and "< 400" in m for m in messages), messages
+    assert all(m.startswith("joint: ") for m in messages)  # names the stage

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import jax.numpy as jnp
 import numpy as np
 
-from calnet.calibration.diagnostics import kde_mode
+from calnet.calibration.diagnostics import kde_mode, summarize
 from calnet.calibration.network_density import (
     NetworkKOHSpec,
     NetworkLogDensity,
@@ -212,6 +212,7 @@ def _joint(network, surrogates, data, plan, seed, sampler, emu, progress) -> Net
     ld = build_network_logdensity(network, surrogates, free=free, datasets=data,
                                   emulator_variance=emu, name="joint", plan=plan)
     idata = _sample(ld, sampler, seed, None)
+    summarize(idata, warn=True, stacklevel=4)  # R-hat, ESS and divergence warnings
     stage = StageResult(free, tuple(data), idata, ld)
     theta = {m: stage.draws(f"theta_{m}") for m in free}
     return _posterior(network, "joint", "-", (stage,), theta, data, ld, ())
@@ -236,6 +237,7 @@ def _segmented(network, surrogates, data, plan, seed, sampler, emu, plug, n_up, 
                                       upstream=upstream, emulator_variance=emu, name=name,
                                       plan=plan)
         idata = _sample(ld, sampler, seed + i, None)
+        summarize(idata, warn=True, stacklevel=4)
         stage = StageResult((name,), tuple(own), idata, ld)
         stages.append(stage)
         if model.parameters:
