@@ -22,8 +22,11 @@ def test_command_runs_exports_and_resumes(tmp_path):
     assert result.exit_code == 0, result.output
     assert "8 runs planned, 0 already finished, 8 run now" in result.output
     assert out.is_file() and (tmp_path / "runs.meta.json").is_file()
+    store = tmp_path / "campaigns" / "toy.sqlite"
+    before = store.read_bytes()
     again = CliRunner().invoke(app, ["campaign", str(spec), "--no-progress"])
-    assert "8 already finished, 0 run now" in again.output
+    assert "complete, all 8 runs finished" in again.output
+    assert store.read_bytes() == before  # a complete store is read, never written
 
 
 def test_command_errors_are_one_line(tmp_path):

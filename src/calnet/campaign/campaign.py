@@ -13,6 +13,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import sqlite3
 import time
 import warnings
 from collections.abc import Iterator
@@ -151,6 +152,10 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
     sim = make_simulator(network, model, workdir=path.with_suffix(".work"))
     version = simulator_version(sim)
     start = time.perf_counter()
+    done = _complete_readonly(path, network, model, seed, runs, sim.name, version,
+                              retry_failed, start)
+    if done is not None:  # nothing to run: the store is read, never written
+        return done
     with RunStore(path) as db:
         _claim(db, network, model, seed, sim.name, version)
         design = _plan(db, model, _target_runs(runs, model, network, db.planned()), seed)
@@ -176,6 +181,30 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
     return CampaignSummary(model_name, path, len(design), skipped, len(todo), in_flight,
                            counts, failures, time.perf_counter() - start, ex.name, ex.workers,
                            seed)
+
+
+def _complete_readonly(path: Path, network: Network, model: Model, seed: int,
+                       runs: int | None, simulator: str, version: str, retry_failed: bool,
+                       start: float) -> CampaignSummary | None:
+    """The summary of a store that needs no work (same spec and seed, every planned run
+    finished, no more runs asked for), read without writing a byte; else None."""
+    if retry_failed or not path.is_file():
+        return None
+    try:
+        with RunStore(path, readonly=True) as db:
+            meta = db.meta()
+            planned = db.planned()
+            if (not meta or meta.get("model_hash") != fingerprint_hash(model_fingerprint(model))
+                    or int(meta.get("seed", -1)) != seed or planned == 0
+                    or _target_runs(runs, model, network, planned) > planned
+                    or db.unfinished()):
+                return None
+            _check_versions(db, simulator, version, False)
+            counts = db.status_counts()
+    except (CampaignError, sqlite3.DatabaseError):
+        return None  # let the writing path give the full diagnosis
+    return CampaignSummary(model.name, path, planned, planned, 0, 0, counts, {},
+                           time.perf_counter() - start, "none", 0, seed)
 
 
 def _check_versions(db: RunStore, simulator: str, version: str, more_to_run: bool) -> None:

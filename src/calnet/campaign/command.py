@@ -69,11 +69,15 @@ def print_summary(summary: Any, console: Any) -> None:
     """A few lines: counts per status, throughput, the first failures."""
     counts = ", ".join(f"{k} {n}" for k, n in sorted(summary.status_counts.items()))
     rate = summary.ran / summary.wall_time if summary.wall_time > 0 else 0.0
-    console.print(f"[bold]{summary.model}[/]: {summary.planned} runs planned, "
-                  f"{summary.skipped} already finished, {summary.ran} run now "
-                  f"({summary.rerun_in_flight} re-run after an interruption) in "
-                  f"{summary.wall_time:.1f} s ({rate:.2f} runs/s, {summary.executor}, "
-                  f"{summary.workers} worker(s), seed {summary.seed})")
+    if summary.ran == 0 and summary.skipped == summary.planned:
+        console.print(f"[bold]{summary.model}[/]: complete, all {summary.planned} runs "
+                      f"finished (seed {summary.seed}); nothing to run")
+    else:
+        console.print(f"[bold]{summary.model}[/]: {summary.planned} runs planned, "
+                      f"{summary.skipped} already finished, {summary.ran} run now "
+                      f"({summary.rerun_in_flight} re-run after an interruption) in "
+                      f"{summary.wall_time:.1f} s ({rate:.2f} runs/s, {summary.executor}, "
+                      f"{summary.workers} worker(s), seed {summary.seed})")
     console.print(f"  store {summary.store_path}: {counts}")
     for index, message in list(summary.failures.items())[:5]:
         console.print(f"  [yellow]run {index}[/]: {message}", soft_wrap=True)
