@@ -72,7 +72,7 @@ def test_kill_9_then_resume_equals_an_uninterrupted_run(tmp_path):
 
 @pytest.mark.integration
 def test_ctrl_c_keeps_finished_runs(tmp_path):
-    spec = toy_spec(tmp_path, "python:toy_sims:slow", runs=RUNS, seed=0)
+    spec = toy_spec(tmp_path, "python:toy_sims:slower", runs=RUNS, seed=0)
     store = tmp_path / "interrupted.sqlite"
     proc = subprocess.Popen(_campaign(spec, store), stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True, env=os.environ.copy())

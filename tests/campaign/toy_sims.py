@@ -59,6 +59,13 @@ def dies(inputs):
     return quadratic(inputs)
 
 
+def slower(inputs):
+    """``quadratic`` after 0.5 s (the Ctrl-C test: the campaign must still be running
+    when the signal arrives, even on a loaded machine)."""
+    time.sleep(0.5)
+    return quadratic(inputs)
+
+
 def slow(inputs):
     """``quadratic`` after 0.1 s (the kill -9 test)."""
     time.sleep(0.1)
