@@ -41,7 +41,10 @@ def child(problem: str, method: str, devices: int) -> None:
     if problem == "anchor":
         sys.path.insert(0, str(HERE))
         from common import load_problem
+
+        argv, sys.argv = sys.argv, sys.argv[:1]  # side_calnet reads its own argv at import
         from side_calnet import build
+        sys.argv = argv
 
         ld = build(load_problem())
     else:

@@ -27,7 +27,6 @@ Examples
 
 from __future__ import annotations
 
-import os
 import sys
 import threading
 import time
@@ -235,6 +234,24 @@ def _compiled(cfg: _Config, args) -> tuple[Any, float]:
     return exe, seconds
 
 
+def _one_blas_thread():
+    """Limit BLAS (OpenBLAS/MKL) to one thread while chains run.
+
+    JAX's CPU Cholesky and triangular solves call LAPACK through SciPy's OpenBLAS; with
+    chains on several XLA host devices each call would start its own BLAS threads and
+    they spin against each other (koh_anchor README, pitfall 1). On 2 cores, 4 parallel
+    chains of the ninb thermal stage took 150 s with default BLAS threads and 15 s with
+    one (benchmarks/README.md, "Chains on CPU").
+    """
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:  # pragma: no cover - threadpoolctl comes with scikit-learn
+        from contextlib import nullcontext
+
+        return nullcontext()
+    return threadpool_limits(limits=1, user_api="blas")
+
+
 def _resolve_method(chain_method: str, num_chains: int) -> tuple[str, int]:
     if chain_method not in CHAIN_METHODS:
         raise CalibrationError(f"chain_method must be one of {CHAIN_METHODS}, "
@@ -242,12 +259,7 @@ def _resolve_method(chain_method: str, num_chains: int) -> tuple[str, int]:
     n_dev = jax.local_device_count()
     groups = max(g for g in range(1, min(n_dev, num_chains) + 1) if num_chains % g == 0)
     if chain_method == "auto":
-        # pmap over host devices pays only with spare cores: on 2 cores, 4 chains of the
-        # ninb thermal stage took 150 s in parallel and 34 s one after another
-        # (benchmarks/README.md, "Chains on CPU")
-        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") \
-            else (os.cpu_count() or 1)
-        chain_method = "parallel" if groups > 1 and cores >= 2 * groups else "sequential"
+        chain_method = "parallel" if groups > 1 else "sequential"
     if chain_method == "parallel" and groups == 1:
         chain_method = "sequential"  # one device: nothing to spread over
     return chain_method, groups
@@ -317,9 +329,8 @@ def sample_nuts(
         Adapt a dense inverse mass matrix instead of a diagonal one.
     chain_method : {"auto", "parallel", "sequential", "vectorized"}
         ``auto``: ``parallel`` (pmap over XLA host devices) when at least two devices can
-        share the chains and there are at least two CPU cores per device, else
-        ``sequential`` (on fewer cores the devices' threads contend and parallel chains
-        ran up to 4x slower than sequential ones).
+        share the chains, else ``sequential``. BLAS is held to one thread while the
+        chains run (see :func:`_one_blas_thread`).
     progress : bool or callable
         ``True`` for a text progress line on stderr, or ``fn(chain, iteration, total)``.
 
@@ -361,7 +372,8 @@ def sample_nuts(
                        else _TextProgress(ld.name, num_chains, total) if progress else None)
     try:
         t0 = time.perf_counter()
-        out = jax.block_until_ready(exe(*args))
+        with _one_blas_thread():  # XLA's LAPACK calls go to OpenBLAS: see below
+            out = jax.block_until_ready(exe(*args))
         t_sample = time.perf_counter() - t0
     finally:
         _PROGRESS["fn"] = None

@@ -250,8 +250,8 @@ class SamplerSettings(Frozen):
     thin: int = Field(1, ge=1)
     target_accept: float = Field(0.8, gt=0, lt=1)
     chain_method: Literal["auto", "sequential", "parallel", "vectorized"] = Field(
-        "auto", description="how chains share the CPU (auto: parallel only with >= 2 "
-        "cores per XLA device)")
+        "auto", description="how chains share the CPU (auto: parallel over XLA host "
+        "devices when there are several)")
 
 
 class CalibrationSettings(Frozen):
