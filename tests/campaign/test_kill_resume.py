@@ -74,8 +74,11 @@ def test_kill_9_then_resume_equals_an_uninterrupted_run(tmp_path):
 def test_ctrl_c_keeps_finished_runs(tmp_path):
     spec = toy_spec(tmp_path, "python:toy_sims:slower", runs=RUNS, seed=0)
     store = tmp_path / "interrupted.sqlite"
+    # a shell's background jobs inherit SIGINT ignored, and Python then installs no
+    # KeyboardInterrupt handler: restore the default, as for a campaign in a terminal
     proc = subprocess.Popen(_campaign(spec, store), stdout=subprocess.PIPE,
-                            stderr=subprocess.STDOUT, text=True, env=os.environ.copy())
+                            stderr=subprocess.STDOUT, text=True, env=os.environ.copy(),
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         deadline = time.monotonic() + 90
         while len(_finished(store)) < 3:
