@@ -135,6 +135,9 @@ def build_network_logdensity(network: Network, surrogates: Surrogates, *,
     data = {"gps": gps, "terms": tdata,
             "upstream": {m: jnp.asarray(v, dtype=float) for m, v in upstream.items()},
             "y": jnp.concatenate([t["y"] for t in tdata]) if tdata else jnp.zeros(0)}
+    for term, td in zip(terms, tdata, strict=True):
+        if spec.inputs_fixed(term):  # segmented: upstream GPs evaluated once, not per step
+            td["x_fixed"] = spec.fixed_inputs(data, term, td)
     n_obs = sum(len(d.y) for d in datasets.values())
     ld = NetworkLogDensity(spec, data, name,
                            {m.name: m.parameter_names for m in network.models},

@@ -84,6 +84,23 @@ class NetworkKOHSpec:
         th.update({m: c[f"theta_{m}"] for m, _ in self.free})
         return th
 
+    def inputs_fixed(self, term: TermSpec) -> bool:
+        """Whether the term's model inputs depend on no sampled parameter: its model is
+        the only free one (a segmented stage), so its upstream inputs can be computed
+        once per upstream draw instead of at every gradient."""
+        return {m for m, _ in self.free} <= {term.model}
+
+    def fixed_inputs(self, data, term: TermSpec, tdata):
+        """The term's model inputs per upstream draw, (D, n, q) (D = 1 without draws)."""
+        base = {p.name: jnp.zeros(0) for p in self.plan.models if p.n_parameters == 0}
+
+        def one(upstream):
+            return self.plan.inputs(data["gps"], term.model, tdata["xp"], {**base, **upstream})
+
+        if self.fixed_models:
+            return jax.vmap(one)({m: data["upstream"][m] for m in self.fixed_models})
+        return one({})[None]
+
     def term_moments(self, data, term: TermSpec, tdata, thetas):
         """Mean (n,), extra covariance (n, n), emulator var (n,) and inputs (n, q) of a
         term, on the modelled scale, averaged over the upstream draws."""
@@ -92,7 +109,11 @@ class NetworkKOHSpec:
             x, mean, _ = self.plan.output(data["gps"], term.model, term.key, tdata["xp"], th)
             return x, mean
 
-        if self.fixed_models:
+        if "x_fixed" in tdata:  # inputs precomputed (see inputs_fixed)
+            x = tdata["x_fixed"]
+            mean = jax.vmap(lambda xx: self.plan.predict(data["gps"], term.model, term.key,
+                                                         xx, thetas[term.model])[0])(x)
+        elif self.fixed_models:
             x, mean = jax.vmap(one)({m: data["upstream"][m] for m in self.fixed_models})
         else:
             x, mean = jax.tree.map(lambda a: a[None], one({}))
