@@ -30,6 +30,12 @@ def _finished(path) -> dict[int, float]:
         db.close()
 
 
+_WITH_SIGINT = ("import runpy, signal, sys; "
+                "signal.signal(signal.SIGINT, signal.default_int_handler); "
+                "sys.argv = ['calnet.campaign', *sys.argv[1:]]; "
+                "runpy.run_module('calnet.campaign', run_name='__main__', alter_sys=True)")
+
+
 def _campaign(spec, store) -> list[str]:
     return [sys.executable, "-m", "calnet.campaign", str(spec), "--model", "toy",
             "--store", str(store), "--no-progress"]
@@ -75,10 +81,10 @@ def test_ctrl_c_keeps_finished_runs(tmp_path):
     spec = toy_spec(tmp_path, "python:toy_sims:slower", runs=RUNS, seed=0)
     store = tmp_path / "interrupted.sqlite"
     # a shell's background jobs inherit SIGINT ignored, and Python then installs no
-    # KeyboardInterrupt handler: restore the default, as for a campaign in a terminal
-    proc = subprocess.Popen(_campaign(spec, store), stdout=subprocess.PIPE,
-                            stderr=subprocess.STDOUT, text=True, env=os.environ.copy(),
-                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    # KeyboardInterrupt handler: install it, as for a campaign run in a terminal
+    argv = [sys.executable, "-c", _WITH_SIGINT, *_campaign(spec, store)[3:]]
+    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            text=True, env=os.environ.copy())
     try:
         deadline = time.monotonic() + 90
         while len(_finished(store)) < 3:
