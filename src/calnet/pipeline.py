@@ -169,10 +169,10 @@ class _Context:
             if len(d.y) <= self.loo_max:
                 note(f"leave-one-out {name}")
                 # each left-out point re-samples the observing model's stage; 2 x 500
-                # draws are plenty for a predictive mean and band
+                # draws after 300 warm-up are plenty for a predictive mean and band
                 loo_sampler = self.sampler.model_copy(update={
                     "chains": min(self.sampler.chains, 2),
-                    "warmup": min(self.sampler.warmup, 500),
+                    "warmup": min(self.sampler.warmup, 300),
                     "draws": min(self.sampler.draws, 500)})
                 entry["loo"] = leave_one_out(
                     self.network, self.sur, self.post, d, sampler=loo_sampler,
