@@ -92,16 +92,25 @@ def check(spec: SpecArg) -> None:
     describe_network(network, console)
 
 
-def _parse_sets(values: list[str]) -> dict[str, float]:
+def _parse_sets(values: list[str], flag: str = "--set") -> dict[str, float]:
+    """``["NAME=VALUE", ...]`` -> ``{NAME: float}``; one-line errors naming ``flag``."""
     out = {}
     for item in values:
         key, sep, val = item.partition("=")
-        if not sep or not key:
-            raise CalnetError(f"--set expects NAME=VALUE, got '{item}'")
+        if not sep or not key.strip():
+            raise CalnetError(f"{flag} expects NAME=VALUE, got '{item}'")
         try:
             out[key.strip()] = float(val)
         except ValueError:
-            raise CalnetError(f"--set {key}: '{val}' is not a number") from None
+            raise CalnetError(f"{flag} {key.strip()}: '{val}' is not a number") from None
+    return out
+
+
+def _parse_at(text: str) -> dict[str, float]:
+    """``"P=200,v=0.5"`` -> ``{"P": 200.0, "v": 0.5}`` (the ``--at`` syntax)."""
+    out = _parse_sets([s.strip() for s in text.split(",") if s.strip()], "--at")
+    if not out:
+        raise CalnetError("--at is empty; write e.g. --at P=200,v=0.5")
     return out
 
 
@@ -223,9 +232,6 @@ def calibrate(
     with console.status("sampling") as status:
         post = run_calibration(network, sur, mode=mode, plug=plug,
                                progress=lambda m: status.update(m))
-    out.mkdir(parents=True, exist_ok=True)
-    for stage in post.stages:
-        stage.idata.to_netcdf(str(out / f"{'+'.join(stage.models)}.nc"))
     save_posterior(post, out)
     summary = posterior_summary(network, post)
     (out / "summary.json").write_text(json.dumps(summary, indent=1, default=_json_default))
@@ -277,13 +283,13 @@ def predict(
     """Predict measurable outputs at new process settings, with 95 % bands and the
     uncertainty budget (upstream parameters, each emulator, discrepancy, noise)."""
     from calnet.calibration.persist import load_posterior
-    from calnet.predict import parse_points, settings_matrix
     from calnet.predict import predict as run_predict
+    from calnet.predict import settings_matrix
     from calnet.spec import load_spec
     from calnet.surrogates.network import Surrogates
 
     network = load_spec(spec)
-    rows = [parse_points(a) for a in at] + (_read_points(csv) if csv else [])
+    rows = [_parse_at(a) for a in at] + (_read_points(csv) if csv else [])
     if not rows:
         raise CalnetError("give the settings to predict at: --at P=200,v=0.5 (repeatable) "
                           "or --csv points.csv")
@@ -304,11 +310,13 @@ def predict(
         for note in dict.fromkeys(notes):
             warnings.warn(note, stacklevel=1)
         pred = run_predict(network, sur, post, name, x, n_draws=draws, seed=seed)
-        results.append(pred.to_dict() | {"variance_share_per_point": _point_shares(pred)})
+        shares = [{k: float(v[i]) for k, v in pred.point_shares().items()}
+                  for i in range(len(x))]
+        results.append(pred.to_dict() | {"variance_share_per_point": shares})
         unit = network.model(network.dataset(name).observed_model).output(
             network.dataset(name).observed_output).unit
         for i in range(len(x)):
-            top = sorted(_point_shares(pred)[i].items(), key=lambda kv: -kv[1])[:3]
+            top = sorted(shares[i].items(), key=lambda kv: -kv[1])[:3]
             table_rows.append((pred.observes, ", ".join(f"{k.split('.', 1)[1]}={v:g}" for k, v
                                                         in zip(pred.input_keys, x[i],
                                                                strict=True)),
@@ -345,15 +353,6 @@ def _read_points(path: Path) -> list[dict[str, float]]:
     if frame.empty:
         raise CalnetError(f"--csv {path}: no rows")
     return [{str(k): float(v) for k, v in row.items()} for row in frame.to_dict("records")]
-
-
-def _point_shares(pred) -> list[dict[str, float]]:
-    import numpy as np
-
-    total = sum(pred.budget.values())
-    safe = np.where(total > 0, total, 1.0)
-    return [{k: float(v[i] / safe[i]) for k, v in pred.budget.items()}
-            for i in range(len(pred.mean))]
 
 
 def _write_predictions(path: Path, results: list[dict]) -> None:

@@ -137,11 +137,9 @@ class _Context:
         train = {k: v.train for k, v in self.data.items()}
         self.post = calibrate(self.network, self.sur, data=train, seed=self.seed,
                               sampler=self.sampler, progress=note)
-        for stage in self.post.stages:
-            stage.idata.to_netcdf(str(self.out / "posterior" / f"{'+'.join(stage.models)}.nc"))
         from calnet.calibration.persist import save_posterior
 
-        save_posterior(self.post, self.out / "posterior")
+        save_posterior(self.post, self.out / "posterior")  # stage netCDFs + what predict needs
 
     def prediction(self, note) -> None:
         from calnet.predict import predict

@@ -59,11 +59,15 @@ class Prediction:
     budget: dict[str, np.ndarray] = field(default_factory=dict)
     prob: np.ndarray | None = None
 
-    def shares(self) -> dict[str, float]:
-        """Average share of each source in the predictive variance (sums to 1)."""
+    def point_shares(self) -> dict[str, np.ndarray]:
+        """Share of each source in the predictive variance at every point, (n,) each."""
         total = sum(self.budget.values())
         safe = np.where(total > 0, total, 1.0)
-        return {k: float(np.mean(v / safe)) for k, v in self.budget.items()}
+        return {k: v / safe for k, v in self.budget.items()}
+
+    def shares(self) -> dict[str, float]:
+        """Average share of each source in the predictive variance (sums to 1)."""
+        return {k: float(np.mean(v)) for k, v in self.point_shares().items()}
 
     def to_dict(self) -> dict:
         return {"dataset": self.dataset, "observes": self.observes,
@@ -131,7 +135,7 @@ def predict(network: Network, surrogates: Surrogates, posterior: NetworkPosterio
         raise CalnetError(f"data set '{dataset}' was not calibrated; nothing to predict")
     plan = ChainPlan.from_network(network)
     gps = {k: s.gp for k, s in surrogates.items.items()}
-    keys = [f"{m}.{i}" for m, i in network.process_inputs(ds.observed_model)]
+    keys = network.process_input_keys(ds.observed_model)
     x = np.atleast_2d(np.asarray(x, dtype=float))
     if x.shape[1] != len(keys):
         raise CalnetError(f"predict: expected {len(keys)} process inputs {keys}, got "
@@ -196,22 +200,6 @@ def metrics(y: np.ndarray, mean: np.ndarray, lower: np.ndarray | None = None,
     return out
 
 
-def parse_points(text: str) -> dict[str, float]:
-    """``"P=200,v=0.5"`` -> ``{"P": 200.0, "v": 0.5}`` (the ``--at`` syntax)."""
-    out: dict[str, float] = {}
-    for item in filter(None, (s.strip() for s in text.split(","))):
-        key, sep, val = item.partition("=")
-        if not sep or not key.strip():
-            raise CalnetError(f"--at expects NAME=VALUE[,NAME=VALUE...], got '{text}'")
-        try:
-            out[key.strip()] = float(val)
-        except ValueError:
-            raise CalnetError(f"--at {key.strip()}: '{val}' is not a number") from None
-    if not out:
-        raise CalnetError("--at is empty; write e.g. --at P=200,v=0.5")
-    return out
-
-
 def settings_matrix(network: Network, dataset: str,
                     rows: list[dict[str, float]]) -> tuple[np.ndarray, list[str]]:
     """Process settings for ``dataset``'s prediction as an array ``(n, k)``.
@@ -223,7 +211,7 @@ def settings_matrix(network: Network, dataset: str,
     """
     ds = network.dataset(dataset)
     pairs = network.process_inputs(ds.observed_model)
-    keys = [f"{m}.{i}" for m, i in pairs]
+    keys = network.process_input_keys(ds.observed_model)
     x = np.empty((len(rows), len(keys)))
     notes: list[str] = []
     for r, row in enumerate(rows):

@@ -3,8 +3,8 @@
 What prediction needs is kept: the parameter draws per model, the discrepancy and noise
 hyperparameter draws per data set, and the training data each data set was calibrated
 on (so a later ``calnet predict`` conditions on exactly the same points even if the CSV
-changes). Arrays go to one ``.npz``; names and settings to a JSON file beside it. The
-per-stage ArviZ posteriors are written separately as netCDF.
+changes). Arrays go to one ``.npz``; names and settings to a JSON file beside it; each
+stage's ArviZ posterior is written beside them as netCDF (not read back here).
 """
 
 from __future__ import annotations
@@ -22,9 +22,12 @@ FORMAT = 1
 
 
 def save_posterior(post, folder: str | Path) -> Path:
-    """Write ``post`` to ``folder/network_posterior.{npz,json}``; returns the JSON path."""
+    """Write ``post`` to ``folder``: each stage's ArviZ posterior as ``<models>.nc`` and
+    what prediction needs as ``network_posterior.{npz,json}``; returns the JSON path."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
+    for stage in post.stages:
+        stage.idata.to_netcdf(str(folder / f"{'+'.join(stage.models)}.nc"))
     arrays: dict[str, np.ndarray] = {}
     for model, draws in post.theta.items():
         arrays[f"theta/{model}"] = np.asarray(draws, float)
@@ -100,7 +103,7 @@ def _check_matches(post, network: Network, folder: Path) -> None:
             raise CalibrationError(f"the posterior in '{folder}' was calibrated on data set "
                                    f"'{ds}', which this spec does not declare; calibrate "
                                    "again") from None
-        keys = [f"{m}.{i}" for m, i in network.process_inputs(spec_ds.observed_model)]
+        keys = network.process_input_keys(spec_ds.observed_model)
         if list(d.input_keys) != keys or d.observes != spec_ds.observes:
             raise CalibrationError(f"the posterior in '{folder}': data set '{ds}' has inputs "
                                    f"{list(d.input_keys)} but the spec gives {keys}; "

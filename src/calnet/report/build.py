@@ -38,7 +38,7 @@ def _mean_fn(ctx, name, idx):
         if m.n_parameters == 0:
             thetas[m.name] = jnp.zeros((len(idx), 0))
     hyper = {h: jnp.asarray(v[idx]) for h, v in post.hyper[name].items()}
-    keys = [f"{m}.{i}" for m, i in net.process_inputs(ds.observed_model)]
+    keys = net.process_input_keys(ds.observed_model)
     log = net.model(ds.observed_model).output(ds.observed_output).transform == "log"
 
     def f(x):

@@ -76,7 +76,7 @@ def read_dataset(network: Network, ds: Dataset) -> ExperimentalData:
     except Exception as err:  # pandas raises many kinds; all mean an unreadable CSV
         raise SpecError(f"cannot read '{path}' as CSV ({err})", file=str(path),
                         field=field) from None
-    wanted = [f"{m}.{v}" for m, v in network.process_inputs(ds.observed_model)]
+    wanted = network.process_input_keys(ds.observed_model)
     resolved = {network.resolve_column_key(ds, k, wanted + [ds.observes]): col
                 for k, col in ds.columns.items()}
     columns = {key: _numeric_column(frame, resolved[key], path, field)

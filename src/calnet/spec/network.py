@@ -118,7 +118,7 @@ class Network(Frozen):
         if not out.measurable:
             raise ValueError(f"{where}.observes: output '{ds.observes}' is not measurable; "
                              "set 'measurable: true' on it or observe another output")
-        wanted = [f"{m}.{v}" for m, v in self.process_inputs(model.name)] + [ds.observes]
+        wanted = self.process_input_keys(model.name) + [ds.observes]
         resolved = {self.resolve_column_key(ds, key, wanted) for key in ds.columns}
         missing = [w for w in wanted if w not in resolved]
         if missing:
@@ -211,6 +211,10 @@ class Network(Frozen):
         for name in (*self.ancestors(model), model):
             pairs.extend((name, v.name) for v in self.free_inputs(name))
         return tuple(pairs)
+
+    def process_input_keys(self, model: str) -> list[str]:
+        """:meth:`process_inputs` as ``"model.input"`` keys."""
+        return [f"{m}.{v}" for m, v in self.process_inputs(model)]
 
     def needed_outputs(self, model: str) -> tuple[Output, ...]:
         """Outputs of ``model`` that need a surrogate: observed by data or feeding a link."""
