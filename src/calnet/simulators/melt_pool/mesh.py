@@ -87,11 +87,16 @@ def estimate_pool(P: float, v: float, absorb: float, k: float, mat: AlloyPropert
     return tail, front, half_width
 
 
+def pool_spacing(half_width: float, depth: float) -> float:
+    """Pool-region spacing (m) of the resolution-1 mesh for a pool of this size."""
+    h = min(half_width, max(depth, POWDER_DEPTH_FLOOR)) / CELLS_PER_HALF_WIDTH
+    return min(max(h, H_MIN), H_MAX)
+
+
 def pool_box(tail: float, front: float, half_width: float, depth: float, *,
              resolution: float, beam_radius: float) -> PoolBox:
     """Fine region around a pool of the given size, with margins."""
-    h = min(half_width, max(depth, POWDER_DEPTH_FLOOR)) / CELLS_PER_HALF_WIDTH
-    h = min(max(h, H_MIN), H_MAX) / resolution
+    h = pool_spacing(half_width, depth) / resolution
     return PoolBox(tail=1.15 * tail + 3 * h, front=max(front, beam_radius) + 3 * h,
                    half_width=1.15 * half_width + 3 * h, depth=1.15 * depth + 3 * h, h=h,
                    edge=half_width)

@@ -90,7 +90,7 @@ def _needs_remesh(g: PoolGeometry, box: PoolBox) -> bool:
 
 
 COARSE = 0.5  # resolution of the sizing pre-solve relative to the requested one
-G_WINDOW_CELLS = 3.0  # G0 window half-width, in x cells of the resolution-1 mesh
+G_WINDOW_CELLS = 6.0  # G0 window half-width, in pool spacings of the resolution-1 mesh
 WARM_DT0 = 2e-5  # s, first pseudo time step of a warm-started solve
 COARSE_RTOL = 1e-4  # the sizing pre-solve only needs to place the pool
 
@@ -131,7 +131,7 @@ def run(P: float, v: float, theta: dict[str, float], opts: MeltPoolOptions,
         if not report.converged:
             break
         geometry = extract(report.T, report.frac, mesh, laws, v=v, T_liquidus=mat.T_liquidus,
-                           g_window=G_WINDOW_CELLS * box.h * res,
+                           g_window_cells=G_WINDOW_CELLS,
                            tail_flux=_surface_loss(mat.T_liquidus, mat))
         final = res == opts.resolution and (stage == 2 or not _needs_remesh(geometry, box))
         if final or not opts.adapt_mesh:

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from calnet.simulators.melt_pool.assembly import surface_weights
-from calnet.simulators.melt_pool.mesh import Mesh
+from calnet.simulators.melt_pool.mesh import Mesh, pool_spacing
 from calnet.simulators.melt_pool.properties import MaterialLaws
 
 
@@ -119,30 +119,37 @@ def _crossing_1d(x: np.ndarray, f: np.ndarray, level: float) -> tuple[float, flo
     return float(lo), float(hi)
 
 
-def tail_gradient(line: np.ndarray, mesh: Mesh, x_tail: float, half_width: float,
+def tail_gradient(s: np.ndarray, profile: np.ndarray, x_tail: float, half_width: float,
                   surface_flux: float, k_z: float) -> tuple[float, float]:
     """``(dT/dx, dT/dz)`` at the surface tail point ``(x_tail, 0, 0)``.
 
-    ``dT/dx``: least-squares slope of the surface centreline temperature ``line`` over
-    the cells within ``x_tail +- half_width``. The window is fixed in metres (three
-    cells of the default mesh), not in cells: the tail straddles a steep solid side
-    (latent heat conducted away) and an almost isothermal liquid side, so a window
-    of a fixed number of cells would change its meaning under refinement.
+    ``dT/dx``: slope of the least-squares line through the surface centreline
+    temperature ``profile(s)`` (interpolated linearly, sampled uniformly) over
+    ``x_tail +- half_width``. The tail is a kink: steep on the solid side, which
+    conducts the latent heat away, almost flat on the Marangoni-stirred liquid side,
+    so a fit through the cell centres in the window weighs the two sides by where the
+    cells happen to fall (G0 changed by up to 26 % when halving the spacing, with a
+    window of 3 cells). Fitting the interpolated profile over a window fixed in metres
+    (see :func:`extract`) removes that sampling noise.
     ``dT/dz`` from the boundary condition, ``k_z dT/dz = q_loss`` (W/m^2; the beam
     contributes nothing this far behind it). ``dT/dy = 0`` by symmetry.
     """
-    xc = Mesh.centres(mesh.xf)
-    sel = np.abs(xc - x_tail) <= half_width
-    if sel.sum() < 3:
-        sel = np.argsort(np.abs(xc - x_tail))[:3]
-    gx = float(np.polyfit(xc[sel] - x_tail, line[sel], 1)[0])
+    u = np.linspace(-half_width, half_width, 401)
+    T = np.interp(x_tail + u, s, profile)
+    gx = float(u @ (T - T.mean()) / (u @ u))
     return gx, surface_flux / k_z
 
 
 def extract(T: np.ndarray, frac: np.ndarray, mesh: Mesh, laws: MaterialLaws, *, v: float,
-            T_liquidus: float, g_window: float, tail_flux: float) -> PoolGeometry:
+            T_liquidus: float, g_window_cells: float, tail_flux: float) -> PoolGeometry:
     """Pool outputs from the cell temperatures ``T`` and consolidated fractions ``frac``
-    (both (n_cells,)); isotherms are located on flux-continuous profiles."""
+    (both (n_cells,)); isotherms are located on flux-continuous profiles.
+
+    The ``G0`` window half-width is ``g_window_cells`` pool spacings of the
+    resolution-1 mesh for a pool of the computed ``W`` and ``D``
+    (:func:`~.mesh.pool_spacing`): fixed in metres for a given pool, whatever the
+    mesh it was computed on.
+    """
     T3, f3 = T.reshape(mesh.shape), frac.reshape(mesh.shape)
     xc, yc, zc = (Mesh.centres(a) for a in (mesh.xf, mesh.yf, mesh.zf))
     Ts = surface_field(T3, mesh, laws)
@@ -157,9 +164,10 @@ def extract(T: np.ndarray, frac: np.ndarray, mesh: Mesh, laws: MaterialLaws, *, 
     k_line = _blended_k(laws.phi_x, laws.powder_x, line, f3[:, 0, 0])
     V, S = _with_faces(line, k_line, xc, mesh.xf)
     x_tail, x_front = _crossing_1d(S, V, T_liquidus)
-    gx, gz = ((np.nan, np.nan) if not np.isfinite(x_tail)
-              else tail_gradient(line, mesh, x_tail, g_window, tail_flux,
-                                 float(laws.phi_z(np.array([T_liquidus]))[1][0])))
+    sized = np.isfinite([x_tail, W, D]).all()
+    gx, gz = ((np.nan, np.nan) if not sized
+              else tail_gradient(S, V, x_tail, g_window_cells * pool_spacing(0.5 * W, D),
+                                 tail_flux, float(laws.phi_z(np.array([T_liquidus]))[1][0])))
     G0 = float(np.hypot(gx, gz))
     S0 = float(v * abs(gx) / G0) if G0 > 0 else float("nan")
     T0 = float(np.max(line))
