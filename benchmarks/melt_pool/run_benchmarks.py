@@ -8,6 +8,8 @@ Usage (from the repository root)::
 
     OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 \\
         .venv/bin/python benchmarks/melt_pool/run_benchmarks.py convergence sanity corners
+
+Phases ``convergence-res1`` and ``convergence-res2`` run one half of ``convergence``.
 """
 
 from __future__ import annotations
@@ -66,13 +68,22 @@ def _save(name: str, records: list[dict]) -> None:
     (RESULTS / f"{name}.json").write_text(json.dumps(records, indent=1))
 
 
-def convergence() -> None:
-    """Default resolution and the mesh spacing halved at the five settings."""
-    recs = []
-    for (P, v), res in itertools.product(SETTINGS, (1.0, 2.0)):
+def convergence(resolutions: tuple[float, ...] = (1.0, 2.0)) -> None:
+    """Default resolution and the mesh spacing halved at the five settings.
+
+    Records of other resolutions already in ``results/convergence.json`` are kept, so
+    the slow halved-spacing runs can be made separately (``convergence-res2``, timing
+    irrelevant) from the default ones that the speed table uses (``convergence-res1``).
+    """
+    tags = {f"res{res:g}" for res in resolutions}
+    path = RESULTS / "convergence.json"
+    kept = [r for r in json.loads(path.read_text()) if r.get("tag") not in tags] \
+        if path.exists() else []
+    recs: list[dict] = []
+    for (P, v), res in itertools.product(SETTINGS, resolutions):
         opts = {"resolution": res, "time_limit": 900.0, "max_iter": 300 if res > 1 else 120}
         recs.append(run_one({"P": P, "v": v}, opts, tag=f"res{res:g}"))
-        _save("convergence", recs)
+        _save("convergence", kept + recs)
 
 
 def sanity() -> None:
@@ -111,4 +122,6 @@ if __name__ == "__main__":
         _worker(sys.argv[2])
     else:
         for phase in sys.argv[1:]:
-            {"convergence": convergence, "sanity": sanity, "corners": corners}[phase]()
+            {"convergence": convergence, "sanity": sanity, "corners": corners,
+             "convergence-res1": lambda: convergence((1.0,)),
+             "convergence-res2": lambda: convergence((2.0,))}[phase]()

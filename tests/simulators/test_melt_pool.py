@@ -20,6 +20,7 @@ from calnet.simulators.materials import NI5NB
 from calnet.simulators.melt_pool.assembly import Discretization
 from calnet.simulators.melt_pool.mesh import build_mesh, estimate_pool, pool_box
 from calnet.simulators.melt_pool.model import initial_field
+from calnet.simulators.melt_pool.outputs import tail_gradient
 from calnet.simulators.melt_pool.properties import (
     absorptivity_of_temperature,
     build_laws,
@@ -108,6 +109,29 @@ def test_rosenthal_estimate_scales():
     assert large[2] > small[2] and slow[2] > small[2]
     # tail of the Rosenthal pool: R = A P / (2 pi k (T_L - T_inf)), exactly
     assert small[0] == pytest.approx(0.5 * 100 / (2 * math.pi * 100 * 1395.0))
+
+
+@pytest.mark.parametrize("offset", [0.0, 0.37, 0.81])
+def test_tail_gradient_of_a_kink_is_the_mean_of_both_sides(offset):
+    """A least-squares line over +-w through a kink with slopes a (solid) and b (liquid)
+    has slope (a + b) / 2, whatever grid samples the profile: the estimator must
+    not depend on where the cells fall (that made G0 mesh-dependent)."""
+    a, b, x_tail, w = 8e6, 5e5, -2.6e-4, 7e-5
+    k_z, flux = 80.0, 1.6e5
+    for h in (w / 6, w / 12, w / 24):  # res 1, 2, 4 of the default G0 window
+        s = x_tail + (np.arange(-40, 40) + offset) * h
+        T = 1695.0 + np.where(s < x_tail, a, b) * (s - x_tail)
+        gx, gz = tail_gradient(s, T, x_tail, w, flux, k_z)
+        # linear interpolation cuts the corner only inside the kink's cell, a deviation
+        # of O((a - b) h) over a width h at |s| < h: relative slope error O((h/w)^3)
+        # (a least-squares line through the cell centres is off by O(h/w))
+        assert gx == pytest.approx(0.5 * (a + b), rel=(h / w) ** 3)
+        assert gz == flux / k_z
+    # a smooth quadratic profile: the slope at the centre, exactly up to O(h^2)
+    s = x_tail + (np.arange(-40, 40) + offset) * w / 6
+    gx, _ = tail_gradient(s, 1695.0 + 3e6 * (s - x_tail) + 4e10 * (s - x_tail) ** 2,
+                          x_tail, w, flux, k_z)
+    assert gx == pytest.approx(3e6, rel=1e-3)
 
 
 def test_options_validated():

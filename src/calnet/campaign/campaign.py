@@ -194,8 +194,7 @@ def _complete_readonly(path: Path, network: Network, model: Model, seed: int,
         with RunStore(path, readonly=True) as db:
             meta = db.meta()
             planned = db.planned()
-            if (not meta or meta.get("model_hash") != fingerprint_hash(model_fingerprint(model))
-                    or int(meta.get("seed", -1)) != seed or planned == 0
+            if (not meta or _foreign(meta, model, seed, path) or planned == 0
                     or _target_runs(runs, model, network, planned) > planned
                     or db.unfinished()):
                 return None
@@ -242,15 +241,9 @@ def _claim(db: RunStore, network: Network, model: Model, seed: int, simulator: s
     fp = model_fingerprint(model)
     meta = db.meta()
     if meta:
-        if meta.get("model_hash") != fingerprint_hash(fp):
-            change = describe_change(json.loads(meta.get("model_spec", "{}")), fp)
-            raise CampaignError(f"the store '{db.path}' was made from a different "
-                                f"'{model.name}' spec ({change}); simulate again with "
-                                "--fresh, or pass a new --store")
-        if int(meta["seed"]) != seed:
-            raise CampaignError(f"the store '{db.path}' was made with seed {meta['seed']}, "
-                                f"not {seed}; pass --seed {meta['seed']} to resume it, or a "
-                                "new --store (or --fresh) for the new seed")
+        problem = _foreign(meta, model, seed, db.path)
+        if problem:
+            raise CampaignError(problem)
     else:
         db.set_meta({"schema": "1", "model": model.name, "model_hash": fingerprint_hash(fp),
                      "model_spec": json.dumps(fp), "seed": str(seed),
@@ -259,6 +252,20 @@ def _claim(db: RunStore, network: Network, model: Model, seed: int, simulator: s
     db.set_meta({"calnet_version": calnet.__version__, "simulator": simulator,
                  "simulator_version": version, "spec": network.source,
                  "spec_sha256": _file_hash(network.source)})
+
+
+def _foreign(meta: dict[str, str], model: Model, seed: int, path: Path) -> str | None:
+    """Why a store with metadata ``meta`` is not this model's with this seed (None: it is)."""
+    fp = model_fingerprint(model)
+    if meta.get("model_hash") != fingerprint_hash(fp):
+        change = describe_change(json.loads(meta.get("model_spec", "{}")), fp)
+        return (f"the store '{path}' was made from a different '{model.name}' spec "
+                f"({change}); simulate again with --fresh, or pass a new --store")
+    if str(meta.get("seed")) != str(seed):
+        return (f"the store '{path}' was made with seed {meta.get('seed')}, not {seed}; "
+                f"pass --seed {meta.get('seed')} to resume it, or a new --store (or --fresh) "
+                "for the new seed")
+    return None
 
 
 def _file_hash(path: str) -> str:
