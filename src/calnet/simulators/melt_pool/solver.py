@@ -153,7 +153,7 @@ def newton_solve(disc: Discretization, laws: MaterialLaws, T0: np.ndarray, *,
         r0_norm = rnorm
         _, c = laws.enthalpy(T)
         rho_c = disc.density(frac) * c
-        M = disc.system(J, disc.volume * rho_c / dt, coupled=dA is not None)
+        M = (sp.diags(disc.volume * rho_c / dt) - J).tocsr()
         dT, n_lin = linear_solve(M, R, rtol=min(1e-3, max(1e-10, 0.1 * rnorm)))
         lin_total += n_lin
         big = float(np.abs(dT).max())
