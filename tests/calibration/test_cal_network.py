@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import sys
 import textwrap
+import warnings
 
 import numpy as np
 import pytest
@@ -18,7 +19,7 @@ import pytest
 from calnet.calibration.network import calibrate
 from calnet.calibration.persist import load_posterior, save_posterior
 from calnet.campaign import run_campaign
-from calnet.errors import CalibrationError
+from calnet.errors import CalibrationError, CalibrationWarning
 from calnet.spec import load_spec, read_all
 from calnet.spec.models import SamplerSettings
 from calnet.surrogates.network import fit_surrogates
@@ -190,12 +191,8 @@ def test_calibrate_command_writes_posteriors_summary_and_plots(indep, tmp_path):
 
 
 def test_a_short_run_warns_about_its_diagnostics(indep):
-    from calnet.errors import CalibrationWarning
-
     network, sur, _ = indep
     short = SamplerSettings(chains=2, warmup=10, draws=20)
-    import warnings
-
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         calibrate(network, sur, mode="joint", sampler=short, seed=4)

@@ -37,6 +37,7 @@ from functools import partial
 from typing import Any
 
 import jax
+from threadpoolctl import threadpool_limits
 
 jax.config.update("jax_enable_x64", True)
 
@@ -243,12 +244,6 @@ def _one_blas_thread():
     chains of the ninb thermal stage took 150 s with default BLAS threads and 15 s with
     one (benchmarks/README.md, "Chains on CPU").
     """
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:  # pragma: no cover - threadpoolctl comes with scikit-learn
-        from contextlib import nullcontext
-
-        return nullcontext()
     return threadpool_limits(limits=1, user_api="blas")
 
 
