@@ -37,6 +37,17 @@ def _blend(T: np.ndarray, f: np.ndarray, tabs, ev, idx: np.ndarray
 
 
 @dataclass(frozen=True)
+class _Pattern:
+    """CSR pattern of the Jacobian and where each listed entry goes (see
+    :meth:`Discretization._pattern`)."""
+
+    slot: np.ndarray  # (n_entries,) CSR data index of each entry, in evaluate's order
+    indices: np.ndarray
+    indptr: np.ndarray
+    diag: np.ndarray  # (n,) CSR data index of each diagonal entry
+
+
+@dataclass(frozen=True)
 class Faces:
     """Interior (``nb >= 0``) or Dirichlet (``nb == -1``) faces of one direction."""
 
@@ -115,6 +126,54 @@ class Discretization:
         self.q_top = 0.25 * P * np.multiply.outer(ex, ey).ravel()  # W per face at A = 1
         self.beam = np.flatnonzero(self.q_top > 1e-12 * self.q_top.max())
         self.ts_cells, self.ts_weights = self._surface_stencil()
+        self._patterns: dict[bool, _Pattern] = {}
+
+    def _pattern(self, coupled: bool) -> _Pattern:
+        """The Jacobian's sparsity (fixed per mesh), built on first use.
+
+        :meth:`evaluate` lists its entries in the order of :meth:`_entries`; a
+        precomputed map sends each to its CSR slot, so assembly is one ``bincount``
+        instead of a COO -> CSR conversion (with sorting) at every Newton step.
+        ``coupled``: with the rank-one absorptivity block.
+        """
+        if coupled not in self._patterns:
+            rows, cols = self._entries(coupled)
+            key = rows.astype(np.int64) * self.n + cols
+            uniq, slot = np.unique(key, return_inverse=True)
+            r, c = np.divmod(uniq, self.n)
+            indptr = np.concatenate([[0], np.cumsum(np.bincount(r, minlength=self.n))])
+            diag = np.searchsorted(uniq, np.arange(self.n, dtype=np.int64) * (self.n + 1))
+            if not np.array_equal(uniq[diag], np.arange(self.n) * (self.n + 1)):
+                raise RuntimeError("melt_pool: Jacobian pattern lacks a diagonal entry")
+            self._patterns[coupled] = _Pattern(slot, c.astype(np.int32),
+                                               indptr.astype(np.int32), diag)
+        return self._patterns[coupled]
+
+    def _entries(self, coupled: bool) -> tuple[np.ndarray, np.ndarray]:
+        """Row and column of every Jacobian value :meth:`evaluate` appends, in order."""
+        rows, cols = [], []
+        for fc in self.faces:
+            interior = fc.nb >= 0
+            Pi, Ni = fc.P[interior], fc.nb[interior]
+            rows += [fc.P, Pi, Ni, Ni]
+            cols += [fc.P, Ni, Ni, Pi]
+        P, E, o = self.x_down, self.x_upstream, self.outflow
+        rows += [P, P, E, E, o, self.top]
+        cols += [E, P, E, P, o, self.top]
+        if coupled:
+            b = self.top[self.beam]
+            rows += [np.repeat(b, self.ts_cells.size)]
+            cols += [np.tile(self.ts_cells, b.size)]
+        return np.concatenate(rows), np.concatenate(cols)
+
+    def system(self, J: sp.csr_matrix, diagonal: np.ndarray, *, coupled: bool
+               ) -> sp.csr_matrix:
+        """``diag(diagonal) - J`` on the pattern of a ``J`` from :meth:`evaluate`
+        (``coupled``: it was given ``dabsorb``), without re-sorting."""
+        pat = self._pattern(coupled)
+        data = -J.data
+        data[pat.diag] += diagonal
+        return sp.csr_matrix((data, J.indices, J.indptr), shape=J.shape)
 
     def _surface_stencil(self) -> tuple[np.ndarray, np.ndarray]:
         """Cells and weights reconstructing ``Phi_z`` at the surface at ``x = y = 0``."""
@@ -179,7 +238,7 @@ class Discretization:
         temperatures of ``self.ts_cells`` (None when it is lagged).
         """
         R = np.zeros(self.n)
-        rows, cols, vals = [], [], []
+        vals: list[np.ndarray] = []
         tables = {False: (laws.phi_x, laws.powder_x), True: (laws.phi_z, laws.powder_z)}
         evals = {d: [tab(T) for tab in tabs] for d, tabs in tables.items()}
         for fc in self.faces:
@@ -187,19 +246,14 @@ class Discretization:
                                             evals[fc.vertical])
             interior = fc.nb >= 0
             R += np.bincount(fc.P, flux, self.n)
-            rows += [fc.P]
-            cols += [fc.P]
-            vals += [dP]
-            Pi, Ni = fc.P[interior], fc.nb[interior]
+            Ni = fc.nb[interior]
             R -= np.bincount(Ni, flux[interior], self.n)
-            rows += [Pi, Ni, Ni]
-            cols += [Ni, Ni, Pi]
-            vals += [dN[interior], -dN[interior], -dP[interior]]
-        self._advection(T, frac, laws, R, rows, cols, vals)
-        self._surface(T, absorb, dabsorb, R, rows, cols, vals)
-        J = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                          shape=(self.n, self.n))
-        return R, J
+            vals += [dP, dN[interior], -dN[interior], -dP[interior]]
+        self._advection(T, frac, laws, R, vals)
+        self._surface(T, absorb, dabsorb, R, vals)
+        pat = self._pattern(dabsorb is not None)
+        data = np.bincount(pat.slot, np.concatenate(vals), pat.indptr[-1])
+        return R, sp.csr_matrix((data, pat.indices, pat.indptr), shape=(self.n, self.n))
 
     def _conduction(self, fc: Faces, T: np.ndarray, frac: np.ndarray, tabs, ev
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -257,7 +311,7 @@ class Discretization:
         pack = self.mat.powder_packing
         return (pack + (1.0 - pack) * frac) * self.mat.rho
 
-    def _advection(self, T, frac, laws, R, rows, cols, vals) -> None:
+    def _advection(self, T, frac, laws, R, vals) -> None:
         """Enthalpy advection towards ``-x`` through every x face.
 
         Latent part upwind; sensible part blended between central and upwind with the
@@ -284,23 +338,16 @@ class Discretization:
         dFP = mE * wP * cp[P]
         o = self.outflow
         R[o] -= m[o] * (S[o] + Lh[o])
-        rows += [P, P, E, E, o]
-        cols += [E, P, E, P, o]
-        vals += [dFE, dFP, -dFE, -dFP, -m[o] * (cp[o] + dl[o])]
+        vals += [dFE, dFP, -dFE, -dFP, -m[o] * (cp[o] + dl[o])]  # order of _entries
 
-    def _surface(self, T, absorb, dabsorb, R, rows, cols, vals) -> None:
+    def _surface(self, T, absorb, dabsorb, R, vals) -> None:
         mat = self.mat
         Tt = T[self.top]
         es = mat.emissivity * STEFAN_BOLTZMANN
         loss = self.area_top * (es * (Tt**4 - mat.T_ambient**4) + mat.h_conv * (Tt - mat.T_ambient))
         R[self.top] += absorb * self.q_top - loss
-        rows += [self.top]
-        cols += [self.top]
         vals += [-self.area_top * (4 * es * Tt**3 + mat.h_conv)]
         if dabsorb is not None:
-            b = self.top[self.beam]
-            rows += [np.repeat(b, dabsorb.size)]
-            cols += [np.tile(self.ts_cells, b.size)]
             vals += [np.outer(self.q_top[self.beam], dabsorb).ravel()]
 
 

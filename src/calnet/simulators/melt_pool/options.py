@@ -46,8 +46,9 @@ class MeltPoolOptions:
         temperature update is below ``ttol``.
     ttol : float, default 0.05
         Temperature-update tolerance (K).
-    max_iter : int, default 120
-        Newton iterations allowed over all continuation stages.
+    max_iter : int, default 200
+        Newton iterations allowed over all continuation stages (120 before 0.5.0, which
+        cut off slow high-power runs 1-14 iterations short of convergence).
     max_update : float, default 800.0
         Cap on the largest temperature update per Newton step (K).
     time_limit : float or None, default None
@@ -66,7 +67,7 @@ class MeltPoolOptions:
     k_powder: float | None = None
     rtol: float = 1e-6
     ttol: float = 0.05
-    max_iter: int = 120
+    max_iter: int = 200
     max_update: float = 800.0
     time_limit: float | None = None
     adapt_mesh: bool = True
