@@ -41,7 +41,8 @@ def _worker(spec: str) -> None:
     cpu = time.process_time()
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # MiB on Linux
     d = res.diagnostics
-    print(json.dumps({**job, "status": res.status, "message": res.message,
+    print(json.dumps({**job, "version": melt_pool.VERSION, "status": res.status,
+                      "message": res.message,
                       "outputs": res.outputs, "wall_s": wall, "cpu_s": cpu,
                       "peak_rss_mib": rss, "n_cells": d.get("n_cells"),
                       "iterations": d.get("iterations"), "residual": d.get("residual"),
@@ -81,7 +82,7 @@ def convergence(resolutions: tuple[float, ...] = (1.0, 2.0)) -> None:
         if path.exists() else []
     recs: list[dict] = []
     for (P, v), res in itertools.product(SETTINGS, resolutions):
-        opts = {"resolution": res, "time_limit": 900.0, "max_iter": 300 if res > 1 else 120}
+        opts = {"resolution": res, "time_limit": 900.0} | ({"max_iter": 300} if res > 1 else {})
         recs.append(run_one({"P": P, "v": v}, opts, tag=f"res{res:g}"))
         _save("convergence", kept + recs)
 
