@@ -86,7 +86,7 @@ class LinearSolver:
     the coarse-grid correction (pyamg's default is a symmetric sweep on both sides,
     twice the smoothing work): the V-cycle stays symmetric in form, and the Krylov
     iteration counts barely change (measured: the same Newton path at 81 W / 1.5 m/s
-    and 90 W / 2.3 m/s, 13-25 % less time per run; benchmarks/README.md).
+    and 90 W / 2.3 m/s, 21-30 % less time per run; benchmarks/README.md).
     """
 
     REBUILD_ITS, MAX_AGE = 12, 4
