@@ -213,3 +213,13 @@ def test_segmented_plugs_prior_draws_of_an_upstream_model_without_data(indep, pl
     assert post.prior_only == ("up",) and [s.models for s in post.stages] == [("down",)]
     assert post.theta["up"].shape == (100, 1) == post.theta["down"].shape
     assert np.all((post.theta["up"] >= 0.5) & (post.theta["up"] <= 1.5))
+
+
+def test_stage_timings_reach_the_posterior_and_its_summary(both, indep):
+    from calnet.report.build import posterior_summary
+
+    seg = both[0]
+    assert set(seg.timings) == {"stage_up", "stage_down"}
+    assert all(t > 0 for t in seg.timings.values()), seg.timings
+    summary = posterior_summary(indep[0], seg)
+    assert all(summary[m]["sampling_time_s"] > 0 for m in ("up", "down")), summary

@@ -291,7 +291,8 @@ def _posterior(network, mode, plug, stages, theta, data, ld, prior_only) -> Netw
         if n and next(iter(h.values())).shape[0] != n:
             idx = np.random.default_rng(0).integers(0, next(iter(h.values())).shape[0], n)
             hyper[ds] = {k: v[idx] for k, v in h.items()}
-    timings = {f"stage_{'+'.join(s.models)}": float(s.idata.attrs.get("sampling_time", 0.0))
-               + float(s.idata.attrs.get("compile_time", 0.0)) for s in stages}
+    attrs = {"+".join(s.models): s.idata.posterior.attrs for s in stages}  # sample_nuts's
+    timings = {f"stage_{k}": float(a.get("sampling_time", 0.0)) + float(a.get("compile_time", 0.0))
+               for k, a in attrs.items()}
     return NetworkPosterior(mode, plug, stages, theta, hyper, dict(data), std,
                             prior_only, timings)
