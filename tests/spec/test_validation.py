@@ -128,6 +128,18 @@ def test_nan_in_data(base_spec, write_spec):
     assert "2 missing/NaN" in str(err) and "[2, 3]" in str(err)
 
 
+def test_csv_without_data_rows(base_spec, write_spec):
+    err = _error(write_spec(base_spec, width="id,power,speed,width,split\n"))
+    assert "no data rows" in str(err) and err.field == "data.width"
+
+
+def test_non_positive_data_of_a_log_output(base_spec, write_spec):
+    base_spec["models"]["micro"]["outputs"]["lam"]["transform"] = "log"
+    bad = "id,power,speed,pdas\n1,100,0.5,0.3\n2,150,1.0,0\n3,120,1.0,-0.1\n"
+    err = _error(write_spec(base_spec, spacing=bad))
+    assert "2 value(s) <= 0 on line(s) [3, 4]" in str(err) and "transform: log" in str(err)
+
+
 def test_out_of_bounds_warns_with_count(base_spec, write_spec):
     wide = "id,power,speed,width,split\n1,300,0.5,90,train\n2,20,3.0,80,train\n3,100,1,80,test\n"
     with pytest.warns(SpecWarning, match="2 of 3 point"):
