@@ -148,6 +148,11 @@ def _check_bounds(network: Network, ds: Dataset, keys: list[str], x: np.ndarray,
     for j, key in enumerate(keys):
         model, name = key.split(".")
         var = network.model(model).variable(name)
+        if getattr(var, "scale", "linear") == "log" and np.any(x[:, j] <= 0):
+            rows = (np.flatnonzero(x[:, j] <= 0) + 2).tolist()
+            raise SpecError(f"{key} has {len(rows)} value(s) <= 0 on line(s) {rows[:10]}, "
+                            "but its scale is log (the surrogates take its logarithm); fix "
+                            "or remove those rows", file=str(path), field=f"{field}.columns")
         out = (x[:, j] < var.lower) | (x[:, j] > var.upper)
         if out.any():
             detail.append(f"{key} in [{x[out, j].min():g}, {x[out, j].max():g}] vs bounds "
