@@ -147,7 +147,14 @@ def simulate(
         raise CalnetError(f"'{name}' has no input or parameter {unknown}; it takes "
                           f"{list(info.inputs + info.parameters)}")
     inputs = {**info.defaults(), **values}
-    result = info.simulate(inputs, **_parse_options(option))
+    options = _parse_options(option)
+    try:
+        result = info.simulate(inputs, **options)
+    except (TypeError, ValueError) as err:
+        if not options:
+            raise
+        raise CalnetError(f"{name} with --option {options}: {err}; fix the option names "
+                          "or values") from None
     doc = {"simulator": name, "version": info.version, "inputs": inputs,
            "status": result.status, "message": result.message, "outputs": result.outputs,
            "diagnostics": result.diagnostics}

@@ -232,6 +232,9 @@ def settings_matrix(network: Network, dataset: str,
             if not np.isfinite(value):
                 raise CalnetError(f"point {r + 1}: {key} = {value} is not a finite number")
             var = network.model(m).variable(i)
+            if getattr(var, "scale", "linear") == "log" and value <= 0:
+                raise CalnetError(f"point {r + 1}: {key} = {value:g} must be > 0 (its scale "
+                                  "is log)")
             if not var.lower <= value <= var.upper:
                 notes.append(f"point {r + 1}: {key} = {value:g} lies outside its bounds "
                              f"[{var.lower:g}, {var.upper:g}] {var.unit}; the surrogates "

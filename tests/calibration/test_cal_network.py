@@ -199,3 +199,27 @@ def test_a_short_run_warns_about_its_diagnostics(indep):
     messages = [str(w.message) for w in caught if issubclass(w.category, CalibrationWarning)]
     assert any("bulk ESS" in m and "< 400" in m for m in messages), messages
     assert all(m.startswith("joint: ") for m in messages)  # names the stage
+
+
+@pytest.mark.parametrize("plug", ["posterior", "mode"])
+def test_segmented_plugs_prior_draws_of_an_upstream_model_without_data(indep, plug):
+    network, sur, _ = indep
+    train = {"wdata": read_all(network)["wdata"]}  # no data on 'up': it keeps its prior
+    short = SamplerSettings(chains=2, warmup=50, draws=50)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", CalibrationWarning)
+        post = calibrate(network, sur, data=train, mode="segmented", plug=plug,
+                         sampler=short, seed=5)
+    assert post.prior_only == ("up",) and [s.models for s in post.stages] == [("down",)]
+    assert post.theta["up"].shape == (100, 1) == post.theta["down"].shape
+    assert np.all((post.theta["up"] >= 0.5) & (post.theta["up"] <= 1.5))
+
+
+def test_stage_timings_reach_the_posterior_and_its_summary(both, indep):
+    from calnet.report.build import posterior_summary
+
+    seg = both[0]
+    assert set(seg.timings) == {"stage_up", "stage_down"}
+    assert all(t > 0 for t in seg.timings.values()), seg.timings
+    summary = posterior_summary(indep[0], seg)
+    assert all(summary[m]["sampling_time_s"] > 0 for m in ("up", "down")), summary

@@ -6,6 +6,7 @@ Modes (first argument):
   echo  TEXT OUT      write {"y": len(TEXT), "z": 0} and TEXT itself (to check quoting)
   fail                exit with code 3 and a message on stderr
   hang                sleep for a minute
+  status              print outputs on stdout with a status calnet does not know
 """
 
 import json
@@ -33,6 +34,8 @@ def main(argv: list[str]) -> None:
     elif mode == "fail":
         print("mesh generation failed", file=sys.stderr)
         sys.exit(3)
+    elif mode == "status":
+        print(json.dumps({"y": 1.0, "z": 0.0, "status": "exploded", "message": "mesh tangled"}))
     elif mode == "hang":
         time.sleep(60)
 

@@ -54,6 +54,7 @@ def test_callable_gets_options(tmp_path):
     ("crashy", {**POINT, "x": 0.9}, "failed", "RuntimeError: solver diverged"),
     ("nan_out", POINT, "failed", "non-finite outputs ['y']"),
     ("nonconverged", {**POINT, "a": 0.1}, "nonconverged", "residual"),
+    ("exits", {**POINT, "x": 0.95}, "failed", "SystemExit: 4"),
 ])
 def test_failures_are_results_not_exceptions(tmp_path, target, inputs, status, message):
     rec = _run(toy_network(tmp_path, f"python:toy_sims:{target}"), inputs)
@@ -106,9 +107,11 @@ def test_command_values_are_never_run_through_a_shell(tmp_path):
 @pytest.mark.parametrize(("mode", "timeout", "status", "message"), [
     ("fail", None, "failed", "exited with code 3: mesh generation failed"),
     ("hang", 1.0, "timeout", "timeout of 1 s"),
+    ("status", None, "failed", "unknown status 'exploded'"),
 ])
 def test_command_failures(tmp_path, mode, timeout, status, message):
-    net = toy_network(tmp_path, _command(mode, timeout=timeout) if timeout else _command(mode))
+    kw = {"timeout": timeout} if timeout else {}
+    net = toy_network(tmp_path, _command(mode, output_mode="stdout", **kw))
     rec = _run(net)
     assert rec.status == status and message in rec.message
     assert rec.wall_time < 30

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 import os
+import sys
 import time
 
 from calnet.simulators.base import SimResult
@@ -56,6 +57,13 @@ def dies(inputs):
     """Kills its own process for ``x > 0.9`` (a hard crash, not an exception)."""
     if inputs["x"] > 0.9:
         os._exit(7)
+    return quadratic(inputs)
+
+
+def exits(inputs):
+    """Calls ``sys.exit(4)`` for ``x > 0.9`` (how a script-style simulator gives up)."""
+    if inputs["x"] > 0.9:
+        sys.exit(4)
     return quadratic(inputs)
 
 

@@ -271,3 +271,17 @@ def test_simulate_batch_broadcasts_like_pointwise_calls():
         for j in range(2):
             point = m2.simulate({**WORKED, "S": S[i, 0], "G": G[j]})
             assert out["lambda"][i, j] == pytest.approx(point.outputs["lambda"], rel=1e-12)
+
+
+@pytest.mark.parametrize(("option", "message"), [
+    ("colour=red", "unexpected keyword argument 'colour'"),  # not an option of it
+    ("variant=Z", "variant must be one of"),
+])
+def test_cli_simulate_bad_option_is_a_user_error(option, message):
+    from typer.testing import CliRunner
+
+    from calnet.cli import app
+
+    result = CliRunner().invoke(app, ["simulate", "solidification", "--option", option])
+    assert result.exit_code == 1, result.output
+    assert "internal error" not in result.output and message in result.output

@@ -128,6 +128,25 @@ def test_nan_in_data(base_spec, write_spec):
     assert "2 missing/NaN" in str(err) and "[2, 3]" in str(err)
 
 
+def test_csv_without_data_rows(base_spec, write_spec):
+    err = _error(write_spec(base_spec, width="id,power,speed,width,split\n"))
+    assert "no data rows" in str(err) and err.field == "data.width"
+
+
+def test_non_positive_data_of_a_log_output(base_spec, write_spec):
+    base_spec["models"]["micro"]["outputs"]["lam"]["transform"] = "log"
+    bad = "id,power,speed,pdas\n1,100,0.5,0.3\n2,150,1.0,0\n3,120,1.0,-0.1\n"
+    err = _error(write_spec(base_spec, spacing=bad))
+    assert "2 value(s) <= 0 on line(s) [3, 4]" in str(err) and "transform: log" in str(err)
+
+
+def test_non_positive_data_of_a_log_scale_input(base_spec, write_spec):
+    base_spec["models"]["heat"]["inputs"]["v"]["scale"] = "log"
+    bad = "id,power,speed,width,split\n1,100,0.5,90,train\n2,150,0,80,test\n"
+    err = _error(write_spec(base_spec, width=bad))  # not just out of bounds: log(0)
+    assert "heat.v has 1 value(s) <= 0 on line(s) [3]" in str(err) and "scale is log" in str(err)
+
+
 def test_out_of_bounds_warns_with_count(base_spec, write_spec):
     wide = "id,power,speed,width,split\n1,300,0.5,90,train\n2,20,3.0,80,train\n3,100,1,80,test\n"
     with pytest.warns(SpecWarning, match="2 of 3 point"):
@@ -176,3 +195,24 @@ def test_missing_spec_path(tmp_path):
         load_spec(tmp_path / "absent.yaml")
     with pytest.raises(SpecError, match="no network.yaml"):
         load_spec(tmp_path)
+
+
+def test_predict_settings_refuse_non_positive_log_scale_input(base_spec, write_spec):
+    from calnet.errors import CalnetError
+    from calnet.predict import settings_matrix
+
+    base_spec["models"]["heat"]["inputs"]["v"]["scale"] = "log"
+    net = load_spec(write_spec(base_spec))
+    x, notes = settings_matrix(net, "width", [{"P": 100, "v": 3.0}])
+    assert x.tolist() == [[100, 3.0]] and "outside its bounds" in notes[0]
+    with pytest.raises(CalnetError, match=r"point 2: heat.v = 0 must be > 0 \(its scale is log"):
+        settings_matrix(net, "width", [{"P": 100, "v": 1.0}, {"P": 100, "v": 0.0}])
+
+
+def test_normal_prior_without_mass_inside_the_bounds(base_spec, write_spec):
+    k = base_spec["models"]["heat"]["parameters"]["k"]  # bounds [10, 30]
+    k["prior"] = {"dist": "normal", "mu": 35, "sigma": 1}  # 5 sigma out: usable
+    load_spec(write_spec(base_spec))
+    k["prior"] = {"dist": "normal", "mu": 100, "sigma": 0.5}
+    err = _error(write_spec(base_spec))
+    assert err.field == "models.heat.parameters.k" and "has no mass there" in str(err)

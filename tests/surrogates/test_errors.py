@@ -107,3 +107,22 @@ def test_load_errors(tmp_path):
     (tmp_path / "bad.json").write_text('{"format": "other"}')
     with pytest.raises(SurrogateError, match="not a calnet.FittedGP version 1 sidecar"):
         load_gp(tmp_path / "bad.npz")
+
+
+def test_a_campaign_without_an_ok_run_says_how_to_run_it_again(tmp_path, monkeypatch):
+    from calnet.campaign import run_campaign
+    from calnet.spec import load_spec
+    from calnet.surrogates.network import fit_surrogates
+
+    (tmp_path / "nan_sims.py").write_text("def f(inputs):\n    return {'y': float('nan')}\n")
+    (tmp_path / "d.csv").write_text("x,y\n0.5,1.0\n")
+    (tmp_path / "network.yaml").write_text(
+        "models:\n  m: {simulator: 'python:nan_sims:f', inputs: {x: {lower: 0, upper: 1}},\n"
+        "      outputs: {y: {measurable: true}}, campaign: {runs: 3}}\n"
+        "data:\n  d: {path: d.csv, observes: m.y, columns: {x: x, y: y}}\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    net = load_spec(tmp_path)
+    run_campaign(net, "m", executor="in-process", progress=False)
+    with pytest.raises(SurrogateError, match="m.y: all 3 runs failed") as info:
+        fit_surrogates(net, cv=False)
+    assert "--retry-failed" in str(info.value) and "\n" not in str(info.value)

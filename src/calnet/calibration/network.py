@@ -224,14 +224,16 @@ def _joint(network, surrogates, data, plan, seed, sampler, emu, progress) -> Net
 def _segmented(network, surrogates, data, plan, seed, sampler, emu, plug, n_up, progress):
     stages, theta, prior_only = [], {}, []
     rng = np.random.default_rng(seed)
+    n_stage = sampler.chains * (sampler.draws // sampler.thin)
     for i, name in enumerate(network.order):
         model = network.model(name)
         own = {k: v for k, v in data.items() if network.dataset(k).observed_model == name}
         if not model.parameters and not own:
             continue
         ancestors = [m for m in network.ancestors(name) if network.model(m).parameters]
-        if not own:
+        if not own:  # prior draws stand in, also for the downstream stages
             prior_only.append(name)
+            theta[name] = _prior_draws(model, n_stage, seed)
             continue
         upstream = _plug(theta, ancestors, plug, n_up, rng)
         if progress:
@@ -246,14 +248,17 @@ def _segmented(network, surrogates, data, plan, seed, sampler, emu, plug, n_up, 
         if model.parameters:
             theta[name] = stage.draws(f"theta_{name}")
     n = max((v.shape[0] for v in theta.values()), default=0)
-    for name in prior_only:  # prior draws stand in for models without data
-        priors = [theta_prior(p) for p in network.model(name).parameters]
-        prior_rng = np.random.default_rng([seed, 7919])
-        theta[name] = np.stack([np.asarray(p.sample(prior_rng, (n,))) for p in priors], 1)
     theta = {m: (v if v.shape[0] == n else v[rng.integers(0, v.shape[0], n)])
              for m, v in theta.items()}
     return _posterior(network, "segmented", plug, tuple(stages), theta, data, None,
                       tuple(prior_only))
+
+
+def _prior_draws(model, n: int, seed: int) -> np.ndarray:
+    """(n, n_parameters) draws of the prior of a model without data."""
+    priors = [theta_prior(p) for p in model.parameters]
+    prior_rng = np.random.default_rng([seed, 7919])
+    return np.stack([np.asarray(p.sample(prior_rng, (n,))) for p in priors], 1)
 
 
 def _plug(theta, ancestors, plug, n_up, rng) -> dict[str, np.ndarray]:
@@ -286,7 +291,8 @@ def _posterior(network, mode, plug, stages, theta, data, ld, prior_only) -> Netw
         if n and next(iter(h.values())).shape[0] != n:
             idx = np.random.default_rng(0).integers(0, next(iter(h.values())).shape[0], n)
             hyper[ds] = {k: v[idx] for k, v in h.items()}
-    timings = {f"stage_{'+'.join(s.models)}": float(s.idata.attrs.get("sampling_time", 0.0))
-               + float(s.idata.attrs.get("compile_time", 0.0)) for s in stages}
+    attrs = {"+".join(s.models): s.idata.posterior.attrs for s in stages}  # sample_nuts's
+    timings = {f"stage_{k}": float(a.get("sampling_time", 0.0)) + float(a.get("compile_time", 0.0))
+               for k, a in attrs.items()}
     return NetworkPosterior(mode, plug, stages, theta, hyper, dict(data), std,
                             prior_only, timings)

@@ -298,8 +298,8 @@ def execute_run(sim: Simulator, index: int, inputs: Mapping[str, float],
 def _guarded(call) -> SimResult:
     try:
         result = call()
-    except Exception as err:  # any simulator error is recorded, the campaign goes on
-        return SimResult({}, "failed", _describe(err))
+    except (Exception, SystemExit) as err:  # any simulator error (sys.exit too) is
+        return SimResult({}, "failed", _describe(err))  # recorded, the campaign goes on
     if not isinstance(result, SimResult):
         return SimResult({}, "failed", f"simulator returned {type(result).__name__}, "
                          "expected a SimResult")
@@ -450,7 +450,8 @@ def _parse_outputs(text: str, mode: str) -> SimResult:
     message = str(doc.pop("message", ""))
     outputs = {k: _to_float(v) for k, v in doc.items() if isinstance(v, (int, float))
                or v is None}
-    return SimResult(outputs, status if status in STATUSES else "failed", message)  # type: ignore[arg-type]
+    return SimResult(outputs, status, message)  # type: ignore[arg-type]  (execute_run
+    # records an unknown status as failed, naming it)
 
 
 def _to_float(value: Any) -> float:

@@ -121,6 +121,7 @@ def posterior_summary(network, post) -> dict:
     out = {}
     for stage in post.stages:
         idata_post = stage.idata.posterior
+        attrs = idata_post.attrs  # sample_nuts puts the timings there
         rhat, ess_b = az.rhat(idata_post), az.ess(idata_post, method="bulk")
         ess_t = az.ess(idata_post, method="tail")
         div = int(np.asarray(stage.idata.sample_stats["diverging"]).sum())
@@ -146,8 +147,8 @@ def posterior_summary(network, post) -> dict:
             out[model] = {"parameters": rows, "divergences": div, "max_rhat": all_rhat,
                           "min_ess_bulk": all_ess, "stage": "+".join(stage.models),
                           "datasets": list(stage.datasets),
-                          "sampling_time_s": float(stage.idata.attrs.get("sampling_time", 0)),
-                          "compile_time_s": float(stage.idata.attrs.get("compile_time", 0))}
+                          "sampling_time_s": float(attrs.get("sampling_time", 0)),
+                          "compile_time_s": float(attrs.get("compile_time", 0))}
     for model in post.prior_only:
         out[model] = {"prior_only": True}
     return out

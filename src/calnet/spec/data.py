@@ -76,6 +76,9 @@ def read_dataset(network: Network, ds: Dataset) -> ExperimentalData:
     except Exception as err:  # pandas raises many kinds; all mean an unreadable CSV
         raise SpecError(f"cannot read '{path}' as CSV ({err})", file=str(path),
                         field=field) from None
+    if frame.empty:
+        raise SpecError("the CSV has a header but no data rows; add the measurements",
+                        file=str(path), field=field)
     wanted = network.process_input_keys(ds.observed_model)
     resolved = {network.resolve_column_key(ds, k, wanted + [ds.observes]): col
                 for k, col in ds.columns.items()}
@@ -83,6 +86,13 @@ def read_dataset(network: Network, ds: Dataset) -> ExperimentalData:
                for key in (*wanted, ds.observes)}
     x = np.column_stack([columns[k] for k in wanted]) if wanted else np.empty((len(frame), 0))
     y = columns[ds.observes]
+    out = network.model(ds.observed_model).output(ds.observed_output)
+    if out.transform == "log" and np.any(y <= 0):
+        rows = (np.flatnonzero(y <= 0) + 2).tolist()
+        raise SpecError(f"column '{resolved[ds.observes]}' has {len(rows)} value(s) <= 0 on "
+                        f"line(s) {rows[:10]}, but '{ds.observes}' is modelled on the log "
+                        "scale (transform: log); remove those rows or drop the transform",
+                        file=str(path), field=f"{field}.columns")
     is_test = _split_mask(frame, ds, path, field)
     _check_bounds(network, ds, wanted, x, path, field)
     labels = tuple(str(v) for v in frame.iloc[:, 0]) if len(frame.columns) else ()
@@ -138,6 +148,11 @@ def _check_bounds(network: Network, ds: Dataset, keys: list[str], x: np.ndarray,
     for j, key in enumerate(keys):
         model, name = key.split(".")
         var = network.model(model).variable(name)
+        if getattr(var, "scale", "linear") == "log" and np.any(x[:, j] <= 0):
+            rows = (np.flatnonzero(x[:, j] <= 0) + 2).tolist()
+            raise SpecError(f"{key} has {len(rows)} value(s) <= 0 on line(s) {rows[:10]}, "
+                            "but its scale is log (the surrogates take its logarithm); fix "
+                            "or remove those rows", file=str(path), field=f"{field}.columns")
         out = (x[:, j] < var.lower) | (x[:, j] > var.upper)
         if out.any():
             detail.append(f"{key} in [{x[out, j].min():g}, {x[out, j].max():g}] vs bounds "

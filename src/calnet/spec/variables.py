@@ -120,6 +120,18 @@ class Parameter(Bounded):
 
     prior: ParameterPrior = Field(default_factory=BetaPrior)
 
+    @model_validator(mode="after")
+    def _prior_has_mass(self) -> Parameter:
+        p = self.prior
+        if p.dist == "normal":  # truncated to the bounds: it needs mass there
+            gap = max(self.lower - p.mu, p.mu - self.upper, 0.0) / p.sigma
+            if gap > 30:
+                raise ValueError(f"prior normal(mu={p.mu:g}, sigma={p.sigma:g}) lies "
+                                 f"{gap:.3g} sigma outside [{self.lower:g}, {self.upper:g}] "
+                                 "and has no mass there; move mu into the bounds or widen "
+                                 "sigma")
+        return self
+
 
 class Output(Frozen):
     """A model output; ``measurable`` outputs may be observed by a data set.

@@ -166,8 +166,9 @@ def fit_surrogates(network: Network, *, stores: Mapping[str, Path] | None = None
             n_excl = runs.n_excluded + int((~ok).sum())
             if ok.sum() == 0:
                 raise SurrogateError(f"{name}.{out.name}: all {runs.n_total} runs failed or "
-                                     "gave non-finite values; fix the simulator and re-run "
-                                     "the campaign")
+                                     "gave non-finite values; fix the simulator, then run "
+                                     f"them again: calnet campaign SPEC --model {name} "
+                                     "--retry-failed (or calnet run SPEC --fresh)")
             kw = dict(lower=lower, upper=upper, transform=out.transform,
                       n_restarts=restarts or settings.restarts, seed=seed,
                       name=f"{name}.{out.name}")
