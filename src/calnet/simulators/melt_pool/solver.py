@@ -4,7 +4,7 @@ Each step solves ``(V rho c_eff / dt - J) dT = R`` (physics.md: exact Jacobian t
 Kirchhoff potentials, pseudo-transient continuation, temperature updates capped at
 ``max_update``). The pseudo time step follows switched evolution relaxation,
 ``dt_k = dt_(k-1) clip(1.5 |R_(k-1)| / |R_k|, 2, 3)`` unless the residual rises by
-more than 5 %, then ``dt_(k-1) * DT_CUT`` and at most 1.5x growth on the next step (so
+more than 5 %, then ``dt_(k-1) / 4`` and at most 1.5x growth on the next step (so
 a Newton 2-cycle shrinks dt until the pseudo-time term damps it), so the iteration
 turns into plain Newton as the residual falls. Cells crossing ``T_S`` or ``T_L`` stop
 just past the kink. The consolidated fraction of the powder (a max over the upstream
@@ -31,11 +31,6 @@ _DEBUG = bool(os.environ.get("CALNET_MELT_POOL_DEBUG"))
 DT0 = 2e-6  # s, first pseudo time step
 DT_MAX = 1.0
 DT_MIN = 1e-9  # s
-# dt factor after a residual rise. The rises come mostly from powder cells at the edge of
-# the consolidation front; halving (0.6.0; a quarter before) keeps the rest of the field
-# moving: 40-60 % fewer Newton iterations on slow runs (236 W / 0.226 m/s 129 -> 78,
-# 235 W / 1.9 m/s 100 -> 39), the outputs within the path dependence (benchmarks/README.md)
-DT_CUT = 0.5
 FRAC_TOL = 1e-4  # largest change of the consolidated fraction allowed at convergence
 
 
@@ -162,7 +157,7 @@ def newton_solve(disc: Discretization, laws: MaterialLaws, T0: np.ndarray, *,
             rising = rnorm > 1.05 * r0_norm
             calm = 0 if rising else calm + 1
             top = 3.0 if calm > 1 else 1.5  # slow regrowth after a rise: no 2-cycles
-            grow = DT_CUT if rising else float(np.clip(1.5 * r0_norm / rnorm, min(2.0, top), top))
+            grow = 0.25 if rising else float(np.clip(1.5 * r0_norm / rnorm, min(2.0, top), top))
             dt = float(np.clip(dt * grow, DT_MIN, DT_MAX))
         r0_norm = rnorm
         _, c = laws.enthalpy(T)
