@@ -126,3 +126,30 @@ def test_a_campaign_without_an_ok_run_says_how_to_run_it_again(tmp_path, monkeyp
     with pytest.raises(SurrogateError, match="m.y: all 3 runs failed") as info:
         fit_surrogates(net, cv=False)
     assert "--retry-failed" in str(info.value) and "\n" not in str(info.value)
+
+
+def test_caps_never_raise_the_spec_settings(tmp_path, monkeypatch):
+    """``restarts``/``cv_folds`` (``calnet run --quick``) cap the spec's settings; a spec
+    that asks for less work keeps its own numbers."""
+    from calnet.campaign import run_campaign
+    from calnet.spec import load_spec
+    from calnet.surrogates import network as sn
+
+    (tmp_path / "lin_sims.py").write_text("def f(inputs):\n    return {'y': 1 + inputs['x']}\n")
+    (tmp_path / "d.csv").write_text("x,y\n0.5,1.5\n")
+    (tmp_path / "network.yaml").write_text(
+        "models:\n  m: {simulator: 'python:lin_sims:f', inputs: {x: {lower: 0, upper: 1}},\n"
+        "      outputs: {y: {measurable: true}}, campaign: {runs: 12},\n"
+        "      surrogate: {cv_folds: 3, restarts: 1}}\n"
+        "data:\n  d: {path: d.csv, observes: m.y, columns: {x: x, y: y}}\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    net = load_spec(tmp_path)
+    run_campaign(net, "m", executor="in-process", progress=False)
+    seen = []
+    fit = sn.fit_gp
+    monkeypatch.setattr(sn, "fit_gp", lambda *a, **kw: seen.append(kw["n_restarts"]) or fit(*a, **kw))
+    sur = sn.fit_surrogates(net, restarts=2, cv_folds=5)
+    assert seen == [1] and sur.items["m.y"].cv.fold.max() == 2  # k = 3, not 5
+    seen.clear()
+    sur = sn.fit_surrogates(net, restarts=2, cv_folds=2)
+    assert seen == [1] and sur.items["m.y"].cv.fold.max() == 1  # a lower cap applies

@@ -137,7 +137,8 @@ def fit_surrogates(network: Network, *, stores: Mapping[str, Path] | None = None
     cv : bool
         Run k-fold cross-validation (k from the model's or the network's settings).
     restarts, cv_folds : int, optional
-        Override the spec's surrogate settings (e.g. for a quick run).
+        Caps on the spec's surrogate settings (e.g. for a quick run): at most this many,
+        never more than the spec asks for.
     progress : callable, optional
         Called with a short message before each fit.
 
@@ -170,13 +171,14 @@ def fit_surrogates(network: Network, *, stores: Mapping[str, Path] | None = None
                                      f"them again: calnet campaign SPEC --model {name} "
                                      "--retry-failed (or calnet run SPEC --fresh)")
             kw = dict(lower=lower, upper=upper, transform=out.transform,
-                      n_restarts=restarts or settings.restarts, seed=seed,
+                      n_restarts=min(restarts or settings.restarts, settings.restarts),
+                      seed=seed,
                       name=f"{name}.{out.name}")
             gp = fit_gp(x[ok], y[ok], **kw)
             # folds re-optimise from the full-data optimum (one start each): k refits
             # at the cost of about k / (restarts + 1) full fits
             cvr = (cross_validate(x[ok], y[ok], k=min(cv_folds or settings.cv_folds,
-                                                      int(ok.sum())),
+                                                      settings.cv_folds, int(ok.sum())),
                                   **{**kw, "n_restarts": 0},
                                   init=np.asarray(gp.log_params))
                    if cv else None)
