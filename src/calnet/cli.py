@@ -265,6 +265,16 @@ def calibrate(
                   f"prior-vs-posterior plots written to {out}")
 
 
+def _takes(network, dataset: str, name: str) -> bool:
+    """Whether ``name`` (bare or qualified) is a process input of ``dataset``."""
+    ds = network.dataset(dataset)
+    try:
+        network.resolve_column_key(ds, name, network.process_input_keys(ds.observed_model))
+    except ValueError:
+        return False
+    return True
+
+
 @app.command()
 @user_errors
 def predict(
@@ -312,8 +322,11 @@ def predict(
     sur = Surrogates.load(sur_dir)
     seed = network.settings.seed if seed is None else seed
     results, table_rows = [], []
+    # without -d, a point may carry inputs that only some of the data sets take
+    skip = set() if dataset else {k for row in rows for k in row
+                                  if any(_takes(network, d, k) for d in names)}
     for name in names:
-        x, notes = settings_matrix(network, name, rows)
+        x, notes = settings_matrix(network, name, rows, skip=skip)
         for note in dict.fromkeys(notes):
             warnings.warn(note, stacklevel=1)
         pred = run_predict(network, sur, post, name, x, n_draws=draws, seed=seed)

@@ -11,6 +11,7 @@ gives the predictive distribution; the variance is split into its sources.
 
 from __future__ import annotations
 
+from collections.abc import Collection
 from dataclasses import dataclass, field
 from functools import partial
 
@@ -200,14 +201,15 @@ def metrics(y: np.ndarray, mean: np.ndarray, lower: np.ndarray | None = None,
     return out
 
 
-def settings_matrix(network: Network, dataset: str,
-                    rows: list[dict[str, float]]) -> tuple[np.ndarray, list[str]]:
+def settings_matrix(network: Network, dataset: str, rows: list[dict[str, float]], *,
+                    skip: Collection[str] = ()) -> tuple[np.ndarray, list[str]]:
     """Process settings for ``dataset``'s prediction as an array ``(n, k)``.
 
     Each row maps input names (bare ``P`` or qualified ``melt_pool.P``) to values. Every
     process input must be given; names that are not process inputs of the data set's
-    chain are an error. Returns the array and a list of warnings for values outside the
-    declared bounds (the surrogates extrapolate there).
+    chain are an error, except those in ``skip`` (inputs of other data sets predicted
+    from the same rows), which are ignored. Returns the array and a list of warnings for
+    values outside the declared bounds (the surrogates extrapolate there).
     """
     ds = network.dataset(dataset)
     pairs = network.process_inputs(ds.observed_model)
@@ -220,6 +222,8 @@ def settings_matrix(network: Network, dataset: str,
             try:
                 key = network.resolve_column_key(ds, name, keys)
             except ValueError:
+                if name in skip:
+                    continue
                 raise CalnetError(f"'{name}' is not a process input of '{ds.observes}'; "
                                   f"give {_names(keys)}") from None
             given[key] = value
