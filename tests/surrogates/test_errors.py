@@ -147,7 +147,12 @@ def test_caps_never_raise_the_spec_settings(tmp_path, monkeypatch):
     run_campaign(net, "m", executor="in-process", progress=False)
     seen = []
     fit = sn.fit_gp
-    monkeypatch.setattr(sn, "fit_gp", lambda *a, **kw: seen.append(kw["n_restarts"]) or fit(*a, **kw))
+
+    def spy(*a, **kw):
+        seen.append(kw["n_restarts"])
+        return fit(*a, **kw)
+
+    monkeypatch.setattr(sn, "fit_gp", spy)
     sur = sn.fit_surrogates(net, restarts=2, cv_folds=5)
     assert seen == [1] and sur.items["m.y"].cv.fold.max() == 2  # k = 3, not 5
     seen.clear()
