@@ -70,3 +70,10 @@ def test_sections_are_immutable():
     with pytest.raises(AttributeError):
         s.title = "b"
     assert s.paragraphs == ("p",)
+
+
+def test_campaign_statuses_read_as_counts():
+    from calnet.report.build import _statuses
+
+    assert _statuses({"failed": 5, "ok": 225, "timeout": 2}) == "225 ok, 5 failed, 2 timeout"
+    assert _statuses({}) == ""

@@ -112,6 +112,11 @@ def sensitivity_and_maps(ctx, note) -> None:
     ctx.metrics["maps"] = maps
 
 
+def _statuses(counts: dict[str, int]) -> str:
+    """``{"ok": 225, "failed": 5}`` -> ``"225 ok, 5 failed"`` (most frequent first)."""
+    return ", ".join(f"{n} {k}" for k, n in sorted(counts.items(), key=lambda kv: -kv[1]))
+
+
 def posterior_summary(network, post) -> dict:
     """Per model: range, mode (KDE), mean, sd, 95 % interval, R-hat, ESS, divergences."""
     import arviz as az
@@ -222,7 +227,7 @@ def _sections(ctx, summary) -> list[Section]:
                       [[k, d.observes, len(d.y), int((~d.is_test).sum()), int(d.is_test.sum())]
                        for k, d in ctx.data.items()]),
                 Table("Campaigns", ["model", "runs", "excluded", "status"],
-                      [[k, v["n_total"], v["n_excluded"], str(v["status_counts"])]
+                      [[k, v["n_total"], v["n_excluded"], _statuses(v["status_counts"])]
                        for k, v in m["campaigns"].items()])],
         figures=pick("network") + pick("data"))
     sur = Section("Surrogates (k-fold cross-validation)", tables=[Table(
