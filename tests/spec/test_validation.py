@@ -233,3 +233,8 @@ def test_predict_settings_skip_inputs_of_other_data_sets(base_spec, write_spec):
     assert x.tolist() == [[100, 1.0]]
     assert _takes(net, "width", "P") and _takes(net, "width", "heat.v")
     assert not _takes(net, "width", "other")
+
+
+def test_empty_sections_say_so(base_spec, write_spec):
+    base_spec["models"]["heat"]["outputs"] = {}
+    assert "'outputs' is empty; declare at least one entry" in str(_error(write_spec(base_spec)))

@@ -124,6 +124,9 @@ def _to_spec_error(err: ValidationError, raw: Any, source: str) -> SpecError:
     elif first["type"] == "string_pattern_mismatch":
         msg = (f"'{first.get('input')}' is not a valid name; use letters, digits and "
                "underscores, starting with a letter")
+    elif first["type"] == "too_short":
+        what = loc[-1] if loc and isinstance(loc[-1], str) else "this list"
+        msg = f"'{what}' is empty; declare at least one entry"
     elif first["type"] in ("float_parsing", "float_type", "int_parsing", "int_type"):
         msg = f"expected a number, got {first.get('input')!r}"
     more = len(err.errors()) - 1
