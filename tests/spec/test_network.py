@@ -103,3 +103,27 @@ def test_cli_check_error_is_one_line_exit_2(tmp_path):
 def test_spec_error_attributes():
     err = SpecError("fix it", file="f.yaml", field="models.a")
     assert str(err) == "f.yaml: models.a: fix it" and err.reason == "fix it"
+
+
+
+def test_check_warns_of_a_simulator_that_cannot_run_here(tmp_path):
+    """``calnet check``: a Python target that does not import, or a command that is not
+    found, would fail every run; check says so (a warning: remote workers may differ)."""
+    import yaml
+
+    from calnet.cli import app
+
+    (tmp_path / "here.py").write_text("def f(inputs):\n    return {'y': 1.0}\n")
+    sims = {"a": "python:nomodule_xyz:f", "b": "python:here:nofunc", "c": "python:here:f",
+            "d": {"kind": "command", "argv": ["./no_such_prog", "{x}"]}}
+    models = {m: {"simulator": sim, "inputs": {"x": {"lower": 0, "upper": 1}},
+                  "outputs": {"y": {}}} for m, sim in sims.items()}
+    (tmp_path / "network.yaml").write_text(yaml.safe_dump({"models": models}))
+    res = CliRunner().invoke(app, ["check", str(tmp_path)], terminal_width=400)
+    assert res.exit_code == 0, res.output
+    warned = [" ".join(line.split()) for line in res.output.splitlines()
+              if line.startswith("warning:")]
+    assert len(warned) == 3, res.output  # c imports and has f
+    assert "a: simulator 'python:nomodule_xyz:f' cannot be imported here" in warned[0]
+    assert "b: module 'here' has no 'nofunc'" in warned[1]
+    assert "d: command './no_such_prog' is not found" in warned[2]

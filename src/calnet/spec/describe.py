@@ -30,6 +30,9 @@ def describe_network(network: Network, console: Console) -> None:
         for var in model.outputs:
             table.add_row(var.name, "output", var.unit, _output_role(network, name, var, needed))
         console.print(table)
+        problem = simulator_problem(network, name)
+        if problem:
+            console.print(f"[yellow]warning:[/] {problem}", soft_wrap=True)
     if network.data:
         console.print("[bold]data sets[/]")
         from calnet.spec.data import read_dataset
@@ -39,6 +42,39 @@ def describe_network(network: Network, console: Console) -> None:
             console.print(f"  {ds.name}: {ds.path} observes {ds.observes}; "
                           f"{len(data.y)} points ({int((~data.is_test).sum())} train, "
                           f"{int(data.is_test.sum())} test); inputs {list(data.input_keys)}")
+
+
+def simulator_problem(network: Network, model: str) -> str | None:
+    """Why every run of ``model`` would fail on this machine, if it can be told without
+    running it: a Python target that cannot be imported, a command not found. (Workers of
+    a remote Dask cluster may see other modules and programs, so this is a warning.)"""
+    import shutil
+    from pathlib import Path
+
+    from calnet.campaign.runners import CampaignError, load_callable
+
+    sim = network.model(model).simulator
+    if sim.kind == "python":
+        try:
+            load_callable(sim.target, (str(Path(network.root).resolve()),))
+        except CampaignError as err:  # the module has no such function
+            return f"{model}: {err}; every run would fail"
+        except ImportError as err:
+            return (f"{model}: simulator 'python:{sim.target}' cannot be imported here "
+                    f"({err}); every run would fail. Fix the target, or put the module "
+                    "beside the spec or on PYTHONPATH")
+        except Exception as err:  # importing ran the module's code, which raised
+            return (f"{model}: importing the module of 'python:{sim.target}' raised "
+                    f"{type(err).__name__}: {err}")
+    elif sim.kind == "command":
+        program = sim.argv[0]
+        if "/" in program and not Path(program).is_absolute():
+            program = str(Path(network.root).resolve() / program)
+        if shutil.which(program) is None:
+            return (f"{model}: command '{sim.argv[0]}' is not found or not executable here; "
+                    "every run would fail. Give its path (relative to the spec) or put it "
+                    "on PATH")
+    return None
 
 
 def _simulator(sim) -> str:
