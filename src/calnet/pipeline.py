@@ -55,8 +55,8 @@ def run_pipeline(spec: str | Path, *, out: Path, fresh: bool = False, quick: boo
     timings: dict[str, float] = {}
     ctx = _Context(network, out, quick, fresh, loo_max if loo_max is not None
                    else (12 if quick else 15))
-    columns = (TextColumn("[bold]{task.description}"), BarColumn(), TextColumn("{task.fields[note]}"),
-               TimeElapsedColumn())
+    columns = (TextColumn("[bold]{task.description}"), BarColumn(),
+               TextColumn("{task.fields[note]}"), TimeElapsedColumn())
     with Progress(*columns, console=console, transient=False) as bar:
         task = bar.add_task("calnet run", total=len(STAGES), note="")
         for stage in STAGES:

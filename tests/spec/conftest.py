@@ -36,7 +36,8 @@ BASE = {
     },
 }
 
-WIDTH_CSV = "id,power,speed,width,split\n1,100,0.5,90,train\n2,150,1.0,80,train\n3,200,1.5,85,test\n"
+WIDTH_CSV = ("id,power,speed,width,split\n1,100,0.5,90,train\n2,150,1.0,80,train\n"
+             "3,200,1.5,85,test\n")
 SPACING_CSV = "id,power,speed,pdas\n1,100,0.5,0.3\n2,150,1.0,0.35\n"
 
 

@@ -312,7 +312,7 @@ def named_mapping_to_list(value: Any) -> Any:
 
 
 __all__ = [
-    "CalibrationSettings", "CampaignSettings", "Criterion", "Dataset", "DiscrepancySettings", "Link",
-    "Model", "Name", "SamplerSettings", "Settings", "SimulatorRef", "Split",
+    "CalibrationSettings", "CampaignSettings", "Criterion", "Dataset", "DiscrepancySettings",
+    "Link", "Model", "Name", "SamplerSettings", "Settings", "SimulatorRef", "Split",
     "SurrogateSettings",
 ]
