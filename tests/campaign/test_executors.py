@@ -47,6 +47,16 @@ def test_executor_choice_is_validated():
         make_executor("threads")
 
 
+def test_bad_executor_options_fail_before_anything_runs(tmp_path):
+    net = toy_network(tmp_path, runs=3)
+    store = run_campaign(net, "toy", progress=False).store_path
+    before = store.read_bytes()
+    for fresh in (False, True):  # a complete store (nothing to run), and --fresh
+        with pytest.raises(CampaignError, match="unknown executor 'foo'; choose auto"):
+            run_campaign(net, "toy", executor="foo", fresh=fresh, progress=False)
+    assert store.read_bytes() == before  # neither deleted nor written
+
+
 def test_unreachable_scheduler_says_so(monkeypatch):
     monkeypatch.setattr("calnet.campaign.executors.CONNECT_TIMEOUT", "1s")
     with pytest.raises(CampaignError, match="cannot reach the Dask scheduler"):
