@@ -266,4 +266,8 @@ def executor_kind(kind: str = "auto", *, workers: int | None = None,
         kind = "dask" if scheduler else ("processes" if (workers or 1) > 1 else "in-process")
     if scheduler and kind != "dask":
         raise CampaignError(f"--scheduler needs the Dask executor, not '{kind}'")
+    if kind == "in-process" and workers and workers > 1:
+        raise CampaignError(f"the in-process executor runs one run at a time, not --workers "
+                            f"{workers}; use --executor processes for parallel runs, or drop "
+                            "--workers")
     return kind
