@@ -7,6 +7,7 @@ Modes (first argument):
   fail                exit with code 3 and a message on stderr
   hang                sleep for a minute
   status              print outputs on stdout with a status calnet does not know
+  strnum              print outputs on stdout with y a string ("1.5") and a text note
 """
 
 import json
@@ -36,6 +37,8 @@ def main(argv: list[str]) -> None:
         sys.exit(3)
     elif mode == "status":
         print(json.dumps({"y": 1.0, "z": 0.0, "status": "exploded", "message": "mesh tangled"}))
+    elif mode == "strnum":
+        print(json.dumps({"y": "1.5", "z": 0.0, "note": "converged in 3 steps"}))
     elif mode == "hang":
         time.sleep(60)
 

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import sys
+
+import pytest
 import typer
 from campaign_helpers import toy_spec
 from typer.testing import CliRunner
@@ -34,6 +37,21 @@ def test_command_errors_are_one_line(tmp_path):
     result = CliRunner().invoke(app, ["campaign", str(spec), "--model", "nope"])
     assert result.exit_code == 1
     assert "no model named 'nope'" in result.output
+
+
+@pytest.mark.parametrize(("name", "message"), [
+    ("runs.txt", "cannot export to 'runs.txt'; name the file *.csv or *.parquet"),
+    ("runs.parquet", "Parquet export needs pyarrow"),
+])
+def test_a_bad_export_file_is_refused_before_any_run(tmp_path, monkeypatch, name, message):
+    monkeypatch.setitem(sys.modules, "pyarrow", None)
+    spec = toy_spec(tmp_path, runs=4)
+    result = CliRunner().invoke(app, ["campaign", str(spec), "--export", str(tmp_path / name),
+                                      "--no-progress"])
+    assert result.exit_code == 1
+    assert message in " ".join(result.output.split())
+    assert "runs planned" not in result.output
+    assert not (tmp_path / "campaigns").exists()  # nothing was simulated
 
 
 def test_command_is_import_light():

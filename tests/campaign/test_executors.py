@@ -45,6 +45,23 @@ def test_executor_choice_is_validated():
         make_executor(workers=0)
     with pytest.raises(CampaignError, match="unknown executor 'threads'"):
         make_executor("threads")
+    assert make_executor("in-process", workers=1).name == "in-process"
+    with pytest.raises(CampaignError, match="one run at a time, not --workers 2; use "
+                                            "--executor processes"):
+        make_executor("in-process", workers=2)
+
+
+def test_bad_executor_options_fail_before_anything_runs(tmp_path):
+    net = toy_network(tmp_path, runs=3)
+    store = run_campaign(net, "toy", progress=False).store_path
+    before = store.read_bytes()
+    for fresh in (False, True):  # a complete store (nothing to run), and --fresh
+        with pytest.raises(CampaignError, match="unknown executor 'foo'; choose auto"):
+            run_campaign(net, "toy", executor="foo", fresh=fresh, progress=False)
+        with pytest.raises(CampaignError, match="in-process executor runs one run at a time"):
+            run_campaign(net, "toy", executor="in-process", workers=2, fresh=fresh,
+                         progress=False)
+    assert store.read_bytes() == before  # neither deleted nor written
 
 
 def test_unreachable_scheduler_says_so(monkeypatch):

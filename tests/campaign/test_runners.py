@@ -62,6 +62,22 @@ def test_failures_are_results_not_exceptions(tmp_path, target, inputs, status, m
     assert message in rec.message
 
 
+@pytest.mark.parametrize(("kind", "message"), [
+    ("str", "output 'y' is str 'abc', expected a number"),
+    ("list", "output 'y' is list [1.0, 2.0], expected a number"),
+    ("array", "output 'y' is ndarray of shape (1,), expected a number"),
+    ("result", "output 'y' is str '1.5', expected a number"),
+    ("numpy", ""),
+    ("0-d", ""),
+])
+def test_an_output_of_the_wrong_type_is_named(tmp_path, kind, message):
+    spec = {"kind": "python", "target": "toy_sims:wrong_type", "options": {"kind": kind}}
+    rec = _run(toy_network(tmp_path, spec))
+    assert (rec.status, rec.message) == ("failed" if message else "ok", message)
+    y = rec.outputs["y"]  # stored as before: the number, or NaN
+    assert (y == 1.5) if kind in ("result", "numpy", "0-d") else math.isnan(y)
+
+
 def test_a_hung_call_is_killed_at_its_timeout(tmp_path):
     net = toy_network(tmp_path, "python:toy_sims:hangs")
     start = time.perf_counter()
@@ -108,6 +124,7 @@ def test_command_values_are_never_run_through_a_shell(tmp_path):
     ("fail", None, "failed", "exited with code 3: mesh generation failed"),
     ("hang", 1.0, "timeout", "timeout of 1 s"),
     ("status", None, "failed", "unknown status 'exploded'"),
+    ("strnum", None, "failed", "output 'y' in standard output is str '1.5', expected a number"),
 ])
 def test_command_failures(tmp_path, mode, timeout, status, message):
     kw = {"timeout": timeout} if timeout else {}

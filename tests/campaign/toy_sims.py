@@ -53,6 +53,17 @@ def nonconverged(inputs):
     return SimResult(out)
 
 
+def wrong_type(inputs, *, kind="str"):
+    """``quadratic`` with ``y`` of another type (``kind``): a string, a list, a 1-element
+    array, a SimResult holding a string, or (numbers, accepted) NumPy scalars."""
+    import numpy as np
+
+    out = quadratic(inputs)
+    y = {"str": "abc", "list": [1.0, 2.0], "array": np.array([1.5]), "result": "1.5",
+         "numpy": np.float32(1.5), "0-d": np.array(1.5)}[kind]
+    return SimResult({**out, "y": y}) if kind == "result" else {**out, "y": y}
+
+
 def dies(inputs):
     """Kills its own process for ``x > 0.9`` (a hard crash, not an exception)."""
     if inputs["x"] > 0.9:

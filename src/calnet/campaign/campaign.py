@@ -34,7 +34,7 @@ from calnet.campaign.design import (
     model_box,
     to_unit,
 )
-from calnet.campaign.executors import make_executor
+from calnet.campaign.executors import executor_kind, make_executor
 from calnet.campaign.runners import (
     RunRecord,
     execute_run,
@@ -145,6 +145,7 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
         Re-raised after the finished runs are committed; call again to resume.
     """
     model = _model(network, model_name)
+    executor_kind(executor, workers=workers, scheduler=scheduler)  # bad options fail first
     seed = network.settings.seed if seed is None else int(seed)
     path = Path(store) if store is not None else default_store(network, model_name)
     if fresh:

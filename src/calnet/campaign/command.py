@@ -55,6 +55,8 @@ def campaign(
     names = [model] if model else list(network.order)
     if len(names) > 1 and (store or export):
         raise CampaignError("--store and --export name one file; give --model too")
+    if export:
+        check_export(export)
     console = Console(highlight=False)
     for name in names:
         summary = run_campaign(network, name, runs=runs, workers=workers, scheduler=scheduler,
@@ -63,6 +65,22 @@ def campaign(
         print_summary(summary, console)
         if export:
             console.print(f"exported to {export_runs(summary.store_path, export)}")
+
+
+def check_export(path: Path) -> None:
+    """Refuse an export file that :func:`calnet.campaign.table.export_runs` would refuse,
+    before any run starts (not after the whole campaign)."""
+    from calnet.errors import CampaignError
+
+    suffix = path.suffix.lower()
+    if suffix not in (".csv", ".parquet"):
+        raise CampaignError(f"cannot export to '{path.name}'; name the file *.csv or *.parquet")
+    if suffix == ".parquet":
+        try:
+            import pyarrow  # noqa: F401
+        except ImportError:
+            raise CampaignError("Parquet export needs pyarrow; pip install 'calnet[parquet]' "
+                                "or export to .csv") from None
 
 
 def print_summary(summary: Any, console: Any) -> None:

@@ -27,6 +27,7 @@ from calnet.errors import CampaignError
 Task = tuple[Any, ...]
 
 CONNECT_TIMEOUT = "20s"  # how long to try reaching an existing Dask scheduler
+EXECUTORS = ("auto", "in-process", "processes", "dask")  # the names make_executor knows
 
 
 class Executor(Protocol):
@@ -234,6 +235,28 @@ def make_executor(kind: str = "auto", *, workers: int | None = None,
     scheduler : str, optional
         Address of a running Dask scheduler.
     """
+    kind = executor_kind(kind, workers=workers, scheduler=scheduler)
+    if kind == "in-process":
+        return InProcessExecutor()
+    if kind == "processes":
+        return ProcessExecutor(workers or 1)
+    return DaskExecutor(workers=workers, scheduler=scheduler)
+
+
+def executor_kind(kind: str = "auto", *, workers: int | None = None,
+                  scheduler: str | None = None) -> str:
+    """The executor :func:`make_executor` makes for these options ("in-process",
+    "processes" or "dask"), without making it: a campaign checks its options with this
+    before it runs anything.
+
+    Raises
+    ------
+    CampaignError
+        An unknown executor, or options that do not go together.
+    """
+    if kind not in EXECUTORS:
+        raise CampaignError(f"unknown executor '{kind}'; choose auto, in-process, processes "
+                            "or dask")
     if workers is not None and workers < 1:
         raise CampaignError(f"--workers must be >= 1, got {workers}")
     if scheduler and workers:
@@ -243,11 +266,8 @@ def make_executor(kind: str = "auto", *, workers: int | None = None,
         kind = "dask" if scheduler else ("processes" if (workers or 1) > 1 else "in-process")
     if scheduler and kind != "dask":
         raise CampaignError(f"--scheduler needs the Dask executor, not '{kind}'")
-    if kind == "in-process":
-        return InProcessExecutor()
-    if kind == "processes":
-        return ProcessExecutor(workers or 1)
-    if kind == "dask":
-        return DaskExecutor(workers=workers, scheduler=scheduler)
-    raise CampaignError(f"unknown executor '{kind}'; choose auto, in-process, processes or "
-                        "dask")
+    if kind == "in-process" and workers and workers > 1:
+        raise CampaignError(f"the in-process executor runs one run at a time, not --workers "
+                            f"{workers}; use --executor processes for parallel runs, or drop "
+                            "--workers")
+    return kind

@@ -11,10 +11,10 @@
 
 Adapters are small frozen dataclasses, so they pickle to process-pool and Dask workers.
 :func:`execute_run` is the task every executor runs: it times one run, turns exceptions,
-NaN and missing outputs into a recorded status, and enforces the timeout. A timeout on a
-Python call (built-in, callable, UM-Bridge) is enforced by running the call in a child
-Python process that is killed when the time is up; without a timeout the call runs in the
-worker itself.
+NaN, missing outputs and outputs that are no number into a recorded status, and enforces
+the timeout. A timeout on a Python call (built-in, callable, UM-Bridge) is enforced by
+running the call in a child Python process that is killed when the time is up; without a
+timeout the call runs in the worker itself.
 """
 
 from __future__ import annotations
@@ -108,7 +108,9 @@ class CallableRunner:
         if not isinstance(out, Mapping):
             return SimResult({}, "failed", f"{self.target} returned {type(out).__name__}; "
                              "return a dict of outputs or a SimResult")
-        return SimResult({str(k): _to_float(v) for k, v in out.items()})
+        outputs = {str(k): _to_float(v) for k, v in out.items()}
+        wrong = _not_numbers({str(k): v for k, v in out.items() if math.isnan(outputs[str(k)])})
+        return SimResult(outputs, "failed", wrong) if wrong else SimResult(outputs)
 
 
 @dataclass(frozen=True)
@@ -122,7 +124,9 @@ class CommandRunner:
     carries them. Outputs are read from ``output.json`` (``output_mode="json-file"``) or
     from standard output (``"stdout"``), as a JSON object of output values, optionally
     with ``status`` and ``message``. Each run has its own working directory
-    ``<workdir>/<run>``; the program runs there.
+    ``<workdir>/<run>``; the program runs there. A value of one of ``outputs`` (the
+    model's) that is not a number fails the run, saying so; other keys that are not
+    numbers are ignored.
     """
 
     argv: tuple[str, ...]
@@ -132,6 +136,7 @@ class CommandRunner:
     timeout: float | None = None
     options: dict[str, Any] = field(default_factory=dict)
     version: str = ""
+    outputs: tuple[str, ...] = ()
 
     @property
     def name(self) -> str:
@@ -161,7 +166,7 @@ class CommandRunner:
             return SimResult({}, "failed", f"command exited with code {proc.returncode}"
                              + (f": {' | '.join(tail)}" if tail else ""))
         text = proc.stdout if self.output_mode == "stdout" else _read(out_path)
-        return _parse_outputs(text, self.output_mode)
+        return _parse_outputs(text, self.output_mode, self.outputs)
 
 
 @dataclass(frozen=True)
@@ -222,7 +227,8 @@ def make_simulator(network: Network, model: Model, *, workdir: str | Path) -> Si
     if ref.kind == "command":
         _check_template(ref.argv, (*model.input_names, *model.parameter_names, *options))
         return CommandRunner(_resolve_program(ref.argv, network), str(workdir), ref.input_mode,
-                             ref.output_mode, run_timeout(network, model), options, version)
+                             ref.output_mode, run_timeout(network, model), options, version,
+                             model.output_names)
     return UMBridgeRunner(ref.url, ref.model, model.input_names + model.parameter_names,
                           model.output_names, options, version)
 
@@ -286,6 +292,9 @@ def execute_run(sim: Simulator, index: int, inputs: Mapping[str, float],
         result = call_in_child(sim, inputs, timeout)
     else:
         result = _guarded(lambda: sim(inputs))
+    wrong = _not_numbers(result.outputs) if result.status == "ok" else ""
+    if wrong:
+        result = SimResult(result.outputs, "failed", wrong, result.diagnostics)
     result = result.checked(expected)
     if result.status not in STATUSES:
         result = SimResult(result.outputs, "failed", f"unknown status '{result.status}' "
@@ -437,7 +446,7 @@ def _read(path: Path) -> str:
         return ""
 
 
-def _parse_outputs(text: str, mode: str) -> SimResult:
+def _parse_outputs(text: str, mode: str, expected: tuple[str, ...] = ()) -> SimResult:
     where = "standard output" if mode == "stdout" else "output.json"
     try:
         doc = json.loads(text)
@@ -450,8 +459,40 @@ def _parse_outputs(text: str, mode: str) -> SimResult:
     message = str(doc.pop("message", ""))
     outputs = {k: _to_float(v) for k, v in doc.items() if isinstance(v, (int, float))
                or v is None}
+    wrong = _not_numbers({k: doc[k] for k in expected if k in doc}, f" in {where}")
+    if wrong and status == "ok":
+        return SimResult(outputs, "failed", wrong)
     return SimResult(outputs, status, message)  # type: ignore[arg-type]  (execute_run
     # records an unknown status as failed, naming it)
+
+
+def _not_numbers(values: Mapping[str, Any], where: str = "") -> str:
+    """What is wrong with the values that are no number ("output 'y' is str '1.5',
+    expected a number"), "" when each is one (NaN and None are: they are recorded as
+    non-finite)."""
+    return "; ".join(f"output '{k}'{where} is {_brief(v)}, expected a number"
+                     for k, v in values.items() if _not_a_number(v))
+
+
+def _not_a_number(value: Any) -> bool:
+    if value is None or isinstance(value, (int, float)):
+        return False
+    if isinstance(value, (str, bytes)):
+        return True
+    try:
+        float(value)  # a NumPy scalar or 0-d array is a number
+    except (TypeError, ValueError):
+        return True
+    return False
+
+
+def _brief(value: Any) -> str:
+    """``str '1.5'``, ``list [1.0, 2.0]``, ``ndarray of shape (1,)``."""
+    kind = type(value).__name__
+    if hasattr(value, "shape") and not isinstance(value, (str, bytes)):
+        return f"{kind} of shape {tuple(value.shape)}"
+    text = repr(value)
+    return f"{kind} {text if len(text) <= 40 else text[:37] + '...'}"
 
 
 def _to_float(value: Any) -> float:
