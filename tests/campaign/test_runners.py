@@ -183,3 +183,17 @@ def test_umbridge_model(tmp_path, umbridge_url):
     assert rec.outputs["y"] == pytest.approx(3 * EXPECTED["y"])
     assert rec.outputs["z"] == pytest.approx(EXPECTED["z"])
     assert not math.isnan(rec.wall_time)
+
+
+def test_numpy_scalars_in_a_sim_result_are_numbers():
+    """A simulator's own SimResult may hold NumPy scalars (float32, int64): they are
+    finite numbers, stored as Python floats; NaN of any type stays non-finite."""
+    import numpy as np
+
+    from calnet.simulators.base import SimResult
+
+    res = SimResult({"y": np.float32(1.5), "z": np.int64(2)}).checked(("y", "z"))
+    assert res.status == "ok" and res.outputs == {"y": 1.5, "z": 2.0}
+    assert all(type(v) is float for v in res.outputs.values())
+    bad = SimResult({"y": np.float32("nan"), "z": 1.0}).checked(("y", "z"))
+    assert bad.status == "failed" and "non-finite outputs ['y']" in bad.message

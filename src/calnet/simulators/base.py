@@ -7,6 +7,7 @@ adapted to this shape by :mod:`calnet.campaign.runners`.
 from __future__ import annotations
 
 import math
+import numbers
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any, Literal, Protocol
@@ -46,11 +47,15 @@ class SimResult:
             return SimResult(self.outputs, "failed", f"missing outputs {missing}",
                              self.diagnostics)
         bad = [k for k, v in self.outputs.items()
-               if not isinstance(v, (int, float)) or not math.isfinite(float(v))]
+               if not isinstance(v, numbers.Real) or not math.isfinite(float(v))]
         if bad:
             return SimResult(self.outputs, "failed", f"non-finite outputs {bad}",
                              self.diagnostics)
-        return self
+        if all(type(v) is float for v in self.outputs.values()):
+            return self
+        # NumPy scalars (float32, int64, ...) are numbers: store them as Python floats
+        return SimResult({k: float(v) for k, v in self.outputs.items()}, self.status,
+                         self.message, self.diagnostics)
 
 
 class Simulator(Protocol):
