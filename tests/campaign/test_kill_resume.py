@@ -101,3 +101,33 @@ def test_ctrl_c_keeps_finished_runs(tmp_path):
     assert 3 <= len(kept) < RUNS
     summary = run_campaign(load_spec(spec), "toy", store=store, progress=False)
     assert summary.skipped == len(kept) and summary.complete
+
+
+@pytest.mark.integration
+def test_sigint_to_a_parallel_campaign_does_not_wait_for_the_runs_in_flight(tmp_path):
+    """SIGINT to the campaign process alone (``kill -INT``, a batch system), with local
+    worker processes busy in 60 s runs: it stops at once, keeping what finished, instead
+    of letting the interpreter wait for the runs in flight (they are run again later)."""
+    # seed 2: the first three runs are quick (x >= 0.5), the next ones busy
+    spec = toy_spec(tmp_path, "python:toy_sims:busy", runs=12, seed=2)
+    store = tmp_path / "busy.sqlite"
+    argv = [sys.executable, "-c", _WITH_SIGINT, *_campaign(spec, store)[3:], "--workers", "2"]
+    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            text=True, env=os.environ.copy())
+    try:
+        deadline = time.monotonic() + 90
+        while len(_finished(store)) < 1:  # the quick runs finish, then both workers compute
+            assert proc.poll() is None and time.monotonic() < deadline
+            time.sleep(0.05)
+        time.sleep(3)
+        proc.send_signal(signal.SIGINT)
+        start = time.monotonic()
+        output, _ = proc.communicate(timeout=120)
+        waited = time.monotonic() - start
+    finally:
+        proc.kill()
+        proc.wait()
+    assert proc.returncode == 130, output
+    assert waited < 30, f"waited {waited:.0f} s for the runs in flight"  # they take 60 s
+    kept = _finished(store)
+    assert 1 <= len(kept) < 12

@@ -89,3 +89,14 @@ def slow(inputs):
     """``quadratic`` after 0.1 s (the kill -9 test)."""
     time.sleep(0.1)
     return quadratic(inputs)
+
+
+def busy(inputs):
+    """Computes for 60 s (NumPy, no sleeping) for ``x < 0.5``, else returns at once."""
+    import numpy as np
+
+    if inputs["x"] < 0.5:
+        end, a = time.monotonic() + 60, np.eye(200)
+        while time.monotonic() < end:
+            a = np.linalg.inv(a @ a.T + np.eye(200))
+    return quadratic(inputs)

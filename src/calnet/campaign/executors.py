@@ -120,7 +120,14 @@ class ProcessExecutor:
             pending[self._pool.submit(fn, *task)] = task
 
     def close(self, *, wait: bool = True) -> None:
+        """Shut the pool down; ``wait=False`` also stops the runs in flight (the
+        interpreter would otherwise wait for them at exit)."""
+        processes = list((getattr(self._pool, "_processes", None) or {}).values())
         self._pool.shutdown(wait=wait, cancel_futures=True)
+        if not wait:
+            for proc in processes:
+                if proc.is_alive():
+                    proc.terminate()
 
     def __enter__(self):
         return self
