@@ -100,6 +100,20 @@ def test_cli_check_error_is_one_line_exit_2(tmp_path):
     assert "models.a.inputs.x" in lines[0] and "lower (2) must be smaller" in lines[0]
 
 
+def test_cli_out_that_is_a_file_is_a_one_line_error_exit_1(tmp_path):
+    """``--out`` naming a file is the user's path, not an internal error (exit 3)."""
+    path = tmp_path / "net.yaml"
+    path.write_text("models:\n  a: {simulator: 'python:m:f', inputs: {x: {lower: 0, upper: 1}},"
+                    " outputs: {y: {}}}\n")
+    (tmp_path / "afile").write_text("")
+    result = runner.invoke(app, ["run", str(path), "--out", str(tmp_path / "afile")],
+                           terminal_width=400)
+    assert result.exit_code == 1, result.output
+    lines = [line for line in result.output.splitlines() if line.strip()]
+    assert len(lines) == 1 and "internal error" not in lines[0], result.output
+    assert "Not a directory" in lines[0] and "check the paths given" in lines[0]
+
+
 def test_spec_error_attributes():
     err = SpecError("fix it", file="f.yaml", field="models.a")
     assert str(err) == "f.yaml: models.a: fix it" and err.reason == "fix it"
