@@ -240,8 +240,9 @@ def settings_matrix(network: Network, dataset: str, rows: list[dict[str, float]]
                 raise CalnetError(f"point {r + 1}: {key} = {value:g} must be > 0 (its scale "
                                   "is log)")
             if not var.lower <= value <= var.upper:
+                unit = f" {var.unit}" if var.unit != "1" else ""  # not "[0, 1] 1"
                 notes.append(f"point {r + 1}: {key} = {value:g} lies outside its bounds "
-                             f"[{var.lower:g}, {var.upper:g}] {var.unit}; the surrogates "
+                             f"[{var.lower:g}, {var.upper:g}]{unit}; the surrogates "
                              "extrapolate there")
             x[r, j] = value
     return x, notes

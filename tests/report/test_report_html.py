@@ -77,3 +77,17 @@ def test_campaign_statuses_read_as_counts():
 
     assert _statuses({"failed": 5, "ok": 225, "timeout": 2}) == "225 ok, 5 failed, 2 timeout"
     assert _statuses({}) == ""
+
+
+def test_map_axes_are_the_data_sets_inputs(tmp_path):
+    """The (2-input) data and map figures are labelled with the network's own inputs, not
+    with the case study's laser power and scan speed."""
+    from calnet.report.build import _axis_labels
+    from calnet.spec import load_spec
+
+    (tmp_path / "network.yaml").write_text(
+        "name: generic\nmodels:\n  A:\n    simulator: python:sims:f\n"
+        "    inputs: {x1: {lower: 0, upper: 1}, T: {unit: K, lower: 300, upper: 400}}\n"
+        "    outputs: {y: {measurable: true}}\n")
+    network = load_spec(tmp_path, read_data=False)
+    assert _axis_labels(network, ("A.x1", "A.T")) == ["x1", "T (K)"]

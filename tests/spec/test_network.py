@@ -100,6 +100,20 @@ def test_cli_check_error_is_one_line_exit_2(tmp_path):
     assert "models.a.inputs.x" in lines[0] and "lower (2) must be smaller" in lines[0]
 
 
+def test_cli_out_that_is_a_file_is_a_one_line_error_exit_1(tmp_path):
+    """``--out`` naming a file is the user's path, not an internal error (exit 3)."""
+    path = tmp_path / "net.yaml"
+    path.write_text("models:\n  a: {simulator: 'python:m:f', inputs: {x: {lower: 0, upper: 1}},"
+                    " outputs: {y: {}}}\n")
+    (tmp_path / "afile").write_text("")
+    result = runner.invoke(app, ["run", str(path), "--out", str(tmp_path / "afile")],
+                           terminal_width=400)
+    assert result.exit_code == 1, result.output
+    lines = [line for line in result.output.splitlines() if line.strip()]
+    assert len(lines) == 1 and "internal error" not in lines[0], result.output
+    assert "Not a directory" in lines[0] and "check the paths given" in lines[0]
+
+
 def test_spec_error_attributes():
     err = SpecError("fix it", file="f.yaml", field="models.a")
     assert str(err) == "f.yaml: models.a: fix it" and err.reason == "fix it"
@@ -127,3 +141,46 @@ def test_check_warns_of_a_simulator_that_cannot_run_here(tmp_path):
     assert "a: simulator 'python:nomodule_xyz:f' cannot be imported here" in warned[0]
     assert "b: module 'here' has no 'nofunc'" in warned[1]
     assert "d: command './no_such_prog' is not found" in warned[2]
+
+
+def test_check_warns_of_a_umbridge_server_that_cannot_run_the_model(tmp_path):
+    """``calnet check``: a UM-Bridge URL where nothing listens, a server that is not a
+    UM-Bridge server, or one that does not serve the model would fail every run."""
+    import json
+    import socket
+    import threading
+    from http.server import BaseHTTPRequestHandler, HTTPServer
+
+    class Handler(BaseHTTPRequestHandler):
+        def do_GET(self):  # noqa: N802 - http.server's name
+            ok = self.path == "/Info" and self.server.umbridge
+            body = json.dumps({"protocolVersion": 1.0, "models": ["forward"]}).encode()
+            self.send_response(200 if ok else 404)
+            self.end_headers()
+            self.wfile.write(body if ok else b"not found")
+
+        def log_message(self, *args):
+            pass
+
+    servers = []
+    for umbridge in (True, False):
+        server = HTTPServer(("127.0.0.1", 0), Handler)
+        server.umbridge = umbridge
+        threading.Thread(target=server.serve_forever, daemon=True).start()
+        servers.append(f"http://127.0.0.1:{server.server_port}")
+    with socket.socket() as s:  # a port where nothing listens
+        s.bind(("127.0.0.1", 0))
+        closed = f"http://127.0.0.1:{s.getsockname()[1]}"
+    sims = {"a": f"umbridge:{closed}/forward", "b": f"umbridge:{servers[1]}/forward",
+            "c": f"umbridge:{servers[0]}/other", "d": f"umbridge:{servers[0]}/forward"}
+    models = {m: {"simulator": sim, "inputs": {"x": {"lower": 0, "upper": 1}},
+                  "outputs": {"y": {}}} for m, sim in sims.items()}
+    (tmp_path / "network.yaml").write_text(yaml.safe_dump({"models": models}))
+    res = CliRunner().invoke(app, ["check", str(tmp_path)], terminal_width=400)
+    assert res.exit_code == 0, res.output
+    warned = [" ".join(line.split()) for line in res.output.splitlines()
+              if line.startswith("warning:")]
+    assert len(warned) == 3, res.output  # d is served
+    assert f"a: UM-Bridge server '{closed}' cannot be reached (ConnectionError)" in warned[0]
+    assert "b: UM-Bridge server" in warned[1] and "(HTTP 404)" in warned[1]
+    assert "c: UM-Bridge server" in warned[2] and "serves ['forward'], not 'other'" in warned[2]

@@ -238,3 +238,13 @@ def test_predict_settings_skip_inputs_of_other_data_sets(base_spec, write_spec):
 def test_empty_sections_say_so(base_spec, write_spec):
     base_spec["models"]["heat"]["outputs"] = {}
     assert "'outputs' is empty; declare at least one entry" in str(_error(write_spec(base_spec)))
+
+
+def test_predict_settings_outside_bounds_note_names_the_unit_only_if_any(base_spec, write_spec):
+    from calnet.predict import settings_matrix
+
+    del base_spec["models"]["heat"]["inputs"]["P"]["unit"]  # dimensionless: unit "1"
+    net = load_spec(write_spec(base_spec))
+    _, notes = settings_matrix(net, "width", [{"P": 300, "v": 3.0}])
+    assert "heat.P = 300 lies outside its bounds [50, 250]; the surrogates" in notes[0]
+    assert "heat.v = 3 lies outside its bounds [0.1, 2] m/s; the surrogates" in notes[1]

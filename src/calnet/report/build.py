@@ -23,6 +23,16 @@ def _process_box(ctx, name):
     return np.column_stack([lo - 0.02 * span, hi + 0.02 * span])
 
 
+def _axis_labels(network, input_keys) -> list[str]:
+    """Axis labels of a data set's process inputs: ``"x1"``, or ``"P (W)"`` with a unit."""
+    labels = []
+    for key in input_keys:
+        model, name = key.split(".", 1)
+        unit = network.model(model).variable(name).unit
+        labels.append(f"{name} ({unit})" if unit and unit != "1" else name)
+    return labels
+
+
 def _mean_fn(ctx, name, idx):
     """Vectorised posterior predictive mean over draws ``idx`` (natural scale)."""
     from calnet.calibration.network import term_data
@@ -96,16 +106,19 @@ def sensitivity_and_maps(ctx, note) -> None:
                        n_samples=10, within=within)
         out = ctx.network.model(d.observes.split(".")[0]).output(d.observes.split(".")[1])
         points = np.column_stack([d.x[:, 0], d.x[:, 1]])
+        labels = dict(zip(("p_label", "v_label"), _axis_labels(ctx.network, d.input_keys),
+                          strict=True))
         ctx.figures[f"map {name}"] = figures.predictive_map(
             g0, g1, pred.mean.reshape(GRID, GRID), ctx.out / "figures" / f"map_{name}.png",
-            d.observes, out.unit, points=points)
-        maps[name] = {"P": g0.tolist(), "v": g1.tolist(),
+            d.observes, out.unit, points=points, **labels)
+        # the axes under the inputs' names (P and v for the case study)
+        maps[name] = {"inputs": names, names[0]: g0.tolist(), names[1]: g1.tolist(),
                       "mean": pred.mean.reshape(GRID, GRID).tolist()}
         if pred.prob is not None:
             label = f"P({crit.lower} <= {d.observes} <= {crit.upper})"
             ctx.figures[f"process {name}"] = figures.process_map(
                 g0, g1, pred.prob.reshape(GRID, GRID),
-                ctx.out / "figures" / f"process_{name}.png", label, points=points)
+                ctx.out / "figures" / f"process_{name}.png", label, points=points, **labels)
             maps[name].update(criterion={"lower": crit.lower, "upper": crit.upper},
                               probability=pred.prob.reshape(GRID, GRID).tolist())
     ctx.metrics["sensitivity"] = sens
@@ -192,10 +205,14 @@ def write_outputs(ctx) -> None:
          (net.model(n) for n in net.order)],
         [(ln.source_model, ln.target_model, f"{ln.source_var}->{ln.target_var}")
          for ln in net.links], out / "figures" / "network.png")
+    # one plane: the data sets that take the same two inputs as the first such data set
+    keys = next((d.input_keys for d in ctx.data.values() if d.x.shape[1] == 2), None)
     two_d = {k: (d.x[:, 0], d.x[:, 1], d.is_test) for k, d in ctx.data.items()
-             if d.x.shape[1] == 2}
+             if d.input_keys == keys}
     if two_d:
-        fig["data"] = figures.data_grid(None, None, two_d, out / "figures" / "data.png")
+        p_label, v_label = _axis_labels(net, keys)
+        fig["data"] = figures.data_grid(None, None, two_d, out / "figures" / "data.png",
+                                        p_label=p_label, v_label=v_label)
     for model, s in summary.items():
         if not s.get("prior_only"):
             fig[f"posterior {model}"] = figures.prior_posterior_grid(

@@ -237,7 +237,8 @@ def predictive_vs_observed(y_obs: Any, mean: Any, lo: Any, hi: Any, is_test: Any
             ax.errorbar(y_obs[mask], mean[mask],
                         yerr=[mean[mask] - lo[mask], hi[mask] - mean[mask]], fmt="o",
                         color=color, mfc=face, ms=6, capsize=3, lw=1, label=name)
-    ax.set(xlabel=f"observed {label} ({unit})", ylabel=f"predicted {label} ({unit})",
+    suffix = f" ({unit})" if unit and unit != "1" else ""  # no "(1)" for a ratio
+    ax.set(xlabel=f"observed {label}{suffix}", ylabel=f"predicted {label}{suffix}",
            title=f"{label}: posterior predictive (95 %)")
     ax.set_aspect("equal", adjustable="datalim")
     ax.grid(alpha=0.3)
@@ -296,7 +297,7 @@ def predictive_map(P_grid: Any, v_grid: Any, mean_2d: Any, path: str | Path, lab
     if np.ptp(z[np.isfinite(z)]) > 0:
         cs = ax.contour(P_grid, v_grid, z, levels=8, colors="white", linewidths=0.6)
         ax.clabel(cs, fontsize=7, fmt="%.3g")
-    fig.colorbar(mesh, ax=ax, label=f"{label} ({unit})")
+    fig.colorbar(mesh, ax=ax, label=f"{label} ({unit})" if unit and unit != "1" else label)
     _draw_points(ax, points)
     ax.set(xlabel=p_label, ylabel=v_label, title=f"predicted {label}")
     return _save(fig, path)

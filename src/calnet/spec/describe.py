@@ -46,7 +46,8 @@ def describe_network(network: Network, console: Console) -> None:
 
 def simulator_problem(network: Network, model: str) -> str | None:
     """Why every run of ``model`` would fail on this machine, if it can be told without
-    running it: a Python target that cannot be imported, a command not found. (Workers of
+    running it: a Python target that cannot be imported, a command not found, a UM-Bridge
+    server that does not answer or does not serve the model. (Workers of
     a remote Dask cluster may see other modules and programs, so this is a warning.)"""
     import shutil
     from pathlib import Path
@@ -74,6 +75,29 @@ def simulator_problem(network: Network, model: str) -> str | None:
             return (f"{model}: command '{sim.argv[0]}' is not found or not executable here; "
                     "every run would fail. Give its path (relative to the spec) or put it "
                     "on PATH")
+    elif sim.kind == "umbridge":
+        return _umbridge_problem(model, sim)
+    return None
+
+
+def _umbridge_problem(model: str, sim) -> str | None:
+    """Why the UM-Bridge server of ``sim`` cannot run ``model`` (its ``/Info``, 5 s at most)."""
+    import requests
+
+    where = f"UM-Bridge server '{sim.url}'"
+    try:
+        reply = requests.get(f"{sim.url.rstrip('/')}/Info", timeout=5)
+    except requests.RequestException as err:
+        return (f"{model}: {where} cannot be reached ({type(err).__name__}); every run would "
+                "fail. Start the server, or fix the URL (umbridge:URL/MODEL)")
+    try:
+        served = reply.json()["models"]
+    except (ValueError, KeyError, TypeError):
+        return (f"{model}: {where} does not answer /Info as a UM-Bridge server (HTTP "
+                f"{reply.status_code}); every run would fail. Fix the URL (umbridge:URL/MODEL)")
+    if sim.model not in served:
+        return (f"{model}: {where} serves {list(served)}, not '{sim.model}'; every run would "
+                "fail. Fix the model name (umbridge:URL/MODEL)")
     return None
 
 
