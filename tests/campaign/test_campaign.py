@@ -104,7 +104,9 @@ def test_seed_zero_is_a_seed_and_a_store_keeps_its_seed(tmp_path):
     b = run_campaign(net, "toy", progress=False, store=tmp_path / "b.sqlite")
     assert (a.seed, b.seed) == (0, 7)
     assert store_rows(a.store_path) != store_rows(b.store_path)
-    with pytest.raises(CampaignError, match="made with seed 0, not 7; pass --seed 0"):
+    with pytest.raises(CampaignError, match=r"made with seed 0, not 7; to keep it, set "
+                       r"settings.seed back to 0 \(calnet campaign: --seed 0\); for the new "
+                       r"seed, simulate again with --fresh \(calnet campaign or calnet run\)"):
         run_campaign(net, "toy", progress=False, store=a.store_path)
 
 

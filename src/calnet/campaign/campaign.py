@@ -261,11 +261,13 @@ def _foreign(meta: dict[str, str], model: Model, seed: int, path: Path) -> str |
     if meta.get("model_hash") != fingerprint_hash(fp):
         change = describe_change(json.loads(meta.get("model_spec", "{}")), fp)
         return (f"the store '{path}' was made from a different '{model.name}' spec "
-                f"({change}); simulate again with --fresh, or pass a new --store")
+                f"({change}); simulate again with --fresh (calnet campaign or calnet "
+                "run), or pass calnet campaign a new --store")
     if str(meta.get("seed")) != str(seed):
         return (f"the store '{path}' was made with seed {meta.get('seed')}, not {seed}; "
-                f"pass --seed {meta.get('seed')} to resume it, or a new --store (or --fresh) "
-                "for the new seed")
+                f"to keep it, set settings.seed back to {meta.get('seed')} (calnet campaign: "
+                f"--seed {meta.get('seed')}); for the new seed, simulate again with --fresh "
+                "(calnet campaign or calnet run) or give calnet campaign a new --store")
     return None
 
 
