@@ -200,6 +200,7 @@ def surrogates(
     from calnet.surrogates.plots import parity_plot
 
     network = load_spec(spec)
+    out.mkdir(parents=True, exist_ok=True)  # a bad --out fails now, not after the fits
     with console.status("fitting surrogates") as status:
         sur = fit_surrogates(network, cv=not no_cv,
                              progress=lambda m: status.update(f"fitting {m}"))
@@ -241,6 +242,7 @@ def calibrate(
 
     network = load_spec(spec)
     sur = Surrogates.load(surrogates_dir)
+    out.mkdir(parents=True, exist_ok=True)  # a bad --out fails now, not after sampling
     with console.status("sampling") as status:
         post = run_calibration(network, sur, mode=mode, plug=plug,
                                progress=lambda m: status.update(m))

@@ -114,6 +114,20 @@ def test_cli_out_that_is_a_file_is_a_one_line_error_exit_1(tmp_path):
     assert "Not a directory" in lines[0] and "check the paths given" in lines[0]
 
 
+def test_cli_surrogates_checks_out_before_fitting(tmp_path):
+    """A bad ``--out`` fails before any fit (no campaign has run here: a fit would fail
+    with another message), so no work is lost."""
+    path = tmp_path / "net.yaml"
+    path.write_text("models:\n  a: {simulator: 'python:m:f', inputs: {x: {lower: 0, upper: 1}},"
+                    " outputs: {y: {measurable: true}}}\n"
+                    "data:\n  d: {path: d.csv, observes: a.y, columns: {x: x, y: y}}\n")
+    (tmp_path / "d.csv").write_text("x,y\n0.5,1.0\n")
+    (tmp_path / "afile").write_text("")
+    result = runner.invoke(app, ["surrogates", str(path), "--out", str(tmp_path / "afile")],
+                           terminal_width=400)
+    assert result.exit_code == 1 and "check the paths given" in result.output, result.output
+
+
 def test_spec_error_attributes():
     err = SpecError("fix it", file="f.yaml", field="models.a")
     assert str(err) == "f.yaml: models.a: fix it" and err.reason == "fix it"
