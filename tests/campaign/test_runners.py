@@ -185,6 +185,42 @@ def test_umbridge_model(tmp_path, umbridge_url):
     assert not math.isnan(rec.wall_time)
 
 
+def test_umbridge_server_down_or_not_umbridge(tmp_path):
+    """No server at the url, or a server that is no UM-Bridge server: each run is a
+    failure that says so, not a raw ConnectionError / JSONDecodeError."""
+    import http.server
+    import threading
+
+    with socket.socket() as s:  # a port nobody listens on
+        s.bind(("127.0.0.1", 0))
+        free = s.getsockname()[1]
+    net = toy_network(tmp_path, {"kind": "umbridge", "url": f"http://127.0.0.1:{free}",
+                                 "model": "forward"})
+    rec = _run(net)
+    assert rec.status == "failed" and "no UM-Bridge server answers at" in rec.message
+
+    class Page(http.server.BaseHTTPRequestHandler):  # answers every request with HTML
+        def do_GET(self):
+            self.send_response(200)
+            self.end_headers()
+            self.wfile.write(b"<html>hello</html>")
+
+        do_POST = do_GET
+
+        def log_message(self, *args):
+            pass
+
+    server = http.server.HTTPServer(("127.0.0.1", 0), Page)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    try:
+        net = toy_network(tmp_path / "html", {"kind": "umbridge", "model": "forward",
+                                              "url": f"http://127.0.0.1:{server.server_port}"})
+        rec = _run(net)
+    finally:
+        server.shutdown()
+    assert rec.status == "failed" and "did not answer as a UM-Bridge server" in rec.message
+
+
 def test_numpy_scalars_in_a_sim_result_are_numbers():
     """A simulator's own SimResult may hold NumPy scalars (float32, int64): they are
     finite numbers, stored as Python floats; NaN of any type stays non-finite."""

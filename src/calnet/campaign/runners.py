@@ -187,11 +187,19 @@ class UMBridgeRunner:
         return f"{self.url.rstrip('/')}/{self.model}"
 
     def __call__(self, inputs: Mapping[str, float]) -> SimResult:
+        import requests
         import umbridge
 
-        client = umbridge.HTTPModel(self.url, self.model)
         vector = [float(inputs[c]) for c in self.columns]
-        out = client([vector], dict(self.options))
+        try:
+            client = umbridge.HTTPModel(self.url, self.model)
+            out = client([vector], dict(self.options))
+        except requests.exceptions.ConnectionError as err:
+            return SimResult({}, "failed", f"no UM-Bridge server answers at {self.url} "
+                             f"({type(err).__name__}); start it, or fix the url")
+        except json.JSONDecodeError:
+            return SimResult({}, "failed", f"the server at {self.url} did not answer as a "
+                             "UM-Bridge server (not JSON); check the url")
         flat = [float(v) for block in out for v in block]
         if len(flat) != len(self.outputs):
             return SimResult({}, "failed", f"UM-Bridge model returned {len(flat)} values, "
