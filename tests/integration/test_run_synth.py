@@ -29,6 +29,7 @@ def test_quick_run_on_three_model_network(tmp_path, monkeypatch):
         assert (out / rel).is_file(), rel
     html = (out / "report.html").read_text()
     assert "data:image/png;base64," in html and "https://" not in html
+    assert "reference study" not in html  # not the case study: no comparison with it
     m = json.loads((out / "metrics.json").read_text())
     for key in ("campaigns", "surrogates", "calibration", "validation", "sensitivity",
                 "predictions", "timings_s"):

@@ -263,9 +263,11 @@ def _sections(ctx, summary) -> list[Section]:
                          fmt(r["rhat"]), fmt(r["ess_bulk"])])
     diag = [[k, s.get("divergences", ""), fmt(s.get("max_rhat")), fmt(s.get("min_ess_bulk"))]
             for k, s in summary.items()]
+    ref = reference_rows(ctx, summary)  # only where the network is the case study
     cal = Section("Calibration", paragraphs=[
-        "Estimates are posterior modes (KDE), as the reference study reports; intervals are "
-        "central 95 %."], tables=[
+        "Estimates are posterior modes (KDE)"
+        + (", as the reference study reports" if ref else "")
+        + "; intervals are central 95 %."], tables=[
         Table("Posterior summary", ["model", "parameter", "range", "mode", "mean", "95% interval",
                                     "unit", "R-hat", "bulk ESS"], rows),
         Table("Sampler diagnostics (all sampled variables)", ["model", "divergences",
@@ -305,7 +307,6 @@ def _sections(ctx, summary) -> list[Section]:
         ["data set", "input", "S1", "ST", "ST over posterior draws (95 %)"], srows)],
         figures=pick("sobol ") + pick("map ") + pick("process "))
     sections = [overview, sur, cal, val, sens]
-    ref = reference_rows(ctx, summary)
     if ref:
         sections.append(Section("Comparison with the reference study", paragraphs=[
             "Published values (method.md section 7) beside this run. The reference used a "
