@@ -47,7 +47,7 @@ def campaign(
     from rich.console import Console
 
     from calnet.campaign.campaign import run_campaign
-    from calnet.campaign.table import export_runs
+    from calnet.campaign.table import check_export, export_runs
     from calnet.errors import CampaignError
     from calnet.spec import load_spec
 
@@ -65,22 +65,6 @@ def campaign(
         print_summary(summary, console)
         if export:
             console.print(f"exported to {export_runs(summary.store_path, export)}")
-
-
-def check_export(path: Path) -> None:
-    """Refuse an export file that :func:`calnet.campaign.table.export_runs` would refuse,
-    before any run starts (not after the whole campaign)."""
-    from calnet.errors import CampaignError
-
-    suffix = path.suffix.lower()
-    if suffix not in (".csv", ".parquet"):
-        raise CampaignError(f"cannot export to '{path.name}'; name the file *.csv or *.parquet")
-    if suffix == ".parquet":
-        try:
-            import pyarrow  # noqa: F401
-        except ImportError:
-            raise CampaignError("Parquet export needs pyarrow; pip install 'calnet[parquet]' "
-                                "or export to .csv") from None
 
 
 def print_summary(summary: Any, console: Any) -> None:

@@ -116,6 +116,21 @@ def runs_frame(store: str | Path) -> Any:
     return pd.DataFrame.from_records(records)
 
 
+def check_export(out: Path) -> str:
+    """The suffix of an export file :func:`export_runs` can write (``.csv`` or
+    ``.parquet``, the latter with pyarrow); a CampaignError otherwise."""
+    suffix = out.suffix.lower()
+    if suffix not in (".csv", ".parquet"):
+        raise CampaignError(f"cannot export to '{out.name}'; name the file *.csv or *.parquet")
+    if suffix == ".parquet":
+        try:
+            import pyarrow  # noqa: F401
+        except ImportError:
+            raise CampaignError("Parquet export needs pyarrow; pip install 'calnet[parquet]' "
+                                "or export to .csv") from None
+    return suffix
+
+
 def export_runs(store: str | Path, out: str | Path) -> Path:
     """Write a store's runs to CSV or Parquet (by ``out``'s suffix), and its metadata
     (spec hash, seed, calnet and simulator versions, status counts) beside it as
@@ -127,15 +142,7 @@ def export_runs(store: str | Path, out: str | Path) -> Path:
         For another suffix, or for Parquet without pyarrow.
     """
     out = Path(out)
-    suffix = out.suffix.lower()
-    if suffix not in (".csv", ".parquet"):
-        raise CampaignError(f"cannot export to '{out.name}'; name the file *.csv or *.parquet")
-    if suffix == ".parquet":
-        try:
-            import pyarrow  # noqa: F401
-        except ImportError:
-            raise CampaignError("Parquet export needs pyarrow; pip install 'calnet[parquet]' "
-                                "or export to .csv") from None
+    suffix = check_export(out)
     frame = runs_frame(store)
     out.parent.mkdir(parents=True, exist_ok=True)
     if suffix == ".csv":
