@@ -37,7 +37,7 @@ from pathlib import Path
 from typing import Any
 
 from calnet.errors import CampaignError
-from calnet.simulators.base import STATUSES, SimResult, Simulator
+from calnet.simulators.base import STATUSES, SimResult, Simulator, not_numbers
 from calnet.spec.models import Model
 from calnet.spec.network import Network
 
@@ -109,7 +109,7 @@ class CallableRunner:
             return SimResult({}, "failed", f"{self.target} returned {type(out).__name__}; "
                              "return a dict of outputs or a SimResult")
         outputs = {str(k): _to_float(v) for k, v in out.items()}
-        wrong = _not_numbers({str(k): v for k, v in out.items() if math.isnan(outputs[str(k)])})
+        wrong = not_numbers({str(k): v for k, v in out.items() if math.isnan(outputs[str(k)])})
         return SimResult(outputs, "failed", wrong) if wrong else SimResult(outputs)
 
 
@@ -300,9 +300,6 @@ def execute_run(sim: Simulator, index: int, inputs: Mapping[str, float],
         result = call_in_child(sim, inputs, timeout)
     else:
         result = _guarded(lambda: sim(inputs))
-    wrong = _not_numbers(result.outputs) if result.status == "ok" else ""
-    if wrong:
-        result = SimResult(result.outputs, "failed", wrong, result.diagnostics)
     result = result.checked(expected)
     if result.status not in STATUSES:
         result = SimResult(result.outputs, "failed", f"unknown status '{result.status}' "
@@ -467,40 +464,11 @@ def _parse_outputs(text: str, mode: str, expected: tuple[str, ...] = ()) -> SimR
     message = str(doc.pop("message", ""))
     outputs = {k: _to_float(v) for k, v in doc.items() if isinstance(v, (int, float))
                or v is None}
-    wrong = _not_numbers({k: doc[k] for k in expected if k in doc}, f" in {where}")
+    wrong = not_numbers({k: doc[k] for k in expected if k in doc}, f" in {where}")
     if wrong and status == "ok":
         return SimResult(outputs, "failed", wrong)
     return SimResult(outputs, status, message)  # type: ignore[arg-type]  (execute_run
     # records an unknown status as failed, naming it)
-
-
-def _not_numbers(values: Mapping[str, Any], where: str = "") -> str:
-    """What is wrong with the values that are no number ("output 'y' is str '1.5',
-    expected a number"), "" when each is one (NaN and None are: they are recorded as
-    non-finite)."""
-    return "; ".join(f"output '{k}'{where} is {_brief(v)}, expected a number"
-                     for k, v in values.items() if _not_a_number(v))
-
-
-def _not_a_number(value: Any) -> bool:
-    if value is None or isinstance(value, (int, float)):
-        return False
-    if isinstance(value, (str, bytes)):
-        return True
-    try:
-        float(value)  # a NumPy scalar or 0-d array is a number
-    except (TypeError, ValueError):
-        return True
-    return False
-
-
-def _brief(value: Any) -> str:
-    """``str '1.5'``, ``list [1.0, 2.0]``, ``ndarray of shape (1,)``."""
-    kind = type(value).__name__
-    if hasattr(value, "shape") and not isinstance(value, (str, bytes)):
-        return f"{kind} of shape {tuple(value.shape)}"
-    text = repr(value)
-    return f"{kind} {text if len(text) <= 40 else text[:37] + '...'}"
 
 
 def _to_float(value: Any) -> float:

@@ -39,9 +39,13 @@ class SimResult:
     diagnostics: dict[str, Any] = field(default_factory=dict)
 
     def checked(self, expected: tuple[str, ...] = ()) -> SimResult:
-        """Return a copy marked ``failed`` if an expected output is missing or not finite."""
+        """Return a copy marked ``failed`` if an output is no number (saying what it is),
+        or an expected output is missing or not finite."""
         if self.status != "ok":
             return self
+        wrong = not_numbers(self.outputs)
+        if wrong:
+            return SimResult(self.outputs, "failed", wrong, self.diagnostics)
         missing = [k for k in expected if k not in self.outputs]
         if missing:
             return SimResult(self.outputs, "failed", f"missing outputs {missing}",
@@ -56,6 +60,24 @@ class SimResult:
         # NumPy scalars (float32, int64, ...) are numbers: store them as Python floats
         return SimResult({k: float(v) for k, v in self.outputs.items()}, self.status,
                          self.message, self.diagnostics)
+
+
+def not_numbers(values: Mapping[str, Any], where: str = "") -> str:
+    """What is wrong with the values that are no number ("output 'y' is str '1.5',
+    expected a number"), "" when each is one. Any real number counts (NumPy scalars too);
+    None is left to the finiteness check, as NaN."""
+    return "; ".join(f"output '{k}'{where} is {_brief(v)}, expected a number"
+                     for k, v in values.items()
+                     if v is not None and not isinstance(v, numbers.Real))
+
+
+def _brief(value: Any) -> str:
+    """``str '1.5'``, ``list [1.0, 2.0]``, ``ndarray of shape (1,)``."""
+    kind = type(value).__name__
+    if hasattr(value, "shape") and not isinstance(value, (str, bytes)):
+        return f"{kind} of shape {tuple(value.shape)}"
+    text = repr(value)
+    return f"{kind} {text if len(text) <= 40 else text[:37] + '...'}"
 
 
 class Simulator(Protocol):
