@@ -134,24 +134,25 @@ def test_spec_error_attributes():
 
 
 
+def _check_warnings(folder, sims) -> list[str]:
+    """``calnet check`` on one-input models with these simulators: its warning lines."""
+    models = {m: {"simulator": sim, "inputs": {"x": {"lower": 0, "upper": 1}},
+                  "outputs": {"y": {}}} for m, sim in sims.items()}
+    (folder / "network.yaml").write_text(yaml.safe_dump({"models": models}))
+    res = runner.invoke(app, ["check", str(folder)], terminal_width=400)
+    assert res.exit_code == 0, res.output
+    return [" ".join(line.split()) for line in res.output.splitlines()
+            if line.startswith("warning:")]
+
+
 def test_check_warns_of_a_simulator_that_cannot_run_here(tmp_path):
     """``calnet check``: a Python target that does not import, or a command that is not
     found, would fail every run; check says so (a warning: remote workers may differ)."""
-    import yaml
-
-    from calnet.cli import app
-
     (tmp_path / "here.py").write_text("def f(inputs):\n    return {'y': 1.0}\n")
-    sims = {"a": "python:nomodule_xyz:f", "b": "python:here:nofunc", "c": "python:here:f",
-            "d": {"kind": "command", "argv": ["./no_such_prog", "{x}"]}}
-    models = {m: {"simulator": sim, "inputs": {"x": {"lower": 0, "upper": 1}},
-                  "outputs": {"y": {}}} for m, sim in sims.items()}
-    (tmp_path / "network.yaml").write_text(yaml.safe_dump({"models": models}))
-    res = CliRunner().invoke(app, ["check", str(tmp_path)], terminal_width=400)
-    assert res.exit_code == 0, res.output
-    warned = [" ".join(line.split()) for line in res.output.splitlines()
-              if line.startswith("warning:")]
-    assert len(warned) == 3, res.output  # c imports and has f
+    warned = _check_warnings(tmp_path, {
+        "a": "python:nomodule_xyz:f", "b": "python:here:nofunc", "c": "python:here:f",
+        "d": {"kind": "command", "argv": ["./no_such_prog", "{x}"]}})
+    assert len(warned) == 3, warned  # c imports and has f
     assert "a: simulator 'python:nomodule_xyz:f' cannot be imported here" in warned[0]
     assert "b: module 'here' has no 'nofunc'" in warned[1]
     assert "d: command './no_such_prog' is not found" in warned[2]
@@ -185,16 +186,10 @@ def test_check_warns_of_a_umbridge_server_that_cannot_run_the_model(tmp_path):
     with socket.socket() as s:  # a port where nothing listens
         s.bind(("127.0.0.1", 0))
         closed = f"http://127.0.0.1:{s.getsockname()[1]}"
-    sims = {"a": f"umbridge:{closed}/forward", "b": f"umbridge:{servers[1]}/forward",
-            "c": f"umbridge:{servers[0]}/other", "d": f"umbridge:{servers[0]}/forward"}
-    models = {m: {"simulator": sim, "inputs": {"x": {"lower": 0, "upper": 1}},
-                  "outputs": {"y": {}}} for m, sim in sims.items()}
-    (tmp_path / "network.yaml").write_text(yaml.safe_dump({"models": models}))
-    res = CliRunner().invoke(app, ["check", str(tmp_path)], terminal_width=400)
-    assert res.exit_code == 0, res.output
-    warned = [" ".join(line.split()) for line in res.output.splitlines()
-              if line.startswith("warning:")]
-    assert len(warned) == 3, res.output  # d is served
+    warned = _check_warnings(tmp_path, {
+        "a": f"umbridge:{closed}/forward", "b": f"umbridge:{servers[1]}/forward",
+        "c": f"umbridge:{servers[0]}/other", "d": f"umbridge:{servers[0]}/forward"})
+    assert len(warned) == 3, warned  # d is served
     assert f"a: UM-Bridge server '{closed}' cannot be reached (ConnectionError)" in warned[0]
     assert "b: UM-Bridge server" in warned[1] and "(HTTP 404)" in warned[1]
     assert "c: UM-Bridge server" in warned[2] and "serves ['forward'], not 'other'" in warned[2]

@@ -109,20 +109,30 @@ def test_load_errors(tmp_path):
         load_gp(tmp_path / "bad.npz")
 
 
-def test_a_campaign_without_an_ok_run_says_how_to_run_it_again(tmp_path, monkeypatch):
+def _one_model_campaign(folder, monkeypatch, module: str, returns: str, model: str):
+    """A model ``m`` (input x, output y) whose Python simulator ``module:f`` (a name of
+    its own: modules stay imported) returns ``{'y': returns}``, one data point, ``model``
+    extra YAML of the model; its campaign run, the network back."""
     from calnet.campaign import run_campaign
     from calnet.spec import load_spec
+
+    (folder / f"{module}.py").write_text(f"def f(inputs):\n    return {{'y': {returns}}}\n")
+    (folder / "d.csv").write_text("x,y\n0.5,1.5\n")
+    (folder / "network.yaml").write_text(
+        f"models:\n  m: {{simulator: 'python:{module}:f', inputs: {{x: {{lower: 0, upper: 1}}}},\n"
+        f"      outputs: {{y: {{measurable: true}}}}, {model}}}\n"
+        "data:\n  d: {path: d.csv, observes: m.y, columns: {x: x, y: y}}\n")
+    monkeypatch.syspath_prepend(str(folder))
+    net = load_spec(folder)
+    run_campaign(net, "m", executor="in-process", progress=False)
+    return net
+
+
+def test_a_campaign_without_an_ok_run_says_how_to_run_it_again(tmp_path, monkeypatch):
     from calnet.surrogates.network import fit_surrogates
 
-    (tmp_path / "nan_sims.py").write_text("def f(inputs):\n    return {'y': float('nan')}\n")
-    (tmp_path / "d.csv").write_text("x,y\n0.5,1.0\n")
-    (tmp_path / "network.yaml").write_text(
-        "models:\n  m: {simulator: 'python:nan_sims:f', inputs: {x: {lower: 0, upper: 1}},\n"
-        "      outputs: {y: {measurable: true}}, campaign: {runs: 3}}\n"
-        "data:\n  d: {path: d.csv, observes: m.y, columns: {x: x, y: y}}\n")
-    monkeypatch.syspath_prepend(str(tmp_path))
-    net = load_spec(tmp_path)
-    run_campaign(net, "m", executor="in-process", progress=False)
+    net = _one_model_campaign(tmp_path, monkeypatch, "nan_sims", "float('nan')",
+                              "campaign: {runs: 3}")
     with pytest.raises(SurrogateError, match="m.y: all 3 runs failed") as info:
         fit_surrogates(net, cv=False)
     assert "--retry-failed" in str(info.value) and "\n" not in str(info.value)
@@ -131,20 +141,10 @@ def test_a_campaign_without_an_ok_run_says_how_to_run_it_again(tmp_path, monkeyp
 def test_caps_never_raise_the_spec_settings(tmp_path, monkeypatch):
     """``restarts``/``cv_folds`` (``calnet run --quick``) cap the spec's settings; a spec
     that asks for less work keeps its own numbers."""
-    from calnet.campaign import run_campaign
-    from calnet.spec import load_spec
     from calnet.surrogates import network as sn
 
-    (tmp_path / "lin_sims.py").write_text("def f(inputs):\n    return {'y': 1 + inputs['x']}\n")
-    (tmp_path / "d.csv").write_text("x,y\n0.5,1.5\n")
-    (tmp_path / "network.yaml").write_text(
-        "models:\n  m: {simulator: 'python:lin_sims:f', inputs: {x: {lower: 0, upper: 1}},\n"
-        "      outputs: {y: {measurable: true}}, campaign: {runs: 12},\n"
-        "      surrogate: {cv_folds: 3, restarts: 1}}\n"
-        "data:\n  d: {path: d.csv, observes: m.y, columns: {x: x, y: y}}\n")
-    monkeypatch.syspath_prepend(str(tmp_path))
-    net = load_spec(tmp_path)
-    run_campaign(net, "m", executor="in-process", progress=False)
+    net = _one_model_campaign(tmp_path, monkeypatch, "lin_sims", "1 + inputs['x']",
+                              "campaign: {runs: 12}, surrogate: {cv_folds: 3, restarts: 1}")
     seen = []
     fit = sn.fit_gp
 
