@@ -234,7 +234,7 @@ def make_simulator(network: Network, model: Model, *, workdir: str | Path) -> Si
         return CallableRunner(ref.target, version, options, (str(Path(network.root).resolve()),))
     if ref.kind == "command":
         _check_template(ref.argv, (*model.input_names, *model.parameter_names, *options))
-        return CommandRunner(_resolve_program(ref.argv, network), str(workdir), ref.input_mode,
+        return CommandRunner(resolve_program(ref.argv, network), str(workdir), ref.input_mode,
                              ref.output_mode, run_timeout(network, model), options, version,
                              model.output_names)
     return UMBridgeRunner(ref.url, ref.model, model.input_names + model.parameter_names,
@@ -436,7 +436,7 @@ def _check_template(argv: tuple[str, ...], names: tuple[str, ...]) -> None:
                                 f"not an input, parameter or option; known: {sorted(known)}")
 
 
-def _resolve_program(argv: tuple[str, ...], network: Network) -> tuple[str, ...]:
+def resolve_program(argv: tuple[str, ...], network: Network) -> tuple[str, ...]:
     """Make a relative program path (``./sim.sh``, ``bin/sim``) relative to the spec."""
     program = argv[0]
     if os.sep in program and not os.path.isabs(program):

@@ -52,7 +52,7 @@ def simulator_problem(network: Network, model: str) -> str | None:
     import shutil
     from pathlib import Path
 
-    from calnet.campaign.runners import CampaignError, load_callable
+    from calnet.campaign.runners import CampaignError, load_callable, resolve_program
 
     sim = network.model(model).simulator
     if sim.kind == "python":
@@ -68,10 +68,7 @@ def simulator_problem(network: Network, model: str) -> str | None:
             return (f"{model}: importing the module of 'python:{sim.target}' raised "
                     f"{type(err).__name__}: {err}")
     elif sim.kind == "command":
-        program = sim.argv[0]
-        if "/" in program and not Path(program).is_absolute():
-            program = str(Path(network.root).resolve() / program)
-        if shutil.which(program) is None:
+        if shutil.which(resolve_program(sim.argv, network)[0]) is None:
             return (f"{model}: command '{sim.argv[0]}' is not found or not executable here; "
                     "every run would fail. Give its path (relative to the spec) or put it "
                     "on PATH")
