@@ -8,6 +8,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from calnet.report.figures import with_unit
 from calnet.report.html import Section, Table, fmt, write_report
 from calnet.report.metrics import write_metrics
 from calnet.report.reference import reference_rows
@@ -25,12 +26,8 @@ def _process_box(ctx, name):
 
 def _axis_labels(network, input_keys) -> list[str]:
     """Axis labels of a data set's process inputs: ``"x1"``, or ``"P (W)"`` with a unit."""
-    labels = []
-    for key in input_keys:
-        model, name = key.split(".", 1)
-        unit = network.model(model).variable(name).unit
-        labels.append(f"{name} ({unit})" if unit and unit != "1" else name)
-    return labels
+    return [with_unit(name, network.model(model).variable(name).unit)
+            for model, name in (key.split(".", 1) for key in input_keys)]
 
 
 def _mean_fn(ctx, name, idx):

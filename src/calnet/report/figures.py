@@ -37,6 +37,11 @@ TRAIN_COLOR, TEST_COLOR = "#1f77b4", "#d62728"
 DATASET_MARKERS = ("o", "s", "^", "D", "v", "P", "X", "<", ">")
 
 
+def with_unit(label: str, unit: str | None) -> str:
+    """``"P (W)"``; the bare label for no unit or the dimensionless ``"1"`` (no ``"(1)"``)."""
+    return f"{label} ({unit})" if unit and unit != "1" else str(label)
+
+
 def _figure(width: float, height: float) -> Any:
     from matplotlib.figure import Figure
 
@@ -120,7 +125,7 @@ def _draw_prior_posterior(ax: Any, p: Mapping[str, Any], *, legend: bool = True)
             notes.append(f"ref. {ref:.4g} (outside range)")
     unit = p.get("unit") or ""
     ax.set_xlim(lower, upper)
-    ax.set_xlabel(f"{p['name']} ({unit})" if unit and unit != "1" else str(p["name"]))
+    ax.set_xlabel(with_unit(p["name"], unit))
     ax.set_ylabel("density")
     ax.set_title(", ".join(notes), fontsize=8)
     if legend:
@@ -237,8 +242,8 @@ def predictive_vs_observed(y_obs: Any, mean: Any, lo: Any, hi: Any, is_test: Any
             ax.errorbar(y_obs[mask], mean[mask],
                         yerr=[mean[mask] - lo[mask], hi[mask] - mean[mask]], fmt="o",
                         color=color, mfc=face, ms=6, capsize=3, lw=1, label=name)
-    suffix = f" ({unit})" if unit and unit != "1" else ""  # no "(1)" for a ratio
-    ax.set(xlabel=f"observed {label}{suffix}", ylabel=f"predicted {label}{suffix}",
+    ax.set(xlabel=with_unit(f"observed {label}", unit),
+           ylabel=with_unit(f"predicted {label}", unit),
            title=f"{label}: posterior predictive (95 %)")
     ax.set_aspect("equal", adjustable="datalim")
     ax.grid(alpha=0.3)
@@ -297,7 +302,7 @@ def predictive_map(P_grid: Any, v_grid: Any, mean_2d: Any, path: str | Path, lab
     if np.ptp(z[np.isfinite(z)]) > 0:
         cs = ax.contour(P_grid, v_grid, z, levels=8, colors="white", linewidths=0.6)
         ax.clabel(cs, fontsize=7, fmt="%.3g")
-    fig.colorbar(mesh, ax=ax, label=f"{label} ({unit})" if unit and unit != "1" else label)
+    fig.colorbar(mesh, ax=ax, label=with_unit(label, unit))
     _draw_points(ax, points)
     ax.set(xlabel=p_label, ylabel=v_label, title=f"predicted {label}")
     return _save(fig, path)
