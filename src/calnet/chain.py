@@ -97,8 +97,8 @@ class ChainPlan:
             else:
                 up = self._inputs(gps, src[1], xp, thetas, eps, cache)
                 mean, var = self.predict(gps, src[1], src[2], up, thetas[src[1]])
-                if src[2] in eps:
-                    mean = mean + jnp.sqrt(var) * eps[src[2]]
+                if src[2] in eps:  # + 1e-30: a finite derivative where the variance is 0
+                    mean = mean + jnp.sqrt(var + 1e-30) * eps[src[2]]
                 cols.append(jnp.exp(mean) if gps[src[2]].transform == "log" else mean)
         out = jnp.stack(cols, axis=1)
         cache[model] = out

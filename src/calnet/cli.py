@@ -260,7 +260,8 @@ def calibrate(
         for name, r in s["parameters"].items():
             table.add_row(model, name, f"[{r['lower']:g}, {r['upper']:g}]", f"{r['mode']:.4g}",
                           f"{r['mean']:.4g}", f"[{r['q2.5']:.4g}, {r['q97.5']:.4g}]",
-                          r["unit"], f"{r['rhat']:.3f}", f"{r['ess_bulk']:.0f}")
+                          r["unit"], f"{r.get('rhat', float('nan')):.3f}",
+                          f"{r.get('ess_bulk', float('nan')):.0f}")
         figures.prior_posterior_grid(prior_panels(network, post, model, s),
                                      out / f"posterior_{model}.png",
                                      title=f"{model}: prior vs posterior")

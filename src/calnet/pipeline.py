@@ -142,13 +142,13 @@ class _Context:
         save_posterior(self.post, self.out / "posterior")  # stage netCDFs + what predict needs
 
     def prediction(self, note) -> None:
-        from calnet.predict import predict
+        from calnet.predict import predict_data
 
         self.predictions = {}
         for name, d in self.data.items():
             note(name)
-            self.predictions[name] = predict(self.network, self.sur, self.post, name, d.x,
-                                             seed=self.seed)
+            self.predictions[name] = predict_data(self.network, self.sur, self.post, d,
+                                                  seed=self.seed)
 
     def validation(self, note) -> None:
         from calnet.predict import metrics

@@ -22,8 +22,8 @@ jax.config.update("jax_enable_x64", True)
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
-from calnet.calibration.network import NetworkPosterior  # noqa: E402
-from calnet.calibration.network_density import se_kernel  # noqa: E402
+from calnet.calibration.koh import KOHModel  # noqa: E402
+from calnet.calibration.network import NetworkPosterior, known_noise_var, make_term  # noqa: E402
 from calnet.chain import ChainPlan  # noqa: E402
 from calnet.errors import CalnetError  # noqa: E402
 from calnet.spec import Network  # noqa: E402
@@ -83,38 +83,88 @@ def _link_keys(plan: ChainPlan) -> tuple[str, ...]:
                                if src[0] == "output"))
 
 
-def _draw_moments(plan, gps, model, key, tr, xp_new, thetas, hyper, eps, emu):
-    """KOH predictive mean (m,) and variance parts for one posterior draw."""
-    x_e, m_e, v_e = plan.output(gps, model, key, tr["xp"], thetas)
-    x_p, m_p, v_p = plan.output(gps, model, key, xp_new, thetas, eps)
-    s = tr["y_sd"]
-    ue, up = plan.unit_inputs(model, x_e), plan.unit_inputs(model, x_p)
-    ell, sd2, se2 = hyper["ell"], hyper["sd2"], hyper["se2"]
-    K = sd2 * se_kernel(ue, ue, ell) + jnp.diag(se2 + (v_e / s**2 if emu else 0.0) + 1e-10
-                                          + jnp.zeros(ue.shape[0]))
-    kpe = sd2 * se_kernel(up, ue, ell)
-    L = jnp.linalg.cholesky(K)
-    resid = tr["y"] - (m_e - tr["y_mean"]) / s
-    w = jax.scipy.linalg.cho_solve((L, True), resid)
-    mean = (m_p - tr["y_mean"]) / s + kpe @ w
-    a = jax.scipy.linalg.solve_triangular(L, kpe.T, lower=True)
-    var_delta = jnp.maximum(sd2 - jnp.sum(a * a, axis=0), 0.0)
-    return mean, var_delta, v_p / s**2, se2 * jnp.ones_like(mean)
+@partial(jax.jit, static_argnums=(0, 1))
+def _moments_over_draws(spec, eps_on, gps, tdata, xp_new, thetas, hyper, eps, noise_new):
+    """The KOH predictive of ``spec``'s one term for every posterior draw (vmap), with the
+    linked surrogates in ``eps_on`` perturbed by ``eps``; one compiled program per shape."""
+    term = spec.terms[0]
+    data = {"gps": gps}
 
-
-@partial(jax.jit, static_argnums=(0, 1, 2, 3, 4))
-def _moments_over_draws(plan, model, key, emu, eps_on, gps, tr, xp_new, thetas, hyper, eps):
-    """:func:`_draw_moments` for every posterior draw; one compiled program per shape."""
     def one(th, hy, ep):
-        return _draw_moments(plan, gps, model, key, tr, xp_new, th, hy,
-                             {k: ep[k] for k in eps_on}, emu)
+        return spec.term_predict(data, term, tdata, th, hy, xp_new,
+                                 {k: ep[k] for k in eps_on}, noise_new)
     return jax.vmap(one)(thetas, hyper, eps)
+
+
+@dataclass(frozen=True)
+class _Setup:
+    """What every predictive evaluation of one data set needs."""
+
+    spec: KOHModel
+    gps: dict
+    tdata: dict
+    thetas: dict
+    hyper: dict
+    keys: tuple[str, ...]
+    log: bool
+
+
+def _setup(network: Network, surrogates: Surrogates, posterior: NetworkPosterior,
+           dataset: str, idx: np.ndarray) -> _Setup:
+    """The data set's KOH term (from the calibration data) and the draws ``idx``."""
+    ds = network.dataset(dataset)
+    if dataset not in posterior.hyper:
+        raise CalnetError(f"data set '{dataset}' was not calibrated; nothing to predict")
+    plan = ChainPlan.from_network(network)
+    emu = network.settings.calibration.emulator_variance
+    term, tdata = make_term(network, posterior.data[dataset], emulator_variance=emu, plan=plan)
+    spec = KOHModel(plan, (), (), (), (term,))
+    n = len(idx)
+    thetas = {m: jnp.asarray(v[idx]) for m, v in posterior.theta.items()}
+    for m in plan.models:
+        if m.n_parameters == 0:
+            thetas[m.name] = jnp.zeros((n, 0))
+    stored = posterior.hyper[dataset]
+    q = len(term.ell_priors)
+    hyper = {"ell": jnp.asarray(stored["ell"][idx]) if "ell" in stored else jnp.ones((n, q)),
+             "sd2": jnp.asarray(stored["sd2"][idx]) if "sd2" in stored else jnp.zeros(n),
+             "se2": jnp.asarray(stored["se2"][idx]) if "se2" in stored else jnp.zeros(n)}
+    log = network.model(ds.observed_model).output(ds.observed_output).transform == "log"
+    gps = {k: s.gp for k, s in surrogates.items.items()}
+    return _Setup(spec, gps, tdata, thetas, hyper,
+                  tuple(network.process_input_keys(ds.observed_model)), log)
+
+
+def _noise_at(st: _Setup, m: int, noise_var: np.ndarray | None) -> jnp.ndarray:
+    """Known noise variance at ``m`` new points: given, or the calibration data's mean."""
+    if noise_var is not None:
+        return jnp.asarray(noise_var, dtype=float)
+    return jnp.full(m, jnp.mean(st.tdata["noise_var"]))
+
+
+def mean_function(network: Network, surrogates: Surrogates, posterior: NetworkPosterior,
+                  dataset: str, idx: np.ndarray):
+    """``f(x) -> (m,)``: the posterior mean over draws ``idx`` of the KOH predictive mean
+    at process settings ``x`` (m, k), natural scale (the Sobol stage's function)."""
+    st = _setup(network, surrogates, posterior, dataset, np.asarray(idx))
+    eps = {}
+
+    def f(x):
+        x = np.atleast_2d(np.asarray(x, dtype=float))
+        xp = {k: jnp.asarray(x[:, j]) for j, k in enumerate(st.keys)}
+        mean = _moments_over_draws(st.spec, (), st.gps, st.tdata, xp, st.thetas, st.hyper,
+                                   eps, jnp.zeros(len(x)))[0]
+        z = np.asarray(mean) * float(st.tdata["y_sd"]) + float(st.tdata["y_mean"])
+        return np.mean(np.exp(z) if st.log else z, axis=0)
+
+    return f
 
 
 def predict(network: Network, surrogates: Surrogates, posterior: NetworkPosterior,
             dataset: str, x: np.ndarray, *, n_draws: int = 200, seed: int = 0,
             n_samples: int = 20,
-            within: tuple[float | None, float | None] | None = None) -> Prediction:
+            within: tuple[float | None, float | None] | None = None,
+            noise_var: np.ndarray | None = None) -> Prediction:
     """Posterior predictive of the output observed by ``dataset`` at process settings.
 
     Parameters
@@ -128,37 +178,27 @@ def predict(network: Network, surrogates: Surrogates, posterior: NetworkPosterio
     within : (lower, upper), optional
         Also return the probability that a new measurement lies in this range (either
         end may be None).
+    noise_var : array (n,), optional
+        Known noise variance of a new measurement at each point (modelled scale), for a
+        data set with known noise (default: the mean over its calibration data).
     """
-    from calnet.calibration.network import term_data
-
-    ds = network.dataset(dataset)
-    if dataset not in posterior.hyper:
-        raise CalnetError(f"data set '{dataset}' was not calibrated; nothing to predict")
-    plan = ChainPlan.from_network(network)
-    gps = {k: s.gp for k, s in surrogates.items.items()}
-    keys = network.process_input_keys(ds.observed_model)
     x = np.atleast_2d(np.asarray(x, dtype=float))
-    if x.shape[1] != len(keys):
-        raise CalnetError(f"predict: expected {len(keys)} process inputs {keys}, got "
-                          f"{x.shape[1]} columns")
-    xp_new = {k: jnp.asarray(x[:, j]) for j, k in enumerate(keys)}
-    tr, _ = term_data(network, posterior.data[dataset])
     total = posterior.n_draws
     idx = np.linspace(0, total - 1, min(n_draws, total)).astype(int)
-    thetas = {m: jnp.asarray(v[idx]) for m, v in posterior.theta.items()}
-    for m in plan.models:
-        if m.n_parameters == 0:
-            thetas[m.name] = jnp.zeros((len(idx), 0))
-    hyper = {h: jnp.asarray(v[idx]) for h, v in posterior.hyper[dataset].items()}
-    links = _link_keys(plan)
+    st = _setup(network, surrogates, posterior, dataset, idx)
+    if x.shape[1] != len(st.keys):
+        raise CalnetError(f"predict: expected {len(st.keys)} process inputs "
+                          f"{list(st.keys)}, got {x.shape[1]} columns")
+    xp_new = {k: jnp.asarray(x[:, j]) for j, k in enumerate(st.keys)}
+    links = _link_keys(st.spec.plan)
     rng = np.random.default_rng(seed)
     eps = {k: jnp.asarray(rng.standard_normal((len(idx), len(x)))) for k in links}
-    emu = network.settings.calibration.emulator_variance
-    model, key = ds.observed_model, ds.observes
+    noise_new = _noise_at(st, len(x), noise_var)
+    key = network.dataset(dataset).observes
 
     def run(eps_on):
-        return _moments_over_draws(plan, model, key, emu, tuple(eps_on), gps, tr, xp_new,
-                                   thetas, hyper, eps)
+        return _moments_over_draws(st.spec, tuple(eps_on), st.gps, st.tdata, xp_new,
+                                   st.thetas, st.hyper, eps, noise_new)
 
     mean0, var_delta, var_emu, noise = (np.asarray(a) for a in run(()))
     budget = {"parameters": mean0.var(axis=0)}
@@ -173,8 +213,9 @@ def predict(network: Network, surrogates: Surrogates, posterior: NetworkPosterio
     budget["noise"] = noise.mean(axis=0)
     sd = np.sqrt(var_delta + var_emu + noise)
     z = rng.standard_normal((n_samples,) + mean_all.shape)
-    samples = (mean_all[None] + sd[None] * z).reshape(-1, len(x)) * tr["y_sd"] + tr["y_mean"]
-    if network.model(model).output(ds.observed_output).transform == "log":
+    s, mu = float(st.tdata["y_sd"]), float(st.tdata["y_mean"])
+    samples = (mean_all[None] + sd[None] * z).reshape(-1, len(x)) * s + mu
+    if st.log:
         samples = np.exp(samples)
     lo, hi = np.percentile(samples, [2.5, 97.5], axis=0)
     prob = None
@@ -185,8 +226,15 @@ def predict(network: Network, surrogates: Surrogates, posterior: NetworkPosterio
         if within[1] is not None:
             ok &= samples <= within[1]
         prob = ok.mean(axis=0)
-    return Prediction(dataset, ds.observes, tuple(keys), x, samples.mean(axis=0), lo, hi,
+    return Prediction(dataset, key, st.keys, x, samples.mean(axis=0), lo, hi,
                       budget, prob)
+
+
+def predict_data(network: Network, surrogates: Surrogates, posterior: NetworkPosterior,
+                 data, **kwargs) -> Prediction:
+    """:func:`predict` at a data set's own rows, with their known noise if any."""
+    return predict(network, surrogates, posterior, data.name, data.x,
+                   noise_var=known_noise_var(network, data), **kwargs)
 
 
 def metrics(y: np.ndarray, mean: np.ndarray, lower: np.ndarray | None = None,

@@ -3,15 +3,16 @@ naive baselines beside them (method.md sections 5 and 7)."""
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import numpy as np
 
 from calnet.calibration.network import (
     NetworkPosterior,
-    _plug,
+    StageResult,
     _sample,
-    build_network_logdensity,
+    build_koh,
+    data_scale,
+    parameter_keys,
+    with_stage,
 )
 from calnet.chain import ChainPlan
 from calnet.predict import metrics, predict
@@ -65,40 +66,43 @@ def leave_one_out(network: Network, surrogates: Surrogates, posterior: NetworkPo
                   progress=None) -> dict:
     """Re-calibrate the observing model without each point in turn and predict it.
 
-    The upstream models keep their posterior (segmented view), so only the observing
-    model's stage is repeated; equal shapes reuse one compiled sampler.
+    The other models' parameters are held at their posterior means (a segmented view),
+    so only the observing model's stage is repeated; every fold has the same shapes and
+    priors (the full data set's scale), so one compiled sampler serves all of them.
     """
     ds = network.dataset(full.name)
     model = ds.observed_model
     plan = ChainPlan.from_network(network)
-    ancestors = [m for m in network.ancestors(model) if network.model(m).parameters]
-    rng = np.random.default_rng(seed)
-    upstream = _plug(posterior.theta, ancestors, posterior.plug if posterior.plug != "-"
-                     else "posterior", network.settings.calibration.upstream_draws, rng)
+    own = parameter_keys(network, model)
+    fixed = {}
+    for m, draws in posterior.theta.items():
+        for j, k in enumerate(parameter_keys(network, m)):
+            if k not in own:
+                fixed[k] = float(np.mean(draws[:, j]))
+    free = [k for k in own]
+    scales = {full.name: data_scale(network, full)}
     mean, lo, hi = np.empty(len(full.y)), np.empty(len(full.y)), np.empty(len(full.y))
     for i in range(len(full.y)):
         if progress:
             progress(i, len(full.y))
-        keep = np.arange(len(full.y)) != i
-        data_i = full.subset(keep)
-        ld = build_network_logdensity(network, surrogates, free=(model,),
-                                      datasets={full.name: data_i}, upstream=upstream,
-                                      name=f"{model} LOO", plan=plan)
-        idata = _sample(ld, sampler, seed + i, None)
-        flat = {v: np.asarray(idata.posterior[v].values).reshape(
-            (-1,) + idata.posterior[v].shape[2:]) for v in ld.sampled_vars}
-        n = flat[ld.sampled_vars[0]].shape[0]
-        theta = {m: v[rng.integers(0, v.shape[0], n)] for m, v in posterior.theta.items()}
-        if f"theta_{model}" in flat:
-            theta[model] = flat[f"theta_{model}"]
-        hyper = {**posterior.hyper, full.name: {h: flat[f"{h}_{full.name}"]
-                                                for h in ("ell", "sd2", "se2")}}
-        post_i = replace(posterior, theta=theta, hyper=hyper,
-                         data={**posterior.data, full.name: data_i})
+        data_i = full.subset(np.arange(len(full.y)) != i)
+        ld = build_koh(network, surrogates, free=free, datasets={full.name: data_i},
+                       fixed=fixed, name=f"{model} LOO", plan=plan, scales=scales,
+                       emulator_variance=network.settings.calibration.emulator_variance)
+        idata = _sample(ld, sampler, seed + i)
+        stage = StageResult((model,), (full.name,), idata, ld)
+        post_i = with_stage(posterior, stage, {full.name: data_i})
         pred = predict(network, surrogates, post_i, full.name, full.x[i:i + 1], n_draws=100,
-                       seed=seed)
+                       seed=seed, noise_var=_noise_var(network, full, i))
         mean[i], lo[i], hi[i] = pred.mean[0], pred.lower[0], pred.upper[0]
     result = metrics(full.y, mean, lo, hi)
     naive = np.array([np.delete(full.y, i).mean() for i in range(len(full.y))])
     return {"calnet": result, "training_mean": metrics(full.y, naive),
             "mean": mean.tolist(), "lower95": lo.tolist(), "upper95": hi.tolist()}
+
+
+def _noise_var(network: Network, data: ExperimentalData, i: int):
+    from calnet.calibration.network import known_noise_var
+
+    var = known_noise_var(network, data)
+    return None if var is None else var[i:i + 1]

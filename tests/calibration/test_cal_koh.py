@@ -1,17 +1,21 @@
-"""KOH log-density: the koh_anchor reference value, gradients, switches and errors."""
+"""The KOH model: the koh_anchor reference value on the shipped object, and its
+log-density and predictive against independent NumPy/SciPy computations."""
 
 from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pandas as pd
 import pytest
 from scipy import stats
 
-from calnet.calibration.emulator import fixed_input_gp, matern32_var
-from calnet.calibration.koh import build_logdensity, check_initial
-from calnet.calibration.priors import Beta, InverseGamma, LogNormal, Normal
-from calnet.errors import CalibrationError, CalibrationWarning
+from calnet.calibration.koh import JITTER
+from calnet.calibration.network import build_koh, make_term
+from calnet.chain import ChainPlan
+from calnet.spec import load_spec, read_all
+from calnet.surrogates.gp import FittedGP, condition
+from calnet.surrogates.network import OutputSurrogate, Surrogates
 
 jax.config.update("jax_enable_x64", True)
 
@@ -20,133 +24,215 @@ DATA = Path(__file__).parent / "data" / "koh_anchor.npz"
 U_TEST = np.array([0.1, -0.3, 0.5, -1.0, 0.2, 0.7, 0.0, -0.2, 0.3, -1.5, -2.0])
 REF_LOGP = -16.747614
 
+ANCHOR_SPEC = """
+models:
+  m:
+    simulator: python:nowhere:f
+    inputs: {x1: {lower: 0, upper: 1}, x2: {lower: 0, upper: 1}}
+    parameters: {t0: {lower: 0, upper: 1}, t1: {lower: 0, upper: 1}, t2: {lower: 0, upper: 1},
+                 t3: {lower: 0, upper: 1}, t4: {lower: 0, upper: 1}, t5: {lower: 0, upper: 1},
+                 t6: {lower: 0, upper: 1}}
+    outputs: {y: {measurable: true}}
+data:
+  obs:
+    path: obs.csv
+    observes: m.y
+    columns: {x1: x1, x2: x2, y: y}
+    noise: {prior: {dist: invgamma, a: 2, b: 1}}
+    discrepancy: {sd_prior: {dist: invgamma, a: 2, b: 1}, orthogonal: false}
+settings:
+  calibration: {emulator_variance: false}
+"""
+
+
+def _anchor_gp(P) -> FittedGP:
+    """The anchor's surrogate, ``mu0 + k32([x, theta], Xtr; ls) @ c``, as a FittedGP."""
+    amp = float(P["amp"])
+    d2 = (((P["Xtr"][:, None] - P["Xtr"][None]) / P["ls"]) ** 2).sum(-1)
+    r = np.sqrt(3 * d2)
+    K = amp * (1 + r) * np.exp(-r) + float(P["noise"]) * np.eye(len(P["Xtr"]))
+    f = jnp.asarray
+    return FittedGP(x_train=f(P["Xtr"]), alpha=f(P["c"] / amp), chol=f(np.linalg.cholesky(K)),
+                    lengthscales=f(P["ls"]), signal_var=f(amp), nugget=f(P["noise"]),
+                    lower=f(np.zeros(9)), upper=f(np.ones(9)), y_mean=f(P["mu0"]),
+                    y_std=f(1.0), nlml=f(np.nan), name="y")
+
 
 @pytest.fixture(scope="module")
-def anchor():
+def anchor(tmp_path_factory):
     P = dict(np.load(DATA))
-    mean_fn, args = fixed_input_gp(P["xo"], P["Xtr"], P["ls"], P["c"], P["mu0"])
-    ld = build_logdensity(mean_fn, P["yo"], P["xo"], theta_priors=[Beta(0.0, 1.0)] * 7,
-                          mean_args=args, name="anchor")
+    folder = tmp_path_factory.mktemp("anchor")
+    (folder / "network.yaml").write_text(ANCHOR_SPEC)
+    pd.DataFrame({"x1": P["xo"][:, 0], "x2": P["xo"][:, 1], "y": P["yo"]}).to_csv(
+        folder / "obs.csv", index=False)
+    network = load_spec(folder)
+    sur = Surrogates({"m.y": OutputSurrogate("m", "y", _anchor_gp(P), None, 240, 0)})
+    data = {k: v.train for k, v in read_all(network).items()}
+    free = [f"m.t{i}" for i in range(7)]
+    ld = build_koh(network, sur, free=free, datasets=data, emulator_variance=False)
     return P, ld
 
 
-def _direct_mean(P):
-    """The anchor surrogate without the precomputation trick (closure, no mean_args)."""
-    xo, Xtr, ls = P["xo"], P["Xtr"], P["ls"]
-
-    def mean(theta):
-        Z = jnp.concatenate([xo, jnp.broadcast_to(theta, (xo.shape[0], 7))], 1) / ls
-        d2 = jnp.sum((Z[:, None, :] - (Xtr / ls)[None]) ** 2, -1)
-        r = jnp.sqrt(3.0 * (d2 + 1e-12))
-        return P["mu0"] + ((1.0 + r) * jnp.exp(-r)) @ P["c"]
-    return mean
-
-
-def test_anchor_value_matches_numpy_reference(anchor):
-    P, ld = anchor
+def test_anchor_value_on_the_shipped_object(anchor):
+    _, ld = anchor
+    assert ld.dim == 11
     assert float(ld.logdensity(jnp.asarray(U_TEST))) == pytest.approx(REF_LOGP, abs=1e-6)
-    plain = build_logdensity(_direct_mean(P), P["yo"], P["xo"], theta_priors=[Beta(0, 1)] * 7)
-    assert float(plain.logdensity(jnp.asarray(U_TEST))) == pytest.approx(REF_LOGP, abs=1e-6)
-    assert ld.dim == 11 and ld.n_obs == 30
 
 
-def test_gradient_matches_finite_differences(anchor):
+def test_anchor_gradient_matches_finite_differences(anchor):
     _, ld = anchor
     g = np.asarray(jax.grad(ld.logdensity)(jnp.asarray(U_TEST)))
     # central differences: h = 1e-4 balances truncation (h^2) against the round-off of
-    # surrogate weights of order 1e4 cancelling (measured error ~3e-7 at h = 1e-4)
+    # surrogate weights of order 1e4 cancelling
     h, f = 1e-4, jax.jit(ld.logdensity)
     fd = [(float(f(U_TEST + h * e)) - float(f(U_TEST - h * e))) / (2 * h) for e in np.eye(11)]
     np.testing.assert_allclose(g, fd, rtol=1e-5, atol=2e-6)
 
 
-def test_constrain_unconstrain_roundtrip_and_names(anchor):
+def test_anchor_constrain_and_init(anchor):
     _, ld = anchor
     c = ld.constrain(jnp.asarray(U_TEST))
-    assert c["theta"].shape == (7,) and c["ell"].shape == (2,) and c["sd2"].shape == ()
-    np.testing.assert_allclose(c["ell"], np.exp(U_TEST[7:9]))
-    np.testing.assert_allclose(ld.unconstrain(c), U_TEST, atol=1e-10)
-    assert ld.names[0] == "theta[theta_0]" and ld.names[-2:] == ("sd2", "se2")
+    np.testing.assert_allclose(c["theta_m"], 1 / (1 + np.exp(-U_TEST[:7])))
+    np.testing.assert_allclose(c["ell_obs"], np.exp(U_TEST[7:9]))
+    assert float(c["sd2_obs"]) == pytest.approx(np.exp(-1.5))
     u0 = ld.init(0, 4)
     assert u0.shape == (4, 11) and np.all(np.isfinite(u0))
     np.testing.assert_array_equal(u0, ld.init(0, 4))
 
 
-def _linear_problem(n=6, seed=0):
-    rng = np.random.default_rng(seed)
-    x = np.linspace(0, 1, n)[:, None]
-    A = rng.normal(size=(n, 2))
-    return x, A, A @ np.array([0.5, -1.0]) + 0.1 * rng.normal(size=n)
+# ------------------------------------------------------------------ a two-model chain
+CHAIN_SPEC = """
+models:
+  up:
+    simulator: python:nowhere:f
+    inputs: {x: {lower: 0, upper: 1}}
+    parameters: {a: {lower: -2, upper: 2}}
+    outputs: {g: {}}
+  down:
+    simulator: python:nowhere:f
+    inputs: {g: {lower: -3, upper: 5}, z: {lower: 0, upper: 2}}
+    parameters: {b: {lower: 0, upper: 1}, c: {lower: -1, upper: 1}}
+    outputs: {y: {measurable: true}}
+links: [{from: up.g, to: down.g}]
+data:
+  obs:
+    path: obs.csv
+    observes: down.y
+    columns: {x: x, z: z, y: y}
+    noise: {sd_column: err}
+    discrepancy: {sd_prior: {dist: halfnormal, sigma: 0.7}}
+"""
 
 
-def test_emulator_variance_switch_and_fixed_hyperparameters():
-    x, A, y = _linear_problem()
-    var = np.linspace(0.01, 0.05, len(y))
-    kw = dict(theta_priors=[Normal(0, 1)] * 2, fixed={"ell": 0.4, "sd2": 0.3, "se2": 0.02})
-    off = build_logdensity(lambda th: jnp.asarray(A) @ th, y, x, **kw)
-    on = build_logdensity(lambda th: jnp.asarray(A) @ th, y, x,
-                          emulator_var_fn=lambda th: jnp.asarray(var), **kw)
-    assert on.dim == off.dim == 2 and on.sampled_vars == ("theta",)
-    th = np.array([0.2, -0.7])
-    K = 0.3 * np.exp(-0.5 * (x - x.T) ** 2 / 0.4**2) + 0.02 * np.eye(len(y))
-    prior = stats.norm.logpdf(th).sum()
-    for ld, cov in ((off, K), (on, K + np.diag(var))):
-        ref = stats.multivariate_normal(A @ th, cov).logpdf(y) + prior
-        assert float(ld.logdensity(jnp.asarray(th))) == pytest.approx(ref, rel=1e-10)
-    assert float(on.constrain(jnp.asarray(th))["sd2"]) == 0.3
+def _gp(rng, d, name):
+    X = rng.uniform(size=(25, d))
+    y = np.sin(3 * X).sum(1) + X[:, 0] * X[:, -1]
+    return condition(X, y, lower=np.zeros(d), upper=np.ones(d), lengthscales=np.full(d, 0.6),
+                     signal_var=1.3, nugget=1e-4, name=name)
 
 
-def test_gp_variance_at_fixed_inputs():
-    rng = np.random.default_rng(1)
-    Z, x = rng.uniform(size=(15, 3)), rng.uniform(size=(4, 1))
-    ls, amp, noise = np.array([0.4, 0.5, 0.6]), 1.3, 1e-4
-    k = lambda A, B: amp * np.exp(  # noqa: E731
-        -np.sqrt(3 * (((A[:, None] - B[None]) / ls) ** 2).sum(-1))) * (
-        1 + np.sqrt(3 * (((A[:, None] - B[None]) / ls) ** 2).sum(-1)))
-    K = k(Z, Z) + noise * np.eye(15)
-    _, args = fixed_input_gp(x, Z, ls, np.zeros(15), 0.0, amp=amp, k_inv=np.linalg.inv(K))
-    theta = np.array([0.3, 0.8])
-    zq = np.hstack([x, np.tile(theta, (4, 1))])
-    ref = amp - np.einsum("ij,jk,ik->i", k(zq, Z), np.linalg.inv(K), k(zq, Z))
-    np.testing.assert_allclose(matern32_var(jnp.asarray(theta), args), ref, atol=1e-8)
+@pytest.fixture(scope="module")
+def chain(tmp_path_factory):
+    rng = np.random.default_rng(5)
+    folder = tmp_path_factory.mktemp("chain")
+    (folder / "network.yaml").write_text(CHAIN_SPEC)
+    n = 7
+    pd.DataFrame({"x": rng.uniform(size=n), "z": rng.uniform(0, 2, n),
+                  "y": rng.normal(1.0, 0.5, n), "err": rng.uniform(0.05, 0.2, n)}).to_csv(
+        folder / "obs.csv", index=False)
+    network = load_spec(folder)
+    g_up = _gp(rng, 2, "g")
+    g_dn = _gp(rng, 4, "y")
+    # the GPs work on the unit cube of their own bounds: rescale to the declared ones
+    g_up = g_up.__class__(**{**g_up.__dict__, "lower": jnp.array([0.0, -2.0]),
+                             "upper": jnp.array([1.0, 2.0])})
+    g_dn = g_dn.__class__(**{**g_dn.__dict__, "lower": jnp.array([-3.0, 0.0, 0.0, -1.0]),
+                             "upper": jnp.array([5.0, 2.0, 1.0, 1.0])})
+    sur = Surrogates({"up.g": OutputSurrogate("up", "g", g_up, None, 25, 0),
+                      "down.y": OutputSurrogate("down", "y", g_dn, None, 25, 0)})
+    data = {k: v.train for k, v in read_all(network).items()}
+    return network, sur, data
 
 
-def test_fewer_points_than_parameters_warns():
-    x, A, y = _linear_problem(n=3)
-    with pytest.warns(CalibrationWarning, match="3 data points for 5 sampled") as rec:
-        build_logdensity(lambda th: jnp.asarray(A) @ th, y, x,
-                         theta_priors=[Normal(0, 1)] * 2, name="tiny")
-    assert rec[0].filename == __file__  # stacklevel points at the caller
+def _numpy_pieces(network, sur, d, a, bc, ell, sd2):
+    """Mean (n,), surrogate variance incl. the first-order upstream share (n,), the
+    orthogonal discrepancy covariance (n, n) and unit inputs, all with NumPy only."""
+    up, dn = sur["up.g"].gp, sur["down.y"].gp
+
+    def g_of(x, aa):
+        m, v = up.predict(np.column_stack([x, np.full(len(x), aa)]))
+        return np.asarray(m), np.asarray(v)
+
+    def y_of(g, z, th):
+        m, v = dn.predict(np.column_stack([g, z, np.tile(th, (len(g), 1))]))
+        return np.asarray(m), np.asarray(v)
+
+    x, z = d.x[:, 0], d.x[:, 1]
+    g, gv = g_of(x, a)
+    m, v = y_of(g, z, bc)
+    h = 1e-6
+    dm_dg = (y_of(g + h, z, bc)[0] - y_of(g - h, z, bc)[0]) / (2 * h)
+    v = v + dm_dg**2 * gv
+    G = np.column_stack([(y_of(g, z, bc + h * e)[0] - y_of(g, z, bc - h * e)[0]) / (2 * h)
+                         for e in np.eye(2)])
+    u = np.column_stack([(g + 3) / 8, z / 2])
+    C = sd2 * np.exp(-0.5 * (((u[:, None] - u[None]) / ell) ** 2).sum(-1))
+    C_orth = C - C @ G @ np.linalg.solve(G.T @ C @ G, G.T @ C)
+    return m, v, C, C_orth, G, u, (g_of, y_of)
 
 
-def test_non_finite_initial_point_names_the_model():
-    x, A, y = _linear_problem()
-    ld = build_logdensity(lambda th: jnp.log(th[0] - 10.0) * jnp.ones(len(y)), y, x,
-                          theta_priors=[Normal(0, 1)], name="melt_pool")
-    with pytest.raises(CalibrationError, match="model 'melt_pool'.*not finite"):
-        check_initial(ld, ld.init(0, 2))
+def test_chain_loglik_matches_numpy(chain):
+    network, sur, data = chain
+    ld = build_koh(network, sur, free=["up.a", "down.b", "down.c"], datasets=data)
+    a, bc, ell, sd2 = 0.3, np.array([0.4, -0.2]), np.array([0.5, 0.8]), 0.09
+    d = data["obs"]
+    m, v, _, C_orth, _, _, _ = _numpy_pieces(network, sur, d, a, bc, ell, sd2)
+    K = C_orth + np.diag(d.noise_sd**2 + v)
+    ref = stats.multivariate_normal(m, K, allow_singular=True).logpdf(d.y)
+    spec = ld.spec
+    values = {"params": jnp.asarray([a, *bc]), "ell_obs": jnp.asarray(ell),
+              "sd2_obs": jnp.asarray(sd2)}
+    thetas = spec.thetas(ld.data, values["params"])
+    got = spec.term_loglik(ld.data, spec.terms[0], ld.data["terms"][0], thetas,
+                           spec.hyper(spec.terms[0], None, values))
+    # differences: the jitter (1e-10 sd^2), the 1e-9 relative regularisation of G^T C G
+    # and the finite differences of the reference
+    assert float(got) == pytest.approx(ref, rel=1e-7)
 
 
-@pytest.mark.parametrize("kwargs,match", [
-    (dict(theta_priors=[]), "theta_priors"),
-    (dict(theta_priors=[Normal()] * 2, ell_prior=Normal()), "ell_prior"),
-    (dict(theta_priors=[Normal()] * 2, fixed={"rho": 1.0}), "unknown hyperparameter"),
-    (dict(theta_priors=[Normal()] * 2, fixed={"se2": -1.0}), "positive"),
-    (dict(theta_priors=[Normal()] * 2, ell_prior=[LogNormal()] * 3), "sequence of 1"),
-    (dict(theta_priors=[Normal()] * 2, sd2_prior=InverseGamma(), theta_names=["a"]), "names"),
-])
-def test_bad_arguments_raise(kwargs, match):
-    x, A, y = _linear_problem()
-    with pytest.raises(CalibrationError, match=match):
-        build_logdensity(lambda th: jnp.asarray(A) @ th, y, x, **kwargs)
+def test_chain_predictive_matches_conditioning_by_hand(chain):
+    network, sur, data = chain
+    d = data["obs"]
+    a, bc, ell, sd2 = -0.4, np.array([0.7, 0.1]), np.array([0.6, 0.4]), 0.05
+    m, v, C, C_orth, G, u, (g_of, y_of) = _numpy_pieces(network, sur, d, a, bc, ell, sd2)
+    xn = np.array([[0.2, 0.5], [0.8, 1.7], [0.5, 1.0]])
+    gn, _ = g_of(xn[:, 0], a)
+    mn, vn = y_of(gn, xn[:, 1], bc)
+    un = np.column_stack([(gn + 3) / 8, xn[:, 1] / 2])
+    # joint covariance of (delta(new), delta(X)) and the constraint G^T delta(X) = 0
+    allu = np.vstack([un, u])
+    Ca = sd2 * np.exp(-0.5 * (((allu[:, None] - allu[None]) / ell) ** 2).sum(-1))
+    Ga = np.vstack([np.zeros((3, 2)), G])
+    Co = Ca - Ca @ Ga @ np.linalg.solve(Ga.T @ Ca @ Ga, Ga.T @ Ca)
+    K = Co[3:, 3:] + np.diag(d.noise_sd**2 + v)
+    w = np.linalg.solve(K, d.y - m)
+    mean_ref = mn + Co[:3, 3:] @ w
+    var_ref = np.diag(Co[:3, :3] - Co[:3, 3:] @ np.linalg.solve(K, Co[3:, :3]))
 
+    plan = ChainPlan.from_network(network)
+    term, tdata = make_term(network, d, emulator_variance=True, plan=plan)
+    from calnet.calibration.koh import KOHModel
 
-def test_wrong_mean_shape_and_bad_data_raise():
-    x, A, y = _linear_problem()
-    with pytest.raises(CalibrationError, match=r"must return shape \(6,\)"):
-        build_logdensity(lambda th: th, y, x, theta_priors=[Normal()] * 2)
-    with pytest.raises(CalibrationError, match="x_disc"):
-        build_logdensity(lambda th: jnp.asarray(A) @ th, y, x[:3], theta_priors=[Normal()] * 2)
-    with pytest.raises(CalibrationError, match="finite observations"):
-        build_logdensity(lambda th: jnp.asarray(A) @ th, y * np.nan, x,
-                         theta_priors=[Normal()] * 2)
+    spec = KOHModel(plan, (), (), (), (term,))
+    gps = {k: s.gp for k, s in sur.items.items()}
+    thetas = {"up": jnp.asarray([a]), "down": jnp.asarray(bc)}
+    hyper = {"ell": jnp.asarray(ell), "sd2": jnp.asarray(sd2), "se2": jnp.asarray(0.0)}
+    xp = {"up.x": jnp.asarray(xn[:, 0]), "down.z": jnp.asarray(xn[:, 1])}
+    mean, var_d, var_e, noise = spec.term_predict({"gps": gps}, term, tdata, thetas, hyper, xp,
+                                                  {}, jnp.full(3, 0.01))
+    s, mu = float(tdata["y_sd"]), float(tdata["y_mean"])
+    np.testing.assert_allclose(np.asarray(mean) * s + mu, mean_ref, rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(np.asarray(var_d) * s**2, var_ref, rtol=1e-5, atol=1e-8)
+    np.testing.assert_allclose(np.asarray(var_e) * s**2, vn, rtol=1e-8)
+    np.testing.assert_allclose(np.asarray(noise) * s**2, 0.01)
+    assert JITTER < 1e-8

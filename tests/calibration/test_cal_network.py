@@ -87,7 +87,7 @@ def indep(tmp_path_factory):
         sys.path.remove(str(root))
 
 
-SAMPLER = SamplerSettings(chains=2, warmup=500, draws=1000)
+SAMPLER = SamplerSettings(chains=2, warmup=500, draws=1000, target_accept=0.95)
 
 
 @pytest.fixture(scope="module")
@@ -104,6 +104,17 @@ def _ess(draws: np.ndarray) -> float:
     return float(az.ess(draws.reshape(SAMPLER.chains, -1)))
 
 
+def _width(draws: np.ndarray) -> tuple[float, float]:
+    """Central 68 % width of draws and its Monte Carlo standard error (ArviZ)."""
+    import arviz as az
+
+    chains = draws.reshape(SAMPLER.chains, -1)
+    lo, hi = np.percentile(draws, [15.87, 84.13])
+    se = np.hypot(float(az.mcse(chains, method="quantile", prob=0.1587)),
+                  float(az.mcse(chains, method="quantile", prob=0.8413)))
+    return float(hi - lo), se
+
+
 def test_joint_and_segmented_agree_when_downstream_is_uninformative(both):
     seg, joint = both
     assert len(seg.stages) == 2 and len(joint.stages) == 1
@@ -114,8 +125,10 @@ def test_joint_and_segmented_agree_when_downstream_is_uninformative(both):
         ess_s, ess_j = _ess(s_raw), _ess(j)
         se = np.sqrt(s_raw.var() / ess_s + j.var() / ess_j)
         assert abs(s_raw.mean() - j.mean()) < 4 * se, (model, s_raw.mean(), j.mean(), se)
-        ratio_tol = 4 * np.sqrt(1 / (2 * ess_s) + 1 / (2 * ess_j))
-        assert abs(s_raw.std() / j.std() - 1) < ratio_tol, (model, s_raw.std(), j.std())
+        # spread: the central 68 % width, with the Monte Carlo error of its two quantiles
+        # (the posterior has heavier than normal tails when the noise is unknown)
+        (w_s, se_s), (w_j, se_j) = _width(s_raw), _width(j)
+        assert abs(w_s - w_j) < 4 * np.hypot(se_s, se_j), (model, w_s, w_j)
         assert seg.theta[model].shape == seg.theta["up"].shape  # draws aligned across models
 
 
@@ -160,7 +173,13 @@ def test_prediction_matches_calibration_data_scale(both, indep):
     data = read_all(network)["wdata"]
     pred = predict(network, sur, seg, "wdata", data.x, n_draws=100, seed=0)
     # the KOH predictive at the training points follows the data within the noise
-    assert np.all(pred.lower <= pred.upper)
+    assert np.all((pred.lower < pred.mean) & (pred.mean < pred.upper))
+    # A new measurement is a mixture over draws of N(mu_d, v_d + se2_d). If a share 0.95
+    # of the components have sd >= s (s^2 = the 5 % quantile of se2), the mixture's
+    # central 95 % interval has a half-width >= 1.94 s (P(|Z| <= h / s) >= 0.90 / 0.95);
+    # 1.8 s allows for the percentiles of 2000 predictive samples (~0.06 s each).
+    s = np.sqrt(np.quantile(np.asarray(seg.hyper["wdata"]["se2"]), 0.05))
+    assert np.all(0.5 * (pred.upper - pred.lower) >= 1.8 * s), (pred.upper - pred.lower, s)
     assert np.mean((data.y >= pred.lower) & (data.y <= pred.upper)) >= 0.75
     assert set(pred.budget) == {"parameters", "emulator up.z", "emulator down.w",
                                 "discrepancy", "noise"}

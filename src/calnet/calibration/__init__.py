@@ -1,13 +1,12 @@
-"""Kennedy-O'Hagan calibration: priors, log-density, NUTS sampling, diagnostics.
+"""Kennedy-O'Hagan calibration of a network: priors, the KOH model, NUTS, diagnostics.
 
 Names are imported lazily so that ``calnet.calibration.devices.configure_host_devices``
 can run before jax is imported.
 
-Low level (composes)::
+Typical use::
 
-    ld = build_logdensity(mean_fn, y, x_disc, theta_priors=[Beta(lo, hi), ...])
-    idata = sample_nuts(ld, seed=0)
-    summary = summarize(idata)
+    post = calibrate(network, surrogates)          # calnet.calibration.network
+    summary = summarize(post.stages[0].idata)
 """
 
 from __future__ import annotations
@@ -15,13 +14,13 @@ from __future__ import annotations
 import importlib
 
 _EXPORTS = {
-    "build_logdensity": "koh", "KOHLogDensity": "koh", "KOHSpec": "koh",
-    "check_initial": "koh",
+    "calibrate": "network", "NetworkPosterior": "network", "build_koh": "network",
+    "KOHModel": "koh", "KOHDensity": "koh", "Term": "koh", "check_initial": "koh",
     "Beta": "priors", "Uniform": "priors", "Normal": "priors", "TruncatedNormal": "priors",
     "LogNormal": "priors", "InverseGamma": "priors", "Prior": "priors",
+    "parameter_prior": "priors",
     "sample_nuts": "sampling",
     "summarize": "diagnostics", "PosteriorSummary": "diagnostics",
-    "fixed_input_gp": "emulator",
     "configure_host_devices": "devices",
 }
 __all__ = sorted(_EXPORTS)

@@ -1,34 +1,42 @@
-"""Kennedy-O'Hagan log-density of one model, discrepancy integrated out.
+"""The Kennedy-O'Hagan model of a network: one object for calibration and prediction.
 
-method.md section 3 (KOH 2001 with scale factor rho = 1):
+method.md sections 3-5. Each data set ``d`` observing output ``y`` of model ``m`` is a
+*term*
 
-    y = yhat(X; theta) + delta(X) + eps,   delta ~ GP(0, C_delta),  eps ~ N(0, se2 I)
-    C_delta(x_i, x_j) = sd2 * exp(-0.5 * sum_d (x_id - x_jd)^2 / ell_d^2)
+    y_d = yhat_m(x_m; theta_m) + delta_d(x_m) + eps_d,
 
-so that ``y ~ MVN(yhat(X; theta), C_delta(X, X) + se2 I [+ diag(emulator variance)])``.
+where ``x_m`` are the model's control inputs at the experimental process settings (free
+inputs read from the data, linked inputs produced by the upstream surrogates),
+``yhat_m`` the GP surrogate mean, ``delta_d ~ GP(0, sd2 k_SE(.; ell))`` the discrepancy on
+the unit cube of the model's inputs (optional) and ``eps_d ~ N(0, se2)`` the noise, sampled
+or known per point. With the discrepancy integrated out,
 
-The log-density is split in two parts so that a compiled sampler can be reused across
-calibrations of the same shapes (leave-one-out, several data sets; koh_anchor pitfall 4):
+    y_d ~ MVN(yhat, C_delta + diag(noise + surrogate variance)).
 
-* :class:`KOHSpec`, a hashable frozen description (the mean function, the priors, which
-  hyperparameters are fixed, names) whose methods ``logdensity(data, u)`` and
-  ``constrain(data, u)`` are pure JAX functions;
-* ``data``, a pytree of arrays (observations, the pairwise squared differences of the
-  discrepancy inputs, the mean function's arguments, the fixed hyperparameter values).
+The surrogate variance is the observed output's GP variance plus, to first order, the
+variance that each upstream (linked) surrogate passes down the chain.
 
-:class:`KOHLogDensity` binds the two. Any object with ``spec`` (hashable, with those two
-methods), ``data``, ``dim``, ``name``, ``init``, ``sampled_vars``, ``dims`` and ``coords``
-can be sampled by :func:`calnet.calibration.sampling.sample_nuts`; the network-level
-(segmented/joint) log-densities follow the same protocol.
+*Orthogonal discrepancy* (the default): ``delta_d`` is conditioned on having no component
+along the directions in which the model's own parameters move the surrogate at the data
+(``G = d yhat / d theta_m``, ``G^T delta(X) = 0``), so that the discrepancy cannot mimic a
+change of parameters (Plumlee 2017; Brynjarsdottir and O'Hagan 2014). A correct model then
+gets the parameter posterior it would get without a discrepancy.
+
+Every variable is in the data's own units on the modelled scale (``ln y`` for an output
+with ``transform: log``): variances ``sd2`` and ``se2`` in (unit)^2, length scales on the
+unit cube. The log-density is the density of the observations in those units; inside,
+outputs are standardised for numerical stability only.
+
+:class:`KOHModel` is the static, hashable part (the key of compiled samplers); ``data``
+is a pytree of arrays. ``KOHModel.logdensity(data, u)`` and ``KOHModel.predict(...)``
+are pure JAX functions. :class:`KOHDensity` binds both for the sampler.
 """
 
 from __future__ import annotations
 
 import math
-import warnings
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any
 
 import jax
 
@@ -38,22 +46,16 @@ import jax.numpy as jnp  # noqa: E402
 import jax.scipy.linalg as jsl  # noqa: E402
 import numpy as np  # noqa: E402
 
-from calnet.calibration.priors import (  # noqa: E402
-    InverseGamma,
-    LogNormal,
-    Prior,
-    init_from_priors,
-    stack_priors,
-)
-from calnet.errors import CalibrationError, CalibrationWarning  # noqa: E402
+from calnet.calibration.priors import Prior, init_from_priors, stack_priors  # noqa: E402
+from calnet.chain import ChainPlan  # noqa: E402
+from calnet.errors import CalibrationError  # noqa: E402
 
-__all__ = ["KOHSpec", "KOHLogDensity", "build_logdensity", "check_initial", "HYPERPARAMETERS"]
+__all__ = ["Term", "KOHModel", "KOHDensity", "se_kernel", "mvn_logpdf_chol", "check_initial",
+           "standardise", "HYPERPARAMETERS"]
 
 HYPERPARAMETERS = ("ell", "sd2", "se2")
 _LOG_2PI = math.log(2.0 * math.pi)
-#: reference priors (method.md section 3), unit-cube inputs and standardised outputs
-DEFAULT_ELL_PRIOR = LogNormal(0.0, 0.5)
-DEFAULT_VARIANCE_PRIOR = InverseGamma(2.0, 1.0)
+JITTER = 1e-10  # added to the diagonal of standardised covariances
 
 
 @jax.custom_vjp
@@ -100,331 +102,353 @@ def _finite_jvp(primals, tangents):
     return finite_or_neg_inf(primals[0]), tangents[0]
 
 
-@dataclass(frozen=True)
-class KOHSpec:
-    """Static (hashable) part of a KOH log-density; see the module docstring.
+def se_kernel(xa, xb, ell):
+    """Squared-exponential correlation ``exp(-0.5 sum_d (xa_d - xb_d)^2 / ell_d^2)``, (na, nb)."""
+    d2 = (xa[:, None, :] - xb[None, :, :]) ** 2
+    return jnp.exp(-0.5 * jnp.sum(d2 / ell**2, axis=-1))
 
-    Layout of the unconstrained vector ``u``: ``theta`` (p, through each prior's bijection),
-    then the free hyperparameters in the order ``ell`` (q), ``sd2``, ``se2``, each through
-    its prior's bijection (the log for the default priors).
+
+def standardise(y: np.ndarray) -> tuple[float, float]:
+    """Mean and sd used to standardise observations (sd 1 for a single point)."""
+    sd = float(np.std(y)) if len(y) > 1 else 1.0
+    return float(np.mean(y)), (sd if sd > 0 and math.isfinite(sd) else 1.0)
+
+
+@dataclass(frozen=True)
+class Term:
+    """Static part of one data set's KOH term.
+
+    Attributes
+    ----------
+    name, model, key : str
+        Data set, observed model and ``model.output`` of the observed surrogate.
+    ell_priors : tuple of Prior
+        Discrepancy length scales, one per control input (empty without discrepancy).
+    sd2_prior : Prior or None
+        Discrepancy variance (data units^2); None: no discrepancy.
+    se2_prior : Prior or None
+        Noise variance (data units^2); None: the noise is known (``noise_var`` in data).
+    orthogonal : bool
+        Discrepancy orthogonal to the model's parameter directions at the data.
+    emulator_variance : bool
+        Add the surrogate variances (observed output and, to first order, linked ones).
+    links : tuple of str
+        ``model.output`` of the surrogates feeding the observed model's inputs, directly
+        or further up the chain (their variance is propagated when emulator_variance).
     """
 
-    mean_fn: Callable
-    theta_priors: tuple[Prior, ...]
+    name: str
+    model: str
+    key: str
     ell_priors: tuple[Prior, ...]
-    sd2_prior: Prior
-    se2_prior: Prior
-    fixed: tuple[str, ...] = ()
-    emulator_var_fn: Callable | None = None
-    with_mean_args: bool = False
+    sd2_prior: Prior | None
+    se2_prior: Prior | None
+    orthogonal: bool = True
+    emulator_variance: bool = True
+    links: tuple[str, ...] = ()
 
     @property
-    def p(self) -> int:
-        return len(self.theta_priors)
+    def discrepancy(self) -> bool:
+        return self.sd2_prior is not None
 
     @property
-    def q(self) -> int:
-        return len(self.ell_priors)
+    def noise_known(self) -> bool:
+        return self.se2_prior is None
+
+    def blocks(self) -> list[tuple[str, tuple[Prior, ...]]]:
+        """(variable, priors) of this term's sampled hyperparameters, in ``u`` order."""
+        out = []
+        if self.discrepancy:
+            out += [(f"ell_{self.name}", self.ell_priors), (f"sd2_{self.name}", (self.sd2_prior,))]
+        if not self.noise_known:
+            out.append((f"se2_{self.name}", (self.se2_prior,)))
+        return out
+
+
+@dataclass(frozen=True)
+class KOHModel:
+    """Hashable description of a network's KOH log-density and predictive.
+
+    Attributes
+    ----------
+    plan : ChainPlan
+        The network's data flow.
+    params : tuple of (key, Prior)
+        The sampled calibration parameters: ``model.parameter``, or the bare name of a
+        shared parameter.
+    theta_index : tuple of (model, tuple of int)
+        For every model, the position in ``params`` of each of its parameters, or -1 for
+        a parameter held fixed (its value comes from ``data["theta_fixed"][model]``).
+    groups : tuple of (variable, tuple of int)
+        Posterior variables of the parameters (``theta_<model>``, ``theta_shared``) and
+        the positions in ``params`` they hold.
+    terms : tuple of Term
+    """
+
+    plan: ChainPlan
+    params: tuple[tuple[str, Prior], ...]
+    theta_index: tuple[tuple[str, tuple[int, ...]], ...]
+    groups: tuple[tuple[str, tuple[int, ...]], ...]
+    terms: tuple[Term, ...]
+
+    # ------------------------------------------------------------ layout of u
+    def blocks(self) -> list[tuple[str, tuple[Prior, ...]]]:
+        """(name, priors) of the blocks of the unconstrained vector ``u``, in order."""
+        out = [("params", tuple(p for _, p in self.params))] if self.params else []
+        for t in self.terms:
+            out += t.blocks()
+        return out
 
     @property
     def dim(self) -> int:
-        return (self.p + (0 if "ell" in self.fixed else self.q)
-                + (0 if "sd2" in self.fixed else 1) + (0 if "se2" in self.fixed else 1))
+        return sum(len(priors) for _, priors in self.blocks())
 
-    def _blocks(self):
-        """(name, priors, size) of the blocks of ``u``, in order."""
-        blocks = [("theta", self.theta_priors)]
-        if "ell" not in self.fixed:
-            blocks.append(("ell", self.ell_priors))
-        for name, prior in (("sd2", self.sd2_prior), ("se2", self.se2_prior)):
-            if name not in self.fixed:
-                blocks.append((name, (prior,)))
-        return blocks
-
-    def _unpack(self, data, u):
-        """Constrained values and the summed log prior density of ``u`` (incl. Jacobian)."""
-        priors = [pr for _, block in self._blocks() for pr in block]
+    def unpack(self, u):
+        """Constrained values of every block of ``u`` and the summed log prior (with the
+        log-Jacobian of each bijection)."""
+        blocks = self.blocks()
+        priors = [p for _, block in blocks for p in block]
         xs, lp = [], 0.0
         for start, stop, stacked in stack_priors(priors):  # vectorised runs of one class
             xs.append(stacked.to_constrained(u[start:stop]))
             lp = lp + jnp.sum(stacked.log_prob_unconstrained(u[start:stop]))
         x = jnp.concatenate(xs) if len(xs) > 1 else xs[0]
         out, i = {}, 0
-        for name, block in self._blocks():
-            out[name] = x[i:i + len(block)] if name in ("theta", "ell") else x[i]
+        for name, block in blocks:
+            vals = x[i:i + len(block)]
+            out[name] = vals if name == "params" or name.startswith("ell_") else vals[0]
             i += len(block)
-        for name in self.fixed:
-            out[name] = data["fixed"][name]
+        out.setdefault("params", jnp.zeros(0))
         return out, lp
 
-    def _mean(self, data, theta):
-        if self.with_mean_args:
-            return self.mean_fn(theta, data["mean_args"])
-        return self.mean_fn(theta)
+    def thetas(self, data, params) -> dict:
+        """Parameter vector of every model, (p_m,) each: sampled or fixed."""
+        out = {}
+        for model, idx in self.theta_index:
+            idx_a = np.asarray(idx, dtype=int)
+            fixed = data["theta_fixed"][model]
+            if not len(idx_a):
+                out[model] = fixed
+            elif np.all(idx_a < 0):
+                out[model] = fixed
+            else:
+                take = params[np.clip(idx_a, 0, None)]
+                out[model] = jnp.where(jnp.asarray(idx_a >= 0), take, fixed)
+        return out
 
-    def _emulator_var(self, data, theta):
-        if self.with_mean_args:
-            return self.emulator_var_fn(theta, data["mean_args"])
-        return self.emulator_var_fn(theta)
+    @staticmethod
+    def hyper(term: Term, tdata, values) -> dict:
+        """``ell``, ``sd2``, ``se2`` of a term (data units; zeros where absent)."""
+        q = len(term.ell_priors)
+        return {"ell": values.get(f"ell_{term.name}", jnp.ones(q)),
+                "sd2": values.get(f"sd2_{term.name}", 0.0),
+                "se2": values.get(f"se2_{term.name}", 0.0)}
 
-    def covariance(self, data, ell, sd2, se2, theta=None):
-        """KOH covariance ``C_delta(X, X) + se2 I [+ diag(var)]``, (n, n)."""
-        # method.md section 3: squared-exponential discrepancy on unit-cube inputs
-        K = sd2 * jnp.exp(-0.5 * jnp.sum(data["d2x"] / ell**2, axis=-1))
-        eye = jnp.eye(K.shape[0], dtype=K.dtype)
-        if self.emulator_var_fn is not None:
-            return K + eye * (se2 + self._emulator_var(data, theta))
-        return K + se2 * eye
+    # ------------------------------------------------------------ one term
+    def inputs(self, data, term: Term, xp, thetas, eps=None):
+        """Control inputs (n, q) of the term's model and their first-order responses to
+        each linked surrogate's standard deviation, (K, n, q) (K = len(term.links))."""
+        gps = data["gps"]
 
-    def loglik(self, data, theta, ell, sd2, se2):
-        """Log-likelihood of the data with the discrepancy integrated out (scalar)."""
-        r = data["y"] - self._mean(data, theta)
-        return mvn_logpdf_chol(r, self.covariance(data, ell, sd2, se2, theta))
+        def x_of(e):
+            return self.plan.inputs(gps, term.model, xp, thetas, e)
+
+        e0 = {k: jnp.zeros(next(iter(xp.values())).shape[0]) for k in term.links}
+        base = {**e0, **(eps or {})}
+        x = x_of(base)
+        if not (term.emulator_variance and term.links):
+            return x, None
+        dx = []
+        for k in term.links:
+            tangent = {kk: (jnp.ones_like(v) if kk == k else jnp.zeros_like(v))
+                       for kk, v in base.items()}
+            dx.append(jax.jvp(x_of, (base,), (tangent,))[1])
+        return x, jnp.stack(dx)
+
+    def _moments(self, data, term: Term, x, dx, theta):
+        """Surrogate mean (n,) and variance (n,) of the observed output at inputs ``x``,
+        the variance including the first-order share of the linked surrogates."""
+        gps = data["gps"]
+
+        def mean_at(xx):
+            return self.plan.predict(gps, term.model, term.key, xx, theta)[0]
+
+        mean, var = self.plan.predict(gps, term.model, term.key, x, theta)
+        if not term.emulator_variance:
+            return mean, jnp.zeros_like(mean)
+        if dx is not None:
+            for k in range(dx.shape[0]):
+                var = var + jax.jvp(mean_at, (x,), (dx[k],))[1] ** 2
+        return mean, var
+
+    def _directions(self, data, term: Term, x, theta, s):
+        """``d yhat / d theta_m`` at the data, standardised, (n, p_m); None if p_m = 0."""
+        if not (term.orthogonal and term.discrepancy) or theta.shape[0] == 0:
+            return None
+        gps = data["gps"]
+        return jax.jacfwd(
+            lambda th: self.plan.predict(gps, term.model, term.key, x, th)[0])(theta) / s
+
+    def train(self, data, term: Term, tdata, thetas, hyper):
+        """Standardised residual (n,), covariance (n, n) or its diagonal (n,) without a
+        discrepancy, and what prediction needs (unit inputs, directions)."""
+        if "x_fixed" in tdata:  # inputs precomputed: no sampled parameter upstream
+            x, dx = tdata["x_fixed"], tdata.get("dx_fixed")
+        else:
+            x, dx = self.inputs(data, term, tdata["xp"], thetas)
+        theta = thetas[term.model]
+        s = tdata["y_sd"]
+        mean, var = self._moments(data, term, x, dx, theta)
+        r = tdata["y"] - (mean - tdata["y_mean"]) / s
+        noise = tdata["noise_var"] if term.noise_known else hyper["se2"]
+        diag = (noise + var) / s**2 + JITTER
+        if not term.discrepancy:
+            return r, diag, None
+        u = self.plan.unit_inputs(term.model, x)
+        C = hyper["sd2"] / s**2 * se_kernel(u, u, hyper["ell"])
+        G = self._directions(data, term, x, theta, s)
+        proj = None
+        if G is not None:
+            A = C @ G
+            M = G.T @ A
+            M = M + (1e-9 * jnp.trace(M) / M.shape[0] + 1e-300) * jnp.eye(M.shape[0])
+            Minv_At = jnp.linalg.solve(M, A.T)
+            C = C - A @ Minv_At
+            proj = (G, M)
+        K = C + jnp.diag(diag)
+        return r, K, {"u": u, "proj": proj}
+
+    def term_loglik(self, data, term: Term, tdata, thetas, hyper):
+        """Log-likelihood of one data set, in its units on the modelled scale."""
+        r, K, _ = self.train(data, term, tdata, thetas, hyper)
+        n = r.shape[0]
+        if K.ndim == 1:
+            ll = -0.5 * jnp.sum(r**2 / K + jnp.log(K)) - 0.5 * n * _LOG_2PI
+        else:
+            ll = mvn_logpdf_chol(r, K)
+        return ll - n * jnp.log(tdata["y_sd"])
+
+    def term_predict(self, data, term: Term, tdata, thetas, hyper, xp_new, eps, noise_new):
+        """KOH predictive at new process settings for one posterior draw.
+
+        Returns standardised mean (m,) and the variance parts (m,) each: discrepancy,
+        observed surrogate, noise. ``eps`` perturbs linked surrogates (model.output ->
+        (m,) standard normals) to propagate their uncertainty by sampling; ``noise_new``
+        (m,) is the known noise variance at the new points (data units).
+        """
+        s = tdata["y_sd"]
+        r, K, extra = self.train(data, term, tdata, thetas, hyper)
+        theta = thetas[term.model]
+        x_p = self.plan.inputs(data["gps"], term.model, xp_new, thetas, eps)
+        m_p, v_p = self.plan.predict(data["gps"], term.model, term.key, x_p, theta)
+        mean = (m_p - tdata["y_mean"]) / s
+        noise = (noise_new if term.noise_known else hyper["se2"] * jnp.ones_like(mean)) / s**2
+        v_emu = v_p / s**2 if term.emulator_variance else jnp.zeros_like(mean)
+        if not term.discrepancy:
+            return mean, jnp.zeros_like(mean), v_emu, noise
+        sd2 = hyper["sd2"] / s**2
+        up = self.plan.unit_inputs(term.model, x_p)
+        kpe = sd2 * se_kernel(up, extra["u"], hyper["ell"])  # (m, n)
+        prior_var = sd2 * jnp.ones_like(mean)
+        if extra["proj"] is not None:  # condition on G^T delta(X) = 0
+            G, M = extra["proj"]
+            C_xx = sd2 * se_kernel(extra["u"], extra["u"], hyper["ell"])
+            B = kpe @ G  # (m, p)
+            kpe = kpe - B @ jnp.linalg.solve(M, (C_xx @ G).T)
+            prior_var = prior_var - jnp.sum(B * jnp.linalg.solve(M, B.T).T, axis=1)
+        L = jnp.linalg.cholesky(K)
+        mean = mean + kpe @ jsl.cho_solve((L, True), r)
+        a = jsl.solve_triangular(L, kpe.T, lower=True)
+        var_delta = jnp.maximum(prior_var - jnp.sum(a * a, axis=0), 0.0)
+        return mean, var_delta, v_emu, noise
+
+    # ------------------------------------------------------------ whole network
+    def loglik(self, data, u):
+        """Log-likelihood of every data set at ``u`` (dim,)."""
+        values, _ = self.unpack(u)
+        thetas = self.thetas(data, values["params"])
+        total = 0.0
+        for term, tdata in zip(self.terms, data["terms"], strict=True):
+            total = total + self.term_loglik(data, term, tdata, thetas,
+                                             self.hyper(term, tdata, values))
+        return total
 
     def logdensity(self, data, u):
         """Unnormalised log posterior density of ``u`` (dim,); ``-inf`` where non-finite."""
-        c, lp = self._unpack(data, u)
-        return finite_or_neg_inf(lp + self.loglik(data, c["theta"], c["ell"], c["sd2"], c["se2"]))
+        values, lp = self.unpack(u)
+        thetas = self.thetas(data, values["params"])
+        total = lp
+        for term, tdata in zip(self.terms, data["terms"], strict=True):
+            total = total + self.term_loglik(data, term, tdata, thetas,
+                                             self.hyper(term, tdata, values))
+        return finite_or_neg_inf(total)
 
     def constrain(self, data, u):
-        """``dict(theta=(p,), ell=(q,), sd2=(), se2=())`` from ``u`` (dim,)."""
-        c, _ = self._unpack(data, u)
-        return {"theta": c["theta"], "ell": c["ell"], "sd2": c["sd2"], "se2": c["se2"]}
-
-    def unconstrain(self, values: Mapping[str, Any]):
-        """Inverse of :meth:`constrain` (fixed hyperparameters are ignored), (dim,)."""
-        parts = []
-        for name, priors in self._blocks():
-            v = jnp.atleast_1d(jnp.asarray(values[name], dtype=float))
-            if v.shape != (len(priors),):
-                raise CalibrationError(
-                    f"unconstrain: expected {name} of shape ({len(priors)},), got {v.shape}")
-            parts += [prior.to_unconstrained(v[j]) for j, prior in enumerate(priors)]
-        return jnp.stack(parts)
+        """Posterior variables from ``u``: ``theta_<model>`` / ``theta_shared`` and each
+        term's ``ell_``, ``sd2_``, ``se2_`` (data units)."""
+        values, _ = self.unpack(u)
+        out = {name: values["params"][np.asarray(idx, dtype=int)] for name, idx in self.groups}
+        out.update({k: v for k, v in values.items() if k != "params"})
+        return out
 
     def init(self, seed, n_chains: int):
-        """Prior draws on the unconstrained scale, (n_chains, dim); ``seed``: int or Generator."""
-        return init_from_priors(self._blocks(), seed, n_chains)
+        """Prior draws on the unconstrained scale, (n_chains, dim); seed: int or Generator."""
+        return init_from_priors(self.blocks(), seed, n_chains)
 
 
 @dataclass(frozen=True)
-class KOHLogDensity:
-    """A KOH log-density bound to its data; build it with :func:`build_logdensity`.
+class KOHDensity:
+    """A :class:`KOHModel` bound to its data: what :func:`sample_nuts` samples.
 
     Attributes
     ----------
-    spec : KOHSpec
-        Hashable static part (key of compiled samplers).
+    spec : KOHModel
     data : dict
-        Pytree of arrays: ``y`` (n,), ``d2x`` (n, n, q), ``mean_args``, ``fixed``.
+        ``gps`` (model.output -> FittedGP), ``theta_fixed`` (model -> (p_m,)), ``terms``
+        (per data set: ``y`` standardised (n,), ``y_mean``, ``y_sd``, ``xp`` process
+        inputs, ``noise_var`` (n,) known noise variance in data units, and
+        ``x_fixed``/``dx_fixed`` where the inputs do not depend on sampled parameters),
+        ``y`` (all standardised observations, for the InferenceData).
     name : str
-        Model name used in messages.
-    theta_names, x_names : tuple of str
-        Names of the calibration parameters (p) and of the discrepancy inputs (q).
+    names : dict of variable -> coordinate names (parameters, discrepancy inputs)
+    param_keys : dict of model -> keys of its parameters (``model.name``, or the bare
+        name of a shared parameter), in declared order
     """
 
-    spec: KOHSpec
+    spec: KOHModel
     data: dict = field(repr=False)
-    name: str = "model"
-    theta_names: tuple[str, ...] = ()
-    x_names: tuple[str, ...] = ()
+    name: str
+    names: Mapping[str, tuple[str, ...]]
+    param_keys: Mapping[str, tuple[str, ...]] = field(default_factory=dict)
 
     @property
     def dim(self) -> int:
-        """Length of the unconstrained vector ``u``."""
         return self.spec.dim
 
     @property
-    def n_obs(self) -> int:
-        return int(self.data["y"].shape[0])
-
-    @property
-    def names(self) -> tuple[str, ...]:
-        """Names of the coordinates of ``u`` (unconstrained scale)."""
-        out = [f"theta[{n}]" for n in self.theta_names]
-        if "ell" not in self.spec.fixed:
-            out += [f"ell[{n}]" for n in self.x_names]
-        out += [n for n in ("sd2", "se2") if n not in self.spec.fixed]
-        return tuple(out)
-
-    @property
     def sampled_vars(self) -> tuple[str, ...]:
-        """Posterior variables that are sampled (fixed hyperparameters excluded)."""
-        return ("theta",) + tuple(h for h in HYPERPARAMETERS if h not in self.spec.fixed)
+        return (tuple(name for name, _ in self.spec.groups)
+                + tuple(name for name, _ in self.spec.blocks() if name != "params"))
 
     @property
     def dims(self) -> dict[str, list[str]]:
-        return {"theta": ["theta_dim"], "ell": ["ell_dim"]}
+        return {v: [f"{v}_dim"] for v in self.names}
 
     @property
     def coords(self) -> dict[str, list[str]]:
-        return {"theta_dim": list(self.theta_names), "ell_dim": list(self.x_names)}
+        return {f"{v}_dim": list(c) for v, c in self.names.items()}
 
     def logdensity(self, u):
-        """Pure JAX log posterior density of ``u`` (dim,) on the unconstrained scale."""
         return self.spec.logdensity(self.data, u)
 
+    def loglik(self, u):
+        return self.spec.loglik(self.data, u)
+
     def constrain(self, u):
-        """``dict(theta=(p,), ell=(q,), sd2, se2)`` from ``u`` (dim,)."""
         return self.spec.constrain(self.data, u)
 
-    def unconstrain(self, values: Mapping[str, Any]):
-        """``u`` (dim,) from a dict with keys theta, ell, sd2, se2 (fixed ones ignored)."""
-        return self.spec.unconstrain(values)
-
-    def init(self, seed: int, n_chains: int):
-        """Initial points drawn from the priors, (n_chains, dim), unconstrained scale."""
+    def init(self, seed, n_chains: int):
         return self.spec.init(seed, n_chains)
-
-
-def _as_prior_tuple(prior, q: int, what: str) -> tuple[Prior, ...]:
-    priors = (prior,) * q if isinstance(prior, Prior) else tuple(prior)
-    if len(priors) != q or not all(isinstance(p, Prior) for p in priors):
-        raise CalibrationError(f"{what}: expected one Prior or a sequence of {q} Priors, "
-                               f"got {prior!r}")
-    return priors
-
-
-def _check_positive_prior(prior: Prior, what: str) -> None:
-    if prior.support[0] < 0:
-        raise CalibrationError(f"{what}: expected a prior on (0, inf) such as LogNormal or "
-                               f"InverseGamma, got {prior!r}")
-
-
-def _fixed_values(fixed: Mapping[str, Any] | None, q: int) -> dict[str, Any]:
-    out = {}
-    for key, value in (fixed or {}).items():
-        if key not in HYPERPARAMETERS:
-            raise CalibrationError(f"fixed: unknown hyperparameter {key!r}; "
-                                   f"expected some of {HYPERPARAMETERS}")
-        v = np.asarray(value, dtype=float)
-        if key == "ell":
-            v = np.broadcast_to(v, (q,)).copy()
-        elif v.shape != ():
-            raise CalibrationError(f"fixed: {key} must be a scalar, got shape {v.shape}")
-        if not np.all(np.isfinite(v)) or np.any(v < 0) or (key == "ell" and np.any(v == 0)):
-            raise CalibrationError(f"fixed: {key} must be finite and positive, got {v}")
-        out[key] = jnp.asarray(v)
-    return out
-
-
-def build_logdensity(
-    mean_fn: Callable,
-    y,
-    x_disc,
-    *,
-    theta_priors: Sequence[Prior],
-    ell_prior: Prior | Sequence[Prior] = DEFAULT_ELL_PRIOR,
-    sd2_prior: Prior = DEFAULT_VARIANCE_PRIOR,
-    se2_prior: Prior = DEFAULT_VARIANCE_PRIOR,
-    emulator_var_fn: Callable | None = None,
-    mean_args: Any = None,
-    fixed: Mapping[str, Any] | None = None,
-    name: str = "model",
-    theta_names: Sequence[str] | None = None,
-    x_names: Sequence[str] | None = None,
-) -> KOHLogDensity:
-    """Build the KOH log posterior density of one model (method.md section 3).
-
-    Parameters
-    ----------
-    mean_fn : callable
-        ``theta (p,) -> (n,)``: surrogate mean at the experimental settings, on the
-        standardised output scale; ``(theta, mean_args) -> (n,)`` when ``mean_args`` is
-        given. Pure JAX. Pass a module-level function and the arrays it needs as
-        ``mean_args`` so that calibrations of the same shapes reuse one compiled sampler.
-    y : array, (n,)
-        Standardised observations.
-    x_disc : array, (n, q)
-        Control inputs of the observations scaled to the unit cube (discrepancy inputs).
-    theta_priors : sequence of Prior, length p
-        Priors of the calibration parameters (e.g. :class:`~calnet.calibration.priors.Beta`).
-    ell_prior, sd2_prior, se2_prior : Prior
-        Priors of the discrepancy length scales (one prior or q of them), discrepancy
-        variance and noise variance. Defaults: LogNormal(0, 0.5), InverseGamma(2, 1) twice.
-    emulator_var_fn : callable, optional
-        ``theta -> (n,)`` (or ``(theta, mean_args) -> (n,)``) predictive variance of the
-        surrogate, added to the diagonal of the covariance (emulator uncertainty on).
-    mean_args : pytree of arrays, optional
-        Data passed to ``mean_fn`` and ``emulator_var_fn``.
-    fixed : dict, optional
-        Hyperparameters held at known values instead of sampled: any of
-        ``ell`` (scalar or (q,)), ``sd2``, ``se2``.
-    name : str
-        Model name used in errors and warnings.
-    theta_names, x_names : sequence of str, optional
-        Names of the parameters and discrepancy inputs (defaults ``theta_0``, ``x_0`` ...).
-
-    Returns
-    -------
-    KOHLogDensity
-
-    Examples
-    --------
-    >>> import jax.numpy as jnp
-    >>> from calnet.calibration.priors import Normal
-    >>> ld = build_logdensity(lambda th: th[0] * jnp.ones(3), jnp.zeros(3),
-    ...                       jnp.array([[0.0], [0.5], [1.0]]), theta_priors=[Normal(0, 1)])
-    >>> ld.dim
-    4
-    """
-    y = np.asarray(y, dtype=float)
-    x = np.asarray(x_disc, dtype=float)
-    if y.ndim != 1 or not np.all(np.isfinite(y)):
-        raise CalibrationError(f"{name}: expected finite observations y of shape (n,), "
-                               f"got shape {y.shape}")
-    if x.ndim == 1:
-        x = x[:, None]
-    if x.ndim != 2 or x.shape[0] != y.shape[0] or not np.all(np.isfinite(x)):
-        raise CalibrationError(f"{name}: expected finite x_disc of shape ({y.shape[0]}, q), "
-                               f"got shape {x.shape}")
-    n, q = x.shape
-    theta_priors = tuple(theta_priors)
-    if not theta_priors or not all(isinstance(p, Prior) for p in theta_priors):
-        raise CalibrationError(f"{name}: theta_priors must be a non-empty sequence of Prior")
-    ell_priors = _as_prior_tuple(ell_prior, q, f"{name}: ell_prior")
-    for what, prior in [("ell_prior", p) for p in ell_priors] + [
-            ("sd2_prior", sd2_prior), ("se2_prior", se2_prior)]:
-        _check_positive_prior(prior, f"{name}: {what}")
-    fixed_vals = _fixed_values(fixed, q)
-    spec = KOHSpec(mean_fn, theta_priors, ell_priors, sd2_prior, se2_prior,
-                   fixed=tuple(h for h in HYPERPARAMETERS if h in fixed_vals),
-                   emulator_var_fn=emulator_var_fn, with_mean_args=mean_args is not None)
-    # pairwise squared differences of the discrepancy inputs, computed once: (n, n, q)
-    d2x = (x[:, None, :] - x[None, :, :]) ** 2
-    data = {"y": jnp.asarray(y), "d2x": jnp.asarray(d2x), "fixed": fixed_vals}
-    if mean_args is not None:
-        data["mean_args"] = jax.tree.map(jnp.asarray, mean_args)
-    theta_names = tuple(theta_names or (f"theta_{i}" for i in range(len(theta_priors))))
-    x_names = tuple(x_names or (f"x_{j}" for j in range(q)))
-    if len(theta_names) != len(theta_priors) or len(x_names) != q:
-        raise CalibrationError(f"{name}: expected {len(theta_priors)} theta_names and {q} "
-                               f"x_names, got {len(theta_names)} and {len(x_names)}")
-    ld = KOHLogDensity(spec, data, name, theta_names, x_names)
-    _check_mean_shape(ld)
-    if n < ld.dim:
-        warnings.warn(
-            f"{name}: {n} data points for {ld.dim} sampled parameters (calibration "
-            f"parameters and discrepancy hyperparameters); the posterior will lean on the "
-            f"priors - add data or fix hyperparameters with fixed=",
-            CalibrationWarning, stacklevel=2)
-    return ld
-
-
-def _check_mean_shape(ld: KOHLogDensity) -> None:
-    theta = jnp.zeros(ld.spec.p)
-    fns = [("mean_fn", ld.spec._mean)]
-    if ld.spec.emulator_var_fn is not None:
-        fns.append(("emulator_var_fn", ld.spec._emulator_var))
-    for what, fn in fns:
-        try:
-            out = jax.eval_shape(fn, ld.data, theta)
-        except Exception as exc:  # user code: report which model and function failed
-            raise CalibrationError(f"{ld.name}: {what} failed on a theta of shape "
-                                   f"({ld.spec.p},): {exc}") from exc
-        if getattr(out, "shape", None) != (ld.n_obs,):
-            raise CalibrationError(f"{ld.name}: {what} must return shape ({ld.n_obs},), "
-                                   f"got {getattr(out, 'shape', out)}")
 
 
 def _value_and_grad(spec, data, u):
@@ -436,16 +460,7 @@ _value_and_grad_jit = jax.jit(_value_and_grad, static_argnums=0)
 
 def check_initial(ld, u0, model_name: str | None = None) -> None:
     """Raise :class:`~calnet.errors.CalibrationError` if the log-density or its gradient is
-    non-finite at any initial point.
-
-    Parameters
-    ----------
-    ld : KOHLogDensity (or any object with ``spec`` and ``data``)
-    u0 : array, (n_chains, dim) or (dim,)
-        Initial points on the unconstrained scale.
-    model_name : str, optional
-        Name used in the message (default ``ld.name``).
-    """
+    non-finite at any initial point ``u0`` (n_chains, dim)."""
     name = model_name or getattr(ld, "name", "model")
     u0 = jnp.atleast_2d(jnp.asarray(u0, dtype=float))
     values, grads = _value_and_grad_jit(ld.spec, ld.data, u0)
@@ -456,7 +471,6 @@ def check_initial(ld, u0, model_name: str | None = None) -> None:
         chains = np.flatnonzero(bad_value | bad_grad).tolist()
         what = "log-density" if bad_value.any() else "gradient of the log-density"
         raise CalibrationError(
-            f"model {name!r}: the {what} is not finite at the initial point(s) of chain(s) "
+            f"{name}: the {what} is not finite at the initial point(s) of chain(s) "
             f"{chains} (values {values.tolist()}); check that the surrogate mean is finite "
-            "for parameters inside their bounds, that the data are standardised and finite, "
-            "and that fixed hyperparameters are positive")
+            "for parameters inside their bounds and that the data are finite")

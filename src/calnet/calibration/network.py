@@ -1,44 +1,44 @@
 """Calibration of a network, segmented or joint (method.md section 4).
 
-``calibrate(network, surrogates)`` walks the models in topological order. *Segmented*:
-each model with data is calibrated on its own data sets with the upstream parameters
-plugged in (their posterior mode, or draws of their posterior); a model without data
-keeps its prior. *Joint*: one posterior over every model's parameters and every data
-set's discrepancy and noise.
+``calibrate(network, surrogates)`` builds the network's KOH model
+(:mod:`calnet.calibration.koh`) and samples it. *Joint*: one posterior over every
+calibration parameter and every data set's discrepancy and noise. *Segmented*: the models
+are calibrated in topological order, each on its own data sets with the parameters that
+earlier stages calibrated held fixed:
+
+* ``plug="mode"``: at their posterior mode (KDE), as the reference study did;
+* ``plug="posterior"``: the *cut* posterior (theta_up from its own posterior, the stage's
+  variables conditional on it), by linear response: the stage is sampled once at the
+  upstream posterior mean, the sensitivity ``J = d E[u | theta_up] / d theta_up`` of its
+  posterior mean is the posterior covariance of ``u`` with ``d loglik / d theta_up``
+  (exact for the mean), and each draw is moved by ``J (theta_up^(s) - mean)`` with an
+  upstream draw ``theta_up^(s)``. Exact for a linear-Gaussian chain; to first order in
+  the upstream spread otherwise. Its cost does not depend on the number of upstream draws.
+
+A parameter declared ``shared: true`` in several models is one parameter: joint mode
+calibrates it with every data set; segmented mode calibrates it in the first model (in
+topological order) that has data and uses it, and plugs it into the later ones.
 """
 
 from __future__ import annotations
 
 import warnings
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
 from calnet.calibration.diagnostics import kde_mode, summarize
-from calnet.calibration.network_density import (
-    NetworkKOHSpec,
-    NetworkLogDensity,
-    TermSpec,
-    standardise,
-)
-from calnet.calibration.priors import Beta, InverseGamma, LogNormal, TruncatedNormal, Uniform
+from calnet.calibration.koh import KOHDensity, KOHModel, Term, standardise
+from calnet.calibration.priors import InverseGamma, LogNormal, parameter_prior, scale_prior
 from calnet.chain import ChainPlan
 from calnet.errors import CalibrationError, CalibrationWarning
 from calnet.spec import ExperimentalData, Network, read_all
 from calnet.spec.models import SamplerSettings
+from calnet.spec.variables import HalfNormalPrior
 from calnet.surrogates.network import Surrogates
-
-
-def theta_prior(param):
-    """calnet prior object of a spec :class:`~calnet.spec.Parameter`."""
-    p = param.prior
-    if p.dist == "beta":
-        return Beta(param.lower, param.upper, p.a, p.b)
-    if p.dist == "uniform":
-        return Uniform(param.lower, param.upper)
-    return TruncatedNormal(param.lower, param.upper, p.mu, p.sigma)
 
 
 @dataclass(frozen=True)
@@ -48,7 +48,7 @@ class StageResult:
     models: tuple[str, ...]
     datasets: tuple[str, ...]
     idata: object  # arviz.InferenceData
-    logdensity: NetworkLogDensity
+    logdensity: KOHDensity
 
     def draws(self, var: str) -> np.ndarray:
         """Flattened draws of a posterior variable, shape (chains * draws, ...)."""
@@ -63,17 +63,24 @@ class NetworkPosterior:
     Attributes
     ----------
     mode, plug : str
-        How it was calibrated.
+        How it was calibrated (``plug`` is ``"-"`` for joint).
     stages : tuple of StageResult
         One per sampled posterior (one for joint; one per model with data, segmented).
     theta : dict of model -> ndarray (n_draws, n_parameters)
-        Parameter draws per model, aligned across models (for segmented calibration the
-        upstream draws are resampled to the downstream count).
-    hyper : dict of data set -> dict(ell (n_draws, q), sd2 (n_draws,), se2 (n_draws,))
+        Parameter draws per model in declared order, aligned across models (row s of
+        every model is one draw of the network; a shared parameter has the same value in
+        every model that declares it).
+    hyper : dict of data set -> dict of ndarray
+        ``ell`` (n_draws, q) and ``sd2`` (n_draws,) where the data set has a discrepancy,
+        ``se2`` (n_draws,) where its noise is sampled; data units on the modelled scale.
     data : dict of data set -> ExperimentalData used (training rows)
-    standardisation : dict of data set -> (mean, sd) on the modelled scale
     prior_only : tuple of str
-        Models left at their prior (segmented, no data of their own).
+        Models left at their prior (segmented, no data of their own or downstream).
+    plugged : dict of model -> ndarray (n_parameters,)
+        Segmented: the values of the model's parameters held fixed in later stages (the
+        KDE mode for ``plug="mode"``, the posterior mean for ``plug="posterior"``).
+    notes : tuple of str
+        What the user should know about how the posterior was obtained.
     """
 
     mode: str
@@ -82,66 +89,165 @@ class NetworkPosterior:
     theta: Mapping[str, np.ndarray]
     hyper: Mapping[str, Mapping[str, np.ndarray]]
     data: Mapping[str, ExperimentalData]
-    standardisation: Mapping[str, tuple[float, float]]
     prior_only: tuple[str, ...] = ()
     timings: Mapping[str, float] = field(default_factory=dict)
+    plugged: Mapping[str, np.ndarray] = field(default_factory=dict)
+    notes: tuple[str, ...] = ()
 
     @property
     def n_draws(self) -> int:
         return next(iter(self.theta.values())).shape[0] if self.theta else 0
 
 
-def _term(network: Network, ds_name: str, emulator_variance: bool) -> TermSpec:
-    ds = network.dataset(ds_name)
-    model = network.model(ds.observed_model)
-    q = len(model.inputs)
-    disc = ds.discrepancy
-    return TermSpec(ds.name, model.name, ds.observes,
-                    (LogNormal(disc.length_scale_prior.mu, disc.length_scale_prior.sigma),) * q,
-                    InverseGamma(disc.variance_prior.a, disc.variance_prior.b),
-                    InverseGamma(disc.noise_prior.a, disc.noise_prior.b), emulator_variance)
+# ----------------------------------------------------------------------------- terms
+def links_into(plan: ChainPlan, model: str) -> tuple[str, ...]:
+    """``model.output`` of every surrogate whose output reaches ``model``'s inputs."""
+    out: list[str] = []
+
+    def walk(name):
+        for src in plan.model(name).sources:
+            if src[0] == "output":
+                walk(src[1])
+                out.append(src[2])
+            elif src[0] == "identity":
+                walk(src[1])
+
+    walk(model)
+    return tuple(dict.fromkeys(out))
 
 
-def term_data(network: Network, data: ExperimentalData) -> tuple[dict, tuple[float, float]]:
+def data_scale(network: Network, data: ExperimentalData) -> tuple[float, float]:
+    """Mean and sd of a data set's observations on the modelled scale."""
+    return standardise(modelled(network, data))
+
+
+def modelled(network: Network, data: ExperimentalData) -> np.ndarray:
+    """Observations on the modelled scale (``ln y`` for ``transform: log``)."""
     ds = network.dataset(data.name)
     out = network.model(ds.observed_model).output(ds.observed_output)
-    y = np.log(data.y) if out.transform == "log" else data.y
-    if out.transform == "log" and np.any(data.y <= 0):
-        raise CalibrationError(f"data set {data.name}: output is modelled on the log scale but "
-                               "has values <= 0; remove them or drop transform: log")
-    mean, sd = standardise(y)
-    xp = {k: jnp.asarray(data.x[:, j]) for j, k in enumerate(data.input_keys)}
-    return {"y": jnp.asarray((y - mean) / sd), "y_mean": mean, "y_sd": sd, "xp": xp}, (mean, sd)
+    if out.transform == "log":
+        if np.any(data.y <= 0):
+            raise CalibrationError(f"data set {data.name}: output is modelled on the log "
+                                   "scale but has values <= 0; remove them or drop "
+                                   "transform: log")
+        return np.log(data.y)
+    return np.asarray(data.y, dtype=float)
 
 
-def build_network_logdensity(network: Network, surrogates: Surrogates, *,
-                             free: tuple[str, ...], datasets: Mapping[str, ExperimentalData],
-                             upstream: Mapping[str, np.ndarray] | None = None,
-                             emulator_variance: bool = True, name: str = "network",
-                             plan: ChainPlan | None = None) -> NetworkLogDensity:
-    """KOH log-density with the parameters of ``free`` models sampled and those of the
-    ``upstream`` models fixed to the given draws (model -> (D, n_parameters))."""
+def known_noise_var(network: Network, data: ExperimentalData) -> np.ndarray | None:
+    """Known noise variance per point on the modelled scale (``(sd / y)^2`` for log)."""
+    if data.noise_sd is None:
+        return None
+    ds = network.dataset(data.name)
+    log = network.model(ds.observed_model).output(ds.observed_output).transform == "log"
+    sd = data.noise_sd / data.y if log else data.noise_sd
+    return np.asarray(sd, dtype=float) ** 2
+
+
+def make_term(network: Network, data: ExperimentalData, *, emulator_variance: bool,
+              plan: ChainPlan, scale: tuple[float, float] | None = None) -> tuple[Term, dict]:
+    """The KOH term of a data set and its arrays.
+
+    ``scale`` (mean, sd) of the observations on the modelled scale sets the default priors
+    and the internal standardisation; pass the full data set's when calibrating on a
+    subset (leave-one-out) so that every subset shares one compiled sampler.
+    """
+    ds = network.dataset(data.name)
+    model = network.model(ds.observed_model)
+    y = modelled(network, data)
+    mean, s = scale or standardise(y)
+    noise_var = known_noise_var(network, data)
+    if ds.noise.known:
+        se2_prior = None
+    elif ds.noise.reference:
+        se2_prior = InverseGamma(2.0, s**2)
+    else:
+        se2_prior = scale_prior(ds.noise.prior or HalfNormalPrior(sigma=s))
+    disc = ds.discrepancy
+    if not disc.enabled:
+        ell_priors, sd2_prior = (), None
+    else:
+        ell = LogNormal(disc.length_scale_prior.mu, disc.length_scale_prior.sigma)
+        ell_priors = (ell,) * len(model.inputs)
+        sd2_prior = (InverseGamma(2.0, s**2) if disc.reference
+                     else scale_prior(disc.sd_prior or HalfNormalPrior(sigma=s)))
+    term = Term(data.name, model.name, ds.observes, ell_priors, sd2_prior, se2_prior,
+                orthogonal=disc.enabled and disc.orthogonal,
+                emulator_variance=emulator_variance, links=links_into(plan, model.name))
+    tdata = {"y": jnp.asarray((y - mean) / s), "y_mean": jnp.asarray(mean),
+             "y_sd": jnp.asarray(s),
+             "xp": {k: jnp.asarray(data.x[:, j]) for j, k in enumerate(data.input_keys)},
+             "noise_var": jnp.asarray(noise_var if noise_var is not None
+                                      else np.zeros(len(y)))}
+    return term, tdata
+
+
+# ----------------------------------------------------------------------------- parameters
+def parameter_keys(network: Network, model: str) -> list[str]:
+    """Keys of ``model``'s parameters in declared order (see ``Network.param_key``)."""
+    return [network.param_key(model, p.name) for p in network.model(model).parameters]
+
+
+def _parameter(network: Network, key: str):
+    for m in network.order:
+        for p in network.model(m).parameters:
+            if network.param_key(m, p.name) == key:
+                return m, p
+    raise KeyError(key)
+
+
+def _layout(network: Network, free: list[str]):
+    params = tuple((k, parameter_prior(_parameter(network, k)[1])) for k in free)
+    theta_index, groups, names = [], [], {}
+    for m in network.order:
+        keys = parameter_keys(network, m)
+        theta_index.append((m, tuple(free.index(k) if k in free else -1 for k in keys)))
+        private = [k for k in free if k.startswith(f"{m}.")]
+        if private:
+            groups.append((f"theta_{m}", tuple(free.index(k) for k in private)))
+            names[f"theta_{m}"] = tuple(k.split(".", 1)[1] for k in private)
+    shared = [k for k in free if "." not in k]
+    if shared:
+        groups.append(("theta_shared", tuple(free.index(k) for k in shared)))
+        names["theta_shared"] = tuple(shared)
+    return params, tuple(theta_index), tuple(groups), names
+
+
+def build_koh(network: Network, surrogates: Surrogates, *, free: list[str],
+              datasets: Mapping[str, ExperimentalData], fixed: Mapping[str, float] | None = None,
+              emulator_variance: bool = True, name: str = "network",
+              plan: ChainPlan | None = None,
+              scales: Mapping[str, tuple[float, float]] | None = None) -> KOHDensity:
+    """The KOH log-density of ``datasets`` with the parameters ``free`` (keys) sampled and
+    the others at ``fixed`` (key -> value; 0 where neither)."""
     plan = plan or ChainPlan.from_network(network)
-    upstream = dict(upstream or {})
-    free_specs = tuple((m, tuple(theta_prior(p) for p in network.model(m).parameters))
-                       for m in free if network.model(m).parameters)
-    terms = tuple(_term(network, ds, emulator_variance) for ds in datasets)
-    tdata, std = [], {}
+    fixed = dict(fixed or {})
+    params, theta_index, groups, names = _layout(network, list(free))
+    terms, tdata = [], []
     for ds_name, d in datasets.items():
-        td, std[ds_name] = term_data(network, d)
+        t, td = make_term(network, d, emulator_variance=emulator_variance, plan=plan,
+                          scale=(scales or {}).get(ds_name))
+        terms.append(t)
         tdata.append(td)
-    spec = NetworkKOHSpec(plan, free_specs, tuple(sorted(upstream)), terms)
-    gps = {k: s.gp for k, s in surrogates.items.items()}
-    data = {"gps": gps, "terms": tdata,
-            "upstream": {m: jnp.asarray(v, dtype=float) for m, v in upstream.items()},
+        if t.discrepancy:
+            names[f"ell_{ds_name}"] = network.model(t.model).input_names
+    theta_fixed = {m: jnp.asarray([fixed.get(k, 0.0) for k in parameter_keys(network, m)],
+                                  dtype=float) for m in network.order}
+    spec = KOHModel(plan, params, theta_index, groups, tuple(terms))
+    data = {"gps": {k: s.gp for k, s in surrogates.items.items()}, "theta_fixed": theta_fixed,
+            "terms": tdata,
             "y": jnp.concatenate([t["y"] for t in tdata]) if tdata else jnp.zeros(0)}
+    index = dict(theta_index)
     for term, td in zip(terms, tdata, strict=True):
-        if spec.inputs_fixed(term):  # segmented: upstream GPs evaluated once, not per step
-            td["x_fixed"] = spec.fixed_inputs(data, term, td)
+        if all(i < 0 for m in network.ancestors(term.model) for i in index[m]):
+            # no sampled parameter upstream: the model's inputs are computed once
+            x, dx = spec.inputs(data, term, td["xp"], theta_fixed)
+            td["x_fixed"] = x
+            if dx is not None:
+                td["dx_fixed"] = dx
+    keys = {m: tuple(parameter_keys(network, m)) for m in network.order}
+    ld = KOHDensity(spec, data, name, names, keys)
     n_obs = sum(len(d.y) for d in datasets.values())
-    ld = NetworkLogDensity(spec, data, name,
-                           {m.name: m.parameter_names for m in network.models},
-                           {m.name: m.input_names for m in network.models})
     if n_obs < ld.dim:
         warnings.warn(f"{name}: {n_obs} data points for {ld.dim} sampled parameters "
                       "(calibration parameters and discrepancy hyperparameters); the "
@@ -149,7 +255,19 @@ def build_network_logdensity(network: Network, surrogates: Surrogates, *,
     return ld
 
 
-def _sample(ld: NetworkLogDensity, sampler: SamplerSettings, seed: int, progress):
+def key_draws(stage: StageResult) -> dict[str, np.ndarray]:
+    """Draws (n,) of every parameter sampled in a stage, by key."""
+    spec = stage.logdensity.spec
+    out = {}
+    for var, idx in spec.groups:
+        arr = stage.draws(var)
+        for j, i in enumerate(idx):
+            out[spec.params[i][0]] = arr[:, j]
+    return out
+
+
+# ----------------------------------------------------------------------------- sampling
+def _sample(ld: KOHDensity, sampler: SamplerSettings, seed: int, progress=None):
     from calnet.calibration.sampling import sample_nuts
 
     return sample_nuts(ld, seed=seed, num_chains=sampler.chains, num_warmup=sampler.warmup,
@@ -161,7 +279,6 @@ def _sample(ld: NetworkLogDensity, sampler: SamplerSettings, seed: int, progress
 def calibrate(network: Network, surrogates: Surrogates, *, data=None, mode: str | None = None,
               plug: str | None = None, seed: int | None = None,
               sampler: SamplerSettings | None = None, emulator_variance: bool | None = None,
-              upstream_draws: int | None = None,
               progress: Callable[[str], None] | None = None) -> NetworkPosterior:
     """Calibrate every model of ``network`` against its data sets.
 
@@ -174,13 +291,11 @@ def calibrate(network: Network, surrogates: Surrogates, *, data=None, mode: str 
         Training data (default: the spec's data sets, training split).
     mode : {"segmented", "joint"}, optional
     plug : {"mode", "posterior"}, optional
-        Segmented only: plug in the upstream posterior mode, or propagate draws.
+        Segmented only: hold upstream parameters at their mode, or give the cut posterior.
     seed : int, optional
     sampler : SamplerSettings, optional
     emulator_variance : bool, optional
-        Add each surrogate's predictive variance to the KOH covariance.
-    upstream_draws : int, optional
-        Number of upstream draws propagated with ``plug="posterior"``.
+        Add the surrogates' predictive variance to the likelihood.
     progress : callable, optional
         Called with a message before each stage.
 
@@ -196,103 +311,214 @@ def calibrate(network: Network, surrogates: Surrogates, *, data=None, mode: str 
     seed = network.settings.seed if seed is None else seed
     sampler = sampler or network.settings.sampler
     emu = cfg.emulator_variance if emulator_variance is None else emulator_variance
-    n_up = upstream_draws or cfg.upstream_draws
     if data is None:
         data = {k: v.train for k, v in read_all(network).items()}
     if not data:
         raise CalibrationError("the network has no data sets; add one under 'data:' to "
                                "calibrate")
+    if not any(network.model(m).parameters for m in network.order):
+        raise CalibrationError("the network has no calibration parameters; declare "
+                               "'parameters:' in a model to calibrate")
     plan = ChainPlan.from_network(network)
     if mode == "joint":
         return _joint(network, surrogates, data, plan, seed, sampler, emu, progress)
-    return _segmented(network, surrogates, data, plan, seed, sampler, emu, plug, n_up, progress)
+    return _segmented(network, surrogates, data, plan, seed, sampler, emu, plug, progress)
+
+
+def _all_keys(network: Network) -> list[str]:
+    return list(dict.fromkeys(k for m in network.order for k in parameter_keys(network, m)))
 
 
 def _joint(network, surrogates, data, plan, seed, sampler, emu, progress) -> NetworkPosterior:
-    free = tuple(m for m in network.order if network.model(m).parameters)
+    free = _all_keys(network)
+    models = tuple(m for m in network.order if network.model(m).parameters)
     if progress:
-        progress("joint: " + ", ".join(free))
-    ld = build_network_logdensity(network, surrogates, free=free, datasets=data,
-                                  emulator_variance=emu, name="joint", plan=plan)
-    idata = _sample(ld, sampler, seed, None)
+        progress("joint: " + ", ".join(models))
+    ld = build_koh(network, surrogates, free=free, datasets=data, emulator_variance=emu,
+                   name="joint", plan=plan)
+    idata = _sample(ld, sampler, seed)
     summarize(idata, warn=True, stacklevel=4)  # R-hat, ESS and divergence warnings
-    stage = StageResult(free, tuple(data), idata, ld)
-    theta = {m: stage.draws(f"theta_{m}") for m in free}
-    return _posterior(network, "joint", "-", (stage,), theta, data, ld, ())
+    stage = StageResult(models, tuple(data), idata, ld)
+    return _posterior(network, "joint", "-", (stage,), key_draws(stage), data, (), {}, ())
 
 
-def _segmented(network, surrogates, data, plan, seed, sampler, emu, plug, n_up, progress):
-    stages, theta, prior_only = [], {}, []
-    rng = np.random.default_rng(seed)
-    n_stage = sampler.chains * (sampler.draws // sampler.thin)
+def _owners(network: Network, data) -> dict[str, str]:
+    """Key -> the model whose stage calibrates it (segmented)."""
+    with_data = {network.dataset(k).observed_model for k in data}
+    owners = {}
+    for m in network.order:
+        for k in parameter_keys(network, m):
+            if k not in owners and m in with_data:
+                owners[k] = m
+    return owners
+
+
+def _segmented(network, surrogates, data, plan, seed, sampler, emu, plug, progress):
+    stages, draws, prior_only, notes = [], {}, [], []
+    n = sampler.chains * (sampler.draws // sampler.thin)
+    owners = _owners(network, data)
+    plug_at: dict[str, float] = {}
     for i, name in enumerate(network.order):
-        model = network.model(name)
         own = {k: v for k, v in data.items() if network.dataset(k).observed_model == name}
-        if not model.parameters and not own:
+        keys = parameter_keys(network, name)
+        if not own:
+            new = [k for k in keys if k not in draws and k not in owners]
+            for k in new:
+                draws[k] = _prior_draws(network, k, n, seed)
+            if new:
+                prior_only.append(name)
             continue
-        ancestors = [m for m in network.ancestors(name) if network.model(m).parameters]
-        if not own:  # prior draws stand in, also for the downstream stages
-            prior_only.append(name)
-            theta[name] = _prior_draws(model, n_stage, seed)
-            continue
-        upstream = _plug(theta, ancestors, plug, n_up, rng)
+        free = [k for k in keys if owners.get(k) == name and k not in draws]
+        needed = [k for m in (*network.ancestors(name), name)
+                  for k in parameter_keys(network, m)]
+        fixed_keys = list(dict.fromkeys(k for k in needed if k not in free))
+        for k in fixed_keys:
+            if k not in draws:  # used upstream of its owner: its prior stands in
+                draws[k] = _prior_draws(network, k, n, seed)
+            if k not in plug_at:
+                plug_at[k] = (kde_mode(draws[k]) if plug == "mode"
+                              else float(np.mean(draws[k])))
         if progress:
             progress(f"segmented: {name}")
-        ld = build_network_logdensity(network, surrogates, free=(name,), datasets=own,
-                                      upstream=upstream, emulator_variance=emu, name=name,
-                                      plan=plan)
-        idata = _sample(ld, sampler, seed + i, None)
+        ld = build_koh(network, surrogates, free=free, datasets=own, emulator_variance=emu,
+                       fixed={k: plug_at[k] for k in fixed_keys}, name=name, plan=plan)
+        idata = _sample(ld, sampler, seed + i)
         summarize(idata, warn=True, stacklevel=4)
+        moved = [k for k in fixed_keys if np.ptp(draws[k]) > 0]
+        if plug == "posterior" and moved and ld.dim:
+            idata = cut_by_linear_response(ld, idata, {k: draws[k] for k in moved},
+                                           {k: plug_at[k] for k in moved})
         stage = StageResult((name,), tuple(own), idata, ld)
         stages.append(stage)
-        if model.parameters:
-            theta[name] = stage.draws(f"theta_{name}")
-    n = max((v.shape[0] for v in theta.values()), default=0)
-    theta = {m: (v if v.shape[0] == n else v[rng.integers(0, v.shape[0], n)])
-             for m, v in theta.items()}
-    return _posterior(network, "segmented", plug, tuple(stages), theta, data, None,
-                      tuple(prior_only))
+        draws.update(key_draws(stage))
+        for k in free:
+            if "." not in k:
+                users = [m for m in network.order if k in parameter_keys(network, m)]
+                notes.append(f"shared parameter '{k}' is calibrated with the data of "
+                             f"'{name}' (the first model with data that uses it) and held "
+                             f"fixed in {[u for u in users if u != name]} (segmented mode)")
+    plugged = {m: np.array([plug_at.get(k, np.nan) for k in parameter_keys(network, m)])
+               for m in network.order if any(k in plug_at for k in parameter_keys(network, m))}
+    return _posterior(network, "segmented", plug, tuple(stages), draws, data,
+                      tuple(prior_only), plugged, tuple(notes))
 
 
-def _prior_draws(model, n: int, seed: int) -> np.ndarray:
-    """(n, n_parameters) draws of the prior of a model without data."""
-    priors = [theta_prior(p) for p in model.parameters]
-    prior_rng = np.random.default_rng([seed, 7919])
-    return np.stack([np.asarray(p.sample(prior_rng, (n,))) for p in priors], 1)
+def _prior_draws(network: Network, key: str, n: int, seed: int) -> np.ndarray:
+    """(n,) draws of a parameter's prior (a model without data)."""
+    _, p = _parameter(network, key)
+    rng = np.random.default_rng([seed, 7919, sum(map(ord, key))])
+    return np.asarray(parameter_prior(p).sample(rng, (n,)), dtype=float)
 
 
-def _plug(theta, ancestors, plug, n_up, rng) -> dict[str, np.ndarray]:
-    """Upstream parameter values plugged into a downstream stage, model -> (D, p)."""
-    out = {}
-    for m in ancestors:
-        draws = theta.get(m)
-        if draws is None:
-            continue
-        if plug == "mode":
-            out[m] = np.array([[kde_mode(draws[:, j]) for j in range(draws.shape[1])]])
-        else:
-            idx = rng.choice(draws.shape[0], size=min(n_up, draws.shape[0]), replace=False)
-            out[m] = draws[idx]
-    if plug == "posterior" and out:  # the same draw index across upstream models
-        d = min(v.shape[0] for v in out.values())
-        out = {m: v[:d] for m, v in out.items()}
-    return out
+def cut_by_linear_response(ld: KOHDensity, idata, upstream: Mapping[str, np.ndarray],
+                           at: Mapping[str, float]):
+    """The cut posterior from a stage sampled with upstream parameters fixed at ``at``.
+
+    Each draw ``u^(s)`` (unconstrained) moves by ``J (theta^(s) - at)``, with
+    ``J = Cov(u, d loglik / d theta_up)`` over the draws (the linear-response derivative
+    of the posterior mean) and ``theta^(s)`` the upstream draws (key -> (N,)). Returns the
+    InferenceData with its posterior variables replaced.
+    """
+    import xarray as xr
+
+    spec = ld.spec
+    keys = list(upstream)
+    post = idata.posterior
+    n_chain, n_draw = post.sizes["chain"], post.sizes["draw"]
+    u = _unconstrain(ld, {v: np.asarray(post[v].values).reshape((n_chain * n_draw,)
+                                                                + post[v].shape[2:])
+                          for v in ld.sampled_vars})
+    slots = _fixed_slots(ld, keys)
+    data = _with_free_inputs(ld.data)
+    theta0 = jnp.asarray([at[k] for k in keys])
+
+    def loglik(tf, uu):
+        tfixed = dict(data["theta_fixed"])
+        for places, v in zip(slots, tf, strict=True):
+            for m, j in places:
+                tfixed[m] = tfixed[m].at[j].set(v)
+        return spec.loglik({**data, "theta_fixed": tfixed}, uu)
+
+    grad = jax.jit(jax.vmap(jax.grad(loglik), in_axes=(None, 0)))
+    g = np.asarray(grad(theta0, jnp.asarray(u)))  # (S, F)
+    J = (u - u.mean(0)).T @ (g - g.mean(0)) / (len(u) - 1)  # (dim, F)
+    S = len(u)
+    up = np.column_stack([np.resize(upstream[k], S) for k in keys])
+    u_cut = u + (up - np.asarray(theta0)) @ J.T
+    values = jax.vmap(lambda uu: spec.constrain(ld.data, uu))(jnp.asarray(u_cut))
+    new = {}
+    for v in ld.sampled_vars:
+        arr = np.asarray(values[v]).reshape((n_chain, n_draw) + np.shape(values[v])[1:])
+        new[v] = (post[v].dims, arr)
+    idata.posterior = xr.Dataset(new, coords=post.coords, attrs=post.attrs)
+    return idata
 
 
-def _posterior(network, mode, plug, stages, theta, data, ld, prior_only) -> NetworkPosterior:
-    hyper, std = {}, {}
+def _fixed_slots(ld: KOHDensity, keys: list[str]) -> list[tuple[str, int]]:
+    """(model, position) in ``theta_fixed`` of each upstream key, for every model that
+    uses it (a shared key may sit in several)."""
+    return [[(m, ks.index(k)) for m, ks in ld.param_keys.items() if k in ks] for k in keys]
+
+
+def _with_free_inputs(data: dict) -> dict:
+    """``data`` without precomputed inputs, so that they follow ``theta_fixed``."""
+    terms = [{k: v for k, v in t.items() if k not in ("x_fixed", "dx_fixed")}
+             for t in data["terms"]]
+    return {**data, "terms": terms}
+
+
+def _unconstrain(ld: KOHDensity, values: Mapping[str, np.ndarray]) -> np.ndarray:
+    """Unconstrained positions (S, dim) of constrained posterior draws."""
+    spec = ld.spec
+    cols = []
+    if spec.params:
+        params = np.empty((next(iter(values.values())).shape[0], len(spec.params)))
+        for var, idx in spec.groups:
+            params[:, list(idx)] = values[var].reshape(len(params), -1)
+        cols += [np.asarray(prior.to_unconstrained(params[:, i]))
+                 for i, (_, prior) in enumerate(spec.params)]
+    for term in spec.terms:
+        for name, priors in term.blocks():
+            v = values[name].reshape(len(values[name]), -1)
+            cols += [np.asarray(pr.to_unconstrained(v[:, j])) for j, pr in enumerate(priors)]
+    return np.column_stack(cols)
+
+
+def _posterior(network, mode, plug, stages, draws, data, prior_only, plugged,
+               notes) -> NetworkPosterior:
+    n = max((len(v) for v in draws.values()), default=0)
+    theta = {m: np.column_stack([np.resize(draws[k], n) for k in parameter_keys(network, m)])
+             for m in network.order if network.model(m).parameters}
+    hyper = {}
     for stage in stages:
         for ds in stage.datasets:
-            hyper[ds] = {h: stage.draws(f"{h}_{ds}") for h in ("ell", "sd2", "se2")}
-    for ds_name, d in data.items():
-        std[ds_name] = term_data(network, d)[1]
-    n = max((v.shape[0] for v in theta.values()), default=0)
-    for ds, h in hyper.items():  # align hyperparameter draws with theta draws
-        if n and next(iter(h.values())).shape[0] != n:
-            idx = np.random.default_rng(0).integers(0, next(iter(h.values())).shape[0], n)
-            hyper[ds] = {k: v[idx] for k, v in h.items()}
+            hyper[ds] = {h: stage.draws(f"{h}_{ds}") for h in ("ell", "sd2", "se2")
+                         if f"{h}_{ds}" in stage.idata.posterior}
     attrs = {"+".join(s.models): s.idata.posterior.attrs for s in stages}  # sample_nuts's
     timings = {f"stage_{k}": float(a.get("sampling_time", 0.0)) + float(a.get("compile_time", 0.0))
                for k, a in attrs.items()}
-    return NetworkPosterior(mode, plug, stages, theta, hyper, dict(data), std,
-                            prior_only, timings)
+    return NetworkPosterior(mode, plug, stages, theta, hyper, dict(data), prior_only,
+                            timings, plugged, notes)
+
+
+def with_stage(post: NetworkPosterior, stage: StageResult,
+               data: Mapping[str, ExperimentalData]) -> NetworkPosterior:
+    """``post`` with the parameters and hyperparameters a stage sampled replaced by its
+    draws (resampled to ``post.n_draws``), calibrated on ``data`` (leave-one-out)."""
+    n = post.n_draws
+    kd = key_draws(stage)
+    theta = {}
+    for m, arr in post.theta.items():
+        arr = arr.copy()
+        for j, k in enumerate(stage.logdensity.param_keys.get(m, ())):
+            if k in kd:
+                arr[:, j] = np.resize(kd[k], n)
+        theta[m] = arr
+    hyper = dict(post.hyper)
+    for ds in stage.datasets:
+        hyper[ds] = {}
+        for h in ("ell", "sd2", "se2"):
+            if f"{h}_{ds}" in stage.idata.posterior:
+                d = stage.draws(f"{h}_{ds}")
+                hyper[ds][h] = np.resize(d, (n,) + d.shape[1:])
+    return replace(post, theta=theta, hyper=hyper, data={**post.data, **data})

@@ -18,7 +18,7 @@ from calnet.errors import CalibrationError
 from calnet.spec import ExperimentalData, Network
 
 FILE = "network_posterior"
-FORMAT = 1
+FORMAT = 2
 
 
 def save_posterior(post, folder: str | Path) -> Path:
@@ -38,14 +38,18 @@ def save_posterior(post, folder: str | Path) -> Path:
     for ds, d in post.data.items():
         arrays[f"data/{ds}/x"] = np.asarray(d.x, float)
         arrays[f"data/{ds}/y"] = np.asarray(d.y, float)
+        if d.noise_sd is not None:
+            arrays[f"data/{ds}/noise_sd"] = np.asarray(d.noise_sd, float)
         data_meta[ds] = {"observes": d.observes, "input_keys": list(d.input_keys),
                          "labels": list(d.labels)}
+    for model, values in post.plugged.items():
+        arrays[f"plugged/{model}"] = np.asarray(values, float)
     np.savez_compressed(folder / f"{FILE}.npz", **arrays)
     meta = {"format": FORMAT, "mode": post.mode, "plug": post.plug,
             "prior_only": list(post.prior_only), "models": list(post.theta),
             "hyper": {ds: list(h) for ds, h in post.hyper.items()},
             "data": data_meta,
-            "standardisation": {k: list(map(float, v)) for k, v in post.standardisation.items()},
+            "plugged": list(post.plugged), "notes": list(post.notes),
             "timings": dict(post.timings)}
     path = folder / f"{FILE}.json"
     path.write_text(json.dumps(meta, indent=1))
@@ -80,10 +84,11 @@ def load_posterior(folder: str | Path, network: Network | None = None):
         y = arrays[f"data/{ds}/y"]
         data[ds] = ExperimentalData(ds, dm["observes"], tuple(dm["input_keys"]),
                                     arrays[f"data/{ds}/x"], y, np.zeros(len(y), bool),
-                                    tuple(dm["labels"]))
+                                    tuple(dm["labels"]), arrays.get(f"data/{ds}/noise_sd"))
+    plugged = {m: arrays[f"plugged/{m}"] for m in meta["plugged"]}
     post = NetworkPosterior(meta["mode"], meta["plug"], (), theta, hyper, data,
-                            {k: tuple(v) for k, v in meta["standardisation"].items()},
-                            tuple(meta["prior_only"]), meta.get("timings", {}))
+                            tuple(meta["prior_only"]), meta.get("timings", {}), plugged,
+                            tuple(meta["notes"]))
     if network is not None:
         _check_matches(post, network, folder)
     return post

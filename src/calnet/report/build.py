@@ -2,10 +2,6 @@
 
 from __future__ import annotations
 
-from functools import partial
-
-import jax
-import jax.numpy as jnp
 import numpy as np
 
 from calnet.report.figures import with_unit
@@ -32,40 +28,9 @@ def _axis_labels(network, input_keys) -> list[str]:
 
 def _mean_fn(ctx, name, idx):
     """Vectorised posterior predictive mean over draws ``idx`` (natural scale)."""
-    from calnet.calibration.network import term_data
-    from calnet.chain import ChainPlan
+    from calnet.predict import mean_function
 
-    net, post = ctx.network, ctx.post
-    ds = net.dataset(name)
-    plan = ChainPlan.from_network(net)
-    gps = {k: s.gp for k, s in ctx.sur.items.items()}
-    tr, _ = term_data(net, post.data[name])
-    thetas = {m: jnp.asarray(v[idx]) for m, v in post.theta.items()}
-    for m in plan.models:
-        if m.n_parameters == 0:
-            thetas[m.name] = jnp.zeros((len(idx), 0))
-    hyper = {h: jnp.asarray(v[idx]) for h, v in post.hyper[name].items()}
-    keys = net.process_input_keys(ds.observed_model)
-    log = net.model(ds.observed_model).output(ds.observed_output).transform == "log"
-
-    def f(x):
-        xp = {k: jnp.asarray(x[:, j], dtype=float) for j, k in enumerate(keys)}
-        return np.asarray(_predictive_mean(plan, ds.observed_model, ds.observes, log, gps, tr,
-                                           xp, thetas, hyper))
-
-    return f
-
-
-@partial(jax.jit, static_argnums=(0, 1, 2, 3))
-def _predictive_mean(plan, model, key, log, gps, tr, xp, thetas, hyper):
-    """Posterior mean (over the given draws) of the KOH predictive mean, natural scale."""
-    from calnet.predict import _draw_moments
-
-    def one(th, hy):
-        return _draw_moments(plan, gps, model, key, tr, xp, th, hy, {}, False)[0]
-
-    z = jax.vmap(one)(thetas, hyper) * tr["y_sd"] + tr["y_mean"]
-    return jnp.mean(jnp.exp(z) if log else z, axis=0)
+    return mean_function(ctx.network, ctx.sur, ctx.post, name, idx)
 
 
 def sensitivity_and_maps(ctx, note) -> None:
@@ -127,57 +92,96 @@ def _statuses(counts: dict[str, int]) -> str:
     return ", ".join(f"{n} {k}" for k, n in sorted(counts.items(), key=lambda kv: -kv[1]))
 
 
+def _where_sampled(post, key: str):
+    """(stage, variable, selection) of the stage that sampled parameter ``key``."""
+    for stage in post.stages:
+        spec = stage.logdensity.spec
+        for var, idx in spec.groups:
+            for i in idx:
+                if spec.params[i][0] == key:
+                    coord = stage.logdensity.names[var][list(idx).index(i)]
+                    return stage, var, {f"{var}_dim": coord}
+    return None
+
+
 def posterior_summary(network, post) -> dict:
-    """Per model: range, mode (KDE), mean, sd, 95 % interval, R-hat, ESS, divergences."""
+    """Per model: range, mode (KDE), mean, sd, 95 % interval with the Monte Carlo standard
+    error of each (ArviZ), R-hat, ESS, divergences."""
     import arviz as az
 
     from calnet.calibration.diagnostics import kde_mode
+    from calnet.calibration.network import parameter_keys
+
+    cache: dict = {}
+
+    def diag(stage):
+        if id(stage) not in cache:
+            p = stage.idata.posterior
+            cache[id(stage)] = {
+                "rhat": az.rhat(p), "ess_bulk": az.ess(p, method="bulk"),
+                "ess_tail": az.ess(p, method="tail"), "mcse_mean": az.mcse(p, method="mean"),
+                "mcse_sd": az.mcse(p, method="sd"),
+                "mcse_q2.5": az.mcse(p, method="quantile", prob=0.025),
+                "mcse_q97.5": az.mcse(p, method="quantile", prob=0.975)}
+        return cache[id(stage)]
 
     out = {}
-    for stage in post.stages:
-        idata_post = stage.idata.posterior
-        attrs = idata_post.attrs  # sample_nuts puts the timings there
-        rhat, ess_b = az.rhat(idata_post), az.ess(idata_post, method="bulk")
-        ess_t = az.ess(idata_post, method="tail")
-        div = int(np.asarray(stage.idata.sample_stats["diverging"]).sum())
-        for model in stage.models:
-            m = network.model(model)
-            var = f"theta_{model}"
-            if var not in idata_post:
-                continue
-            draws = post.theta[model]
-            rows = {}
-            for j, p in enumerate(m.parameters):
-                sel = {f"{model}_parameter": p.name}
-                rows[p.name] = {
-                    "unit": p.unit, "lower": p.lower, "upper": p.upper,
-                    "mode": kde_mode(draws[:, j]), "mean": float(draws[:, j].mean()),
-                    "sd": float(draws[:, j].std()),
-                    "q2.5": float(np.percentile(draws[:, j], 2.5)),
-                    "q97.5": float(np.percentile(draws[:, j], 97.5)),
-                    "rhat": float(rhat[var].sel(sel)), "ess_bulk": float(ess_b[var].sel(sel)),
-                    "ess_tail": float(ess_t[var].sel(sel))}
-            all_rhat = max(float(rhat[v].max()) for v in idata_post.data_vars)
-            all_ess = min(float(ess_b[v].min()) for v in idata_post.data_vars)
-            out[model] = {"parameters": rows, "divergences": div, "max_rhat": all_rhat,
-                          "min_ess_bulk": all_ess, "stage": "+".join(stage.models),
-                          "datasets": list(stage.datasets),
-                          "sampling_time_s": float(attrs.get("sampling_time", 0)),
-                          "compile_time_s": float(attrs.get("compile_time", 0))}
-    for model in post.prior_only:
-        out[model] = {"prior_only": True}
+    for model, draws in post.theta.items():
+        if model in post.prior_only:
+            out[model] = {"prior_only": True}
+            continue
+        m = network.model(model)
+        rows, stages = {}, []
+        for j, (p, key) in enumerate(zip(m.parameters, parameter_keys(network, model),
+                                         strict=True)):
+            found = _where_sampled(post, key)
+            x = draws[:, j]
+            row = {"unit": p.unit, "lower": p.lower, "upper": p.upper, "mode": kde_mode(x),
+                   "mean": float(x.mean()), "sd": float(x.std()),
+                   "q2.5": float(np.percentile(x, 2.5)),
+                   "q97.5": float(np.percentile(x, 97.5))}
+            if found is None:  # held at a plugged value or prior draws in this model
+                row["plugged"] = True
+            else:
+                stage, var, sel = found
+                if stage not in stages:
+                    stages.append(stage)
+                d = diag(stage)
+                row.update({k: float(d[k][var].sel(sel)) for k in (
+                    "mcse_mean", "mcse_sd", "mcse_q2.5", "mcse_q97.5")})
+                row.update({"rhat": float(d["rhat"][var].sel(sel)),
+                            "ess_bulk": float(d["ess_bulk"][var].sel(sel)),
+                            "ess_tail": float(d["ess_tail"][var].sel(sel))})
+                if "." not in key:
+                    row["shared"] = True
+            rows[p.name] = row
+        if not stages:
+            out[model] = {"prior_only": True}
+            continue
+        div = sum(int(np.asarray(s.idata.sample_stats["diverging"]).sum()) for s in stages)
+        all_rhat = max(float(diag(s)["rhat"][v].max()) for s in stages
+                       for v in s.idata.posterior.data_vars)
+        all_ess = min(float(diag(s)["ess_bulk"][v].min()) for s in stages
+                      for v in s.idata.posterior.data_vars)
+        attrs = stages[0].idata.posterior.attrs  # sample_nuts puts the timings there
+        out[model] = {"parameters": rows, "divergences": div, "max_rhat": all_rhat,
+                      "min_ess_bulk": all_ess,
+                      "stage": " ; ".join("+".join(s.models) for s in stages),
+                      "datasets": sorted({d for s in stages for d in s.datasets}),
+                      "sampling_time_s": float(attrs.get("sampling_time", 0)),
+                      "compile_time_s": float(attrs.get("compile_time", 0))}
     return out
 
 
 def prior_panels(network, post, model, summary):
     """Prior density and posterior draws of each parameter of ``model`` (for figures)."""
-    from calnet.calibration.network import theta_prior
+    from calnet.calibration.priors import parameter_prior
 
     m = network.model(model)
     panels = []
     for j, p in enumerate(m.parameters):
         xs = np.linspace(p.lower, p.upper, 200)
-        ys = np.exp(np.asarray(theta_prior(p).log_prob(xs)))
+        ys = np.exp(np.asarray(parameter_prior(p).log_prob(xs)))
         panels.append({"name": p.name, "unit": p.unit, "lower": p.lower, "upper": p.upper,
                        "prior_pdf_x": xs, "prior_pdf_y": ys,
                        "posterior_samples": post.theta[model][:, j],
@@ -257,7 +261,7 @@ def _sections(ctx, summary) -> list[Section]:
         for p, r in s["parameters"].items():
             rows.append([model, p, f"[{fmt(r['lower'])}, {fmt(r['upper'])}]", fmt(r["mode"]),
                          fmt(r["mean"]), f"[{fmt(r['q2.5'])}, {fmt(r['q97.5'])}]", r["unit"],
-                         fmt(r["rhat"]), fmt(r["ess_bulk"])])
+                         fmt(r.get("rhat")), fmt(r.get("ess_bulk"))])
     diag = [[k, s.get("divergences", ""), fmt(s.get("max_rhat")), fmt(s.get("min_ess_bulk"))]
             for k, s in summary.items()]
     ref = reference_rows(ctx, summary)  # only where the network is the case study

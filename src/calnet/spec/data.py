@@ -31,6 +31,9 @@ class ExperimentalData:
         True for rows held out by the split column.
     labels : tuple of str
         Row labels (the CSV's first column, or the row number).
+    noise_sd : ndarray, shape (n_points,), or None
+        Known measurement sd of each observation in the output's unit (``noise: sd`` or
+        ``noise: sd_column``); None when the noise is unknown.
     """
 
     name: str
@@ -40,6 +43,7 @@ class ExperimentalData:
     y: np.ndarray
     is_test: np.ndarray
     labels: tuple[str, ...]
+    noise_sd: np.ndarray | None = None
 
     @property
     def train(self) -> ExperimentalData:
@@ -54,7 +58,8 @@ class ExperimentalData:
         idx = np.arange(len(self.y))[mask]
         return ExperimentalData(self.name, self.observes, self.input_keys, self.x[idx],
                                 self.y[idx], self.is_test[idx],
-                                tuple(self.labels[i] for i in idx))
+                                tuple(self.labels[i] for i in idx),
+                                None if self.noise_sd is None else self.noise_sd[idx])
 
 
 def read_dataset(network: Network, ds: Dataset) -> ExperimentalData:
@@ -96,7 +101,29 @@ def read_dataset(network: Network, ds: Dataset) -> ExperimentalData:
     is_test = _split_mask(frame, ds, path, field)
     _check_bounds(network, ds, wanted, x, path, field)
     labels = tuple(str(v) for v in frame.iloc[:, 0]) if len(frame.columns) else ()
-    return ExperimentalData(ds.name, ds.observes, tuple(wanted), x, y, is_test, labels)
+    noise_sd = _noise_sd(frame, ds, path, field)
+    return ExperimentalData(ds.name, ds.observes, tuple(wanted), x, y, is_test, labels,
+                            noise_sd)
+
+
+def _noise_sd(frame, ds: Dataset, path, field: str) -> np.ndarray | None:
+    """Known per-point noise sd (n,) from ``noise: sd`` or ``noise: sd_column``."""
+    if ds.noise.sd is not None:
+        return np.full(len(frame), float(ds.noise.sd))
+    if ds.noise.sd_column is None:
+        return None
+    col = ds.noise.sd_column
+    if col not in frame.columns:
+        raise SpecError(f"noise sd column '{col}' is not in the CSV (it has "
+                        f"{list(frame.columns)}); fix 'noise.sd_column'", file=str(path),
+                        field=f"{field}.noise.sd_column")
+    sd = _numeric_column(frame, col, path, field)
+    if np.any(sd <= 0):
+        rows = (np.flatnonzero(sd <= 0) + 2).tolist()
+        raise SpecError(f"noise sd column '{col}' has {len(rows)} value(s) <= 0 on line(s) "
+                        f"{rows[:10]}; a standard deviation must be positive",
+                        file=str(path), field=f"{field}.noise.sd_column")
+    return sd
 
 
 def _numeric_column(frame, column: str, path, field: str) -> np.ndarray:

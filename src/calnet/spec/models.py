@@ -9,11 +9,11 @@ from pydantic import Field, PositiveInt, field_validator, model_validator
 from calnet.spec.variables import (
     Frozen,
     Input,
-    InverseGammaPrior,
     LogNormalPrior,
     Name,
     Output,
     Parameter,
+    ScalePrior,
 )
 
 SIMULATOR_KINDS = ("builtin", "python", "command", "umbridge")
@@ -197,12 +197,83 @@ class Split(Frozen):
     test: str = "test"
 
 
-class DiscrepancySettings(Frozen):
-    """Priors of the KOH discrepancy and noise of one data set (method.md section 3)."""
+class NoiseSettings(Frozen):
+    """Measurement noise of one data set (method.md section 3), in the output's units.
 
+    Give one of: ``sd`` (a known standard deviation), ``sd_column`` (a CSV column of known
+    per-point standard deviations) or ``prior`` (a prior on the unknown noise sd: dist
+    ``halfnormal``, ``lognormal`` or ``gamma``; or ``invgamma`` on the variance). With
+    none of them the noise sd gets the default prior, a half-normal whose scale is the
+    sd of the observations. For an output with ``transform: log`` the known sds are
+    converted to the log scale as ``sd / y``, and a ``prior`` is on the sd of ``ln y``.
+    ``noise: reference`` is the reference study's InverseGamma(2, 1) on the noise variance
+    relative to the observations' variance.
+    """
+
+    sd: float | None = Field(None, gt=0, allow_inf_nan=False)
+    sd_column: str | None = None
+    prior: ScalePrior | None = None
+    reference: bool = False
+
+    @model_validator(mode="before")
+    @classmethod
+    def _shorthand(cls, value: Any) -> Any:
+        if value == "reference":
+            return {"reference": True}
+        if isinstance(value, str):
+            raise ValueError(f"cannot read noise '{value}'; write {{sd: 0.1}}, "
+                             "{sd_column: COLUMN}, {prior: {dist: halfnormal, sigma: ...}} "
+                             "or reference")
+        return value
+
+    @model_validator(mode="after")
+    def _one_kind(self) -> NoiseSettings:
+        given = [k for k in ("sd", "sd_column", "prior") if getattr(self, k) is not None]
+        given += ["reference"] if self.reference else []
+        if len(given) > 1:
+            raise ValueError(f"give one of sd, sd_column, prior or reference, not {given}")
+        return self
+
+    @property
+    def known(self) -> bool:
+        return self.sd is not None or self.sd_column is not None
+
+
+class DiscrepancySettings(Frozen):
+    """The KOH discrepancy of one data set (method.md section 3).
+
+    ``sd_prior`` is a prior on the discrepancy's standard deviation in the output's units
+    (on the log scale for ``transform: log``; default: a half-normal whose scale is the
+    sd of the observations), ``length_scale_prior`` on its length scales over the unit
+    cube of the model's inputs. ``orthogonal`` (default true) keeps the discrepancy from
+    mimicking the model's own parameters (docs/method.md). ``discrepancy: none`` drops
+    the term; ``discrepancy: reference`` is the reference study's KOH: InverseGamma(2, 1)
+    on the variance relative to the observations' variance, not orthogonal.
+    """
+
+    sd_prior: ScalePrior | None = None
     length_scale_prior: LogNormalPrior = Field(default_factory=LogNormalPrior)
-    variance_prior: InverseGammaPrior = Field(default_factory=InverseGammaPrior)
-    noise_prior: InverseGammaPrior = Field(default_factory=InverseGammaPrior)
+    orthogonal: bool = True
+    enabled: bool = True
+    reference: bool = False
+
+    @model_validator(mode="before")
+    @classmethod
+    def _shorthand(cls, value: Any) -> Any:
+        if value in ("none", None, False):
+            return {"enabled": False}
+        if value == "reference":
+            return {"reference": True, "orthogonal": False}
+        if isinstance(value, str):
+            raise ValueError(f"cannot read discrepancy '{value}'; write none, reference or "
+                             "{sd_prior: {...}, length_scale_prior: {...}}")
+        return value
+
+    @model_validator(mode="after")
+    def _consistent(self) -> DiscrepancySettings:
+        if self.reference and self.sd_prior is not None:
+            raise ValueError("give either reference or sd_prior, not both")
+        return self
 
 
 class Dataset(Frozen):
@@ -219,6 +290,7 @@ class Dataset(Frozen):
     columns: dict[str, str]
     split: Split | None = None
     strict: bool | None = None
+    noise: NoiseSettings = Field(default_factory=NoiseSettings)
     discrepancy: DiscrepancySettings = Field(default_factory=DiscrepancySettings)
     description: str = ""
 
@@ -248,19 +320,26 @@ class SamplerSettings(Frozen):
     warmup: int = Field(1000, ge=10)
     draws: int = Field(1000, ge=10)
     thin: int = Field(1, ge=1)
-    target_accept: float = Field(0.8, gt=0, lt=1)
+    target_accept: float = Field(0.9, gt=0, lt=1)
     chain_method: Literal["auto", "sequential", "parallel", "vectorized"] = Field(
         "auto", description="how chains share the CPU (auto: parallel over XLA host "
         "devices when there are several)")
 
 
 class CalibrationSettings(Frozen):
-    """How the network is calibrated (method.md section 4)."""
+    """How the network is calibrated (method.md section 4).
+
+    ``plug`` (segmented mode): ``mode`` fixes the upstream parameters at their posterior
+    mode; ``posterior`` gives the cut posterior (upstream parameters from their own
+    posterior, downstream ones conditional on them), by linear response around the
+    upstream posterior mean (docs/method.md). ``emulator_variance`` adds the surrogates'
+    predictive variance to the likelihood (the observed output's, and to first order the
+    linked outputs' along the chain).
+    """
 
     mode: Literal["segmented", "joint"] = "segmented"
     plug: Literal["mode", "posterior"] = "posterior"
     emulator_variance: bool = True
-    upstream_draws: int = Field(16, ge=1, description="upstream draws propagated downstream")
 
 
 class Criterion(Frozen):
@@ -313,6 +392,6 @@ def named_mapping_to_list(value: Any) -> Any:
 
 __all__ = [
     "CalibrationSettings", "CampaignSettings", "Criterion", "Dataset", "DiscrepancySettings",
-    "Link", "Model", "Name", "SamplerSettings", "Settings", "SimulatorRef", "Split",
-    "SurrogateSettings",
+    "Link", "Model", "Name", "NoiseSettings", "SamplerSettings", "Settings", "SimulatorRef",
+    "Split", "SurrogateSettings",
 ]

@@ -65,6 +65,7 @@ class Network(Frozen):
         for i, link in enumerate(self.links):
             self._check_link(i, link)
         self.order  # noqa: B018  (raises on a cycle)
+        self._check_parameters()
         for i, ds in enumerate(self.data):
             self._check_dataset(i, ds)
         for name in self.settings.criteria:
@@ -105,6 +106,36 @@ class Network(Frozen):
         if len(others) > 1:
             raise ValueError(f"{where}.to: '{link.target}' is fed by {len(others)} links; "
                              "an input can be fed by one link only")
+
+    def _check_parameters(self) -> None:
+        """A parameter name in several models must be shared, with one declaration."""
+        seen: dict[str, list[tuple[str, object]]] = {}
+        for m in self.models:
+            for p in m.parameters:
+                seen.setdefault(p.name, []).append((m.name, p))
+        for name, decls in seen.items():
+            if len(decls) < 2:
+                continue
+            models = [m for m, _ in decls]
+            if not all(p.shared for _, p in decls):
+                raise ValueError(
+                    f"models: parameter '{name}' is declared in {models} as separate "
+                    "parameters; to calibrate one parameter for all of them add 'shared: "
+                    "true' to each declaration, or rename one of them")
+            first = decls[0][1].model_dump(exclude={"description"})
+            for model, p in decls[1:]:
+                other = p.model_dump(exclude={"description"})
+                diff = [k for k in first if first[k] != other[k]]
+                if diff:
+                    raise ValueError(
+                        f"models.{model}.parameters.{name}: shared parameter '{name}' has "
+                        f"other {', '.join(diff)} than in '{models[0]}' "
+                        f"({', '.join(f'{k}={first[k]!r}' for k in diff)}); declare it "
+                        "the same way in every model")
+
+    def param_key(self, model: str, name: str) -> str:
+        """Key of a calibration parameter: ``model.name``, or ``name`` when shared."""
+        return name if self.model(model).variable(name).shared else f"{model}.{name}"
 
     def _check_dataset(self, i: int, ds: Dataset) -> None:
         where = f"data.{ds.name}"

@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
 
 NAME_PATTERN = r"^[A-Za-z_][A-Za-z0-9_]*$"
 Name = Annotated[str, Field(pattern=NAME_PATTERN)]
@@ -22,21 +22,42 @@ class Frozen(BaseModel):
 
 
 # ---------------------------------------------------------------- priors (method.md section 3)
-class BetaPrior(Frozen):
-    """Beta(a, b) scaled to the parameter's [lower, upper] (reference: a = b = 1.1)."""
+class _SpecPrior(Frozen):
+    """Base of the prior models: every number is finite and not a boolean."""
+
+    @field_validator("a", "b", "mu", "sigma", mode="before", check_fields=False)
+    @classmethod
+    def _finite_number(cls, value: object, info: ValidationInfo) -> object:
+        if isinstance(value, bool):
+            raise ValueError(f"{info.field_name} must be a number, got {value}; write a number "
+                             "such as 1.0, not true/false")
+        try:
+            number = float(value)
+        except (TypeError, ValueError):
+            return value  # pydantic reports the non-number
+        if not math.isfinite(number):
+            raise ValueError(f"{info.field_name} must be a finite number, got {value}")
+        return value
+
+
+class BetaPrior(_SpecPrior):
+    """Beta(a, b) scaled to the parameter's [lower, upper] (reference: a = b = 1.1).
+
+    ``a`` and ``b`` are unitless shapes (> 0).
+    """
 
     dist: Literal["beta"] = "beta"
     a: float = Field(1.1, gt=0)
     b: float = Field(1.1, gt=0)
 
 
-class UniformPrior(Frozen):
+class UniformPrior(_SpecPrior):
     """Uniform on the parameter's [lower, upper]."""
 
     dist: Literal["uniform"] = "uniform"
 
 
-class NormalPrior(Frozen):
+class NormalPrior(_SpecPrior):
     """Normal(mu, sigma) truncated to the parameter's bounds (mu, sigma in its units)."""
 
     dist: Literal["normal"] = "normal"
@@ -44,23 +65,76 @@ class NormalPrior(Frozen):
     sigma: float = Field(gt=0)
 
 
-class LogNormalPrior(Frozen):
-    """LogNormal(mu, sigma): sigma is the sd of the log (reference: mu 0, sigma 0.5)."""
+class TruncNormalPrior(_SpecPrior):
+    """Normal(mu, sigma) truncated to the parameter's bounds (mu, sigma in its units).
+
+    The same prior as ``dist: normal``, under the explicit name.
+    """
+
+    dist: Literal["truncnormal"] = "truncnormal"
+    mu: float
+    sigma: float = Field(gt=0)
+
+
+class LogNormalPrior(_SpecPrior):
+    """LogNormal(mu, sigma): ``log x ~ Normal(mu, sigma)`` (reference: mu 0, sigma 0.5).
+
+    ``mu`` and ``sigma`` are the mean and sd of ``log x``. On a parameter, ``x`` is the
+    parameter in its units, truncated to its bounds (lower >= 0); as a discrepancy length
+    scale, ``x`` is the length scale on unit-cube inputs; as a noise or discrepancy scale
+    prior, ``x`` is the sd, in standardised output units.
+    """
 
     dist: Literal["lognormal"] = "lognormal"
     mu: float = 0.0
     sigma: float = Field(0.5, gt=0)
 
 
-class InverseGammaPrior(Frozen):
-    """InverseGamma(a, b) on a variance (reference: a 2, b 1, on standardised outputs)."""
+class GammaPrior(_SpecPrior):
+    """Gamma(a, b) with shape ``a`` > 0 and rate ``b`` > 0: ``b^a x^(a-1) e^(-b x) / G(a)``.
+
+    The mean is ``a / b``; ``b`` is in the inverse units of ``x``. On a parameter, ``x`` is
+    the parameter in its units, truncated to its bounds (lower >= 0); as a noise or
+    discrepancy scale prior, ``x`` is the sd, in standardised output units.
+    """
+
+    dist: Literal["gamma"] = "gamma"
+    a: float = Field(gt=0)
+    b: float = Field(gt=0)
+
+
+class HalfNormalPrior(_SpecPrior):
+    """HalfNormal(sigma): ``|z| sigma`` with ``z ~ Normal(0, 1)``, on ``x >= 0``.
+
+    ``sigma`` > 0 is in the units of ``x``. On a parameter, ``x`` is the parameter in its
+    units, truncated to its bounds (lower >= 0); as a noise or discrepancy scale prior,
+    ``x`` is the sd, in standardised output units.
+    """
+
+    dist: Literal["halfnormal"] = "halfnormal"
+    sigma: float = Field(gt=0)
+
+
+class InverseGammaPrior(_SpecPrior):
+    """InverseGamma(a, b) on a variance (reference: a 2, b 1, on standardised outputs).
+
+    Density ``b^a x^(-a-1) e^(-b / x) / G(a)`` of the variance ``x``; ``b`` is in its units.
+    """
 
     dist: Literal["invgamma"] = "invgamma"
     a: float = Field(2.0, gt=0)
     b: float = Field(1.0, gt=0)
 
 
-ParameterPrior = Annotated[BetaPrior | UniformPrior | NormalPrior, Field(discriminator="dist")]
+ParameterPrior = Annotated[
+    BetaPrior | UniformPrior | NormalPrior | TruncNormalPrior | LogNormalPrior | GammaPrior
+    | HalfNormalPrior,
+    Field(discriminator="dist"),
+]
+ScalePrior = Annotated[
+    HalfNormalPrior | LogNormalPrior | GammaPrior | InverseGammaPrior,
+    Field(discriminator="dist"),
+]
 
 
 # ---------------------------------------------------------------- variables
@@ -116,9 +190,15 @@ class Input(Bounded):
 
 
 class Parameter(Bounded):
-    """A calibration parameter ``theta`` with its prior (default scaled Beta(1.1, 1.1))."""
+    """A calibration parameter ``theta`` with its prior (default scaled Beta(1.1, 1.1)).
+
+    ``shared: true`` makes one parameter of every model that declares the same name with
+    ``shared: true`` (the same unit, bounds and prior in each): it is calibrated once, with
+    the data of all those models in joint mode.
+    """
 
     prior: ParameterPrior = Field(default_factory=BetaPrior)
+    shared: bool = False
 
     @model_validator(mode="after")
     def _prior_has_mass(self) -> Parameter:
