@@ -48,15 +48,15 @@ def child(problem: str, method: str, devices: int) -> None:
 
         ld = build(load_problem())
     else:
-        from calnet.calibration.network import build_network_logdensity
+        from calnet.calibration.network import build_koh, parameter_keys
         from calnet.spec import load_spec, read_all
         from calnet.surrogates.network import Surrogates
 
         net = load_spec(ROOT / "examples" / "ninb")
         sur = Surrogates.load(ROOT / "out" / "ninb" / "surrogates")
         width = read_all(net)["width"].train
-        ld = build_network_logdensity(net, sur, free=("melt_pool",), datasets={"width": width},
-                                      name="ninb thermal")
+        ld = build_koh(net, sur, free=parameter_keys(net, "melt_pool"),
+                       datasets={"width": width}, name="ninb thermal")
     t0 = time.perf_counter()
     idata = sample_nuts(ld, seed=1, num_chains=4, num_warmup=1000, num_draws=1000,
                         chain_method=method)

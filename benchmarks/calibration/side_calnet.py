@@ -1,4 +1,4 @@
-"""calnet side: build_logdensity + sample_nuts (BlackJAX NUTS, chains over 4 host devices).
+"""calnet side: the shipped KOH model (build_koh) + sample_nuts (BlackJAX NUTS, chains over 4 host devices).
 
 usage: python side_calnet.py REP   (run 1: compile + sample; run 2: cached sampler, new seed)
 """
@@ -28,14 +28,53 @@ REP = int(sys.argv[1]) if len(sys.argv) > 1 else 0
 DENSE = len(sys.argv) > 2 and sys.argv[2] == "dense"
 
 
-def build(P):
-    from calnet.calibration import Beta, build_logdensity, fixed_input_gp
+ANCHOR_SPEC = """
+models:
+  m:
+    simulator: python:nowhere:f
+    inputs: {x1: {lower: 0, upper: 1}, x2: {lower: 0, upper: 1}}
+    parameters: {%s}
+    outputs: {y: {measurable: true}}
+data:
+  obs:
+    path: obs.csv
+    observes: m.y
+    columns: {x1: x1, x2: x2, y: y}
+    noise: {prior: {dist: invgamma, a: 2, b: 1}}
+    discrepancy: {sd_prior: {dist: invgamma, a: 2, b: 1}, orthogonal: false}
+settings:
+  calibration: {emulator_variance: false}
+""" % ", ".join(f"t{i}: {{lower: 0, upper: 1}}" for i in range(7))
 
-    # surrogate mean = mu0 + k32([x, theta], Xtr; ls) @ c, x-part of the distances once
-    mean_fn, args = fixed_input_gp(P["xo"], P["Xtr"], P["ls"], P["c"], P["mu0"])
-    return build_logdensity(mean_fn, P["yo"], P["xo"], theta_priors=[Beta(0.0, 1.0)] * 7,
-                            mean_args=args, name="koh_anchor",
-                            theta_names=[f"t{i}" for i in range(7)], x_names=["x1", "x2"])
+
+def build(P):
+    """The koh_anchor problem as a one-model calnet network (the shipped KOH model)."""
+    import tempfile
+    from pathlib import Path
+
+    import jax.numpy as jnp
+
+    from calnet.calibration.network import build_koh
+    from calnet.spec import load_spec, read_all
+    from calnet.surrogates.gp import FittedGP
+    from calnet.surrogates.network import OutputSurrogate, Surrogates
+
+    folder = Path(tempfile.mkdtemp())
+    (folder / "network.yaml").write_text(ANCHOR_SPEC)
+    (folder / "obs.csv").write_text("x1,x2,y\n" + "".join(
+        f"{a},{b},{c}\n" for (a, b), c in zip(P["xo"], P["yo"], strict=True)))
+    network = load_spec(folder)
+    amp = float(P["amp"])
+    # surrogate mean = mu0 + k32([x, theta], Xtr; ls) @ c as a FittedGP (variance unused)
+    gp = FittedGP(x_train=jnp.asarray(P["Xtr"]), alpha=jnp.asarray(P["c"] / amp),
+                  chol=jnp.eye(len(P["Xtr"])), lengthscales=jnp.asarray(P["ls"]),
+                  signal_var=jnp.asarray(amp), nugget=jnp.asarray(P["noise"]),
+                  lower=jnp.zeros(9), upper=jnp.ones(9), y_mean=jnp.asarray(P["mu0"]),
+                  y_std=jnp.asarray(1.0), nlml=jnp.asarray(float("nan")), name="y")
+    sur = Surrogates({"m.y": OutputSurrogate("m", "y", gp, None, 240, 0)})
+    data = {k: v.train for k, v in read_all(network).items()}
+    return build_koh(network, sur, free=[f"m.t{i}" for i in range(7)], datasets=data,
+                     emulator_variance=False, name="koh_anchor")
 
 
 def main():

@@ -248,7 +248,8 @@ def calibrate(
                                progress=lambda m: status.update(m))
     save_posterior(post, out)
     summary = posterior_summary(network, post)
-    (out / "summary.json").write_text(json.dumps(summary, indent=1, default=_json_default))
+    doc = {**summary, "surrogate_check": {c.dataset: c.to_dict() for c in post.checks}}
+    (out / "summary.json").write_text(json.dumps(doc, indent=1, default=_json_default))
     table = Table("model", "parameter", "range", "mode", "mean", "95% interval", "unit",
                   "R-hat", "ESS bulk", title=f"{post.mode} calibration"
                   + (f", upstream plugged in by its {post.plug}" if post.mode == "segmented"
@@ -397,6 +398,71 @@ def _write_predictions(path: Path, results: list[dict]) -> None:
                 given = dict(zip(r["inputs"], x, strict=True))
                 writer.writerow([r["dataset"], r["observes"], *(given.get(k, "") for k in keys),
                                  m, lo, hi])
+
+
+@app.command()
+@user_errors
+def verify(
+    spec: SpecArg,
+    run_dir: Annotated[Path, typer.Option(
+        "--run", help="folder written by calnet run / calibrate (surrogates/, posterior/)")
+    ] = Path("out"),
+    k: Annotated[int, typer.Option("-k", "--points", min=1, help="posterior points to run")
+                 ] = 8,
+    seed: Annotated[int | None, typer.Option(help="seed (default: the spec's)")] = None,
+    as_json: Annotated[bool, typer.Option("--json", help="print JSON instead of tables")
+                       ] = False,
+) -> None:
+    """Run the real simulators where the posterior puts its mass and compare each
+    surrogate there (z = (simulator - mean) / sd on the modelled scale); writes
+    RUN/verify.json. Disagreements are reported, not errors."""
+    from rich.table import Table
+
+    from calnet.calibration.persist import load_posterior
+    from calnet.spec import load_spec
+    from calnet.surrogates.network import Surrogates
+    from calnet.verify import Z_LIMIT
+    from calnet.verify import verify as run_verify
+
+    network = load_spec(spec)
+    sur_dir = run_dir / "surrogates"
+    if not (sur_dir / "surrogates.json").is_file():
+        raise CalnetError(f"no fitted surrogates in '{sur_dir}'; run 'calnet run SPEC --out "
+                          f"{run_dir}' first, or pass --run DIR")
+    post = load_posterior(run_dir / "posterior", network)
+    sur = Surrogates.load(sur_dir)
+    seed = network.settings.seed if seed is None else seed
+    with console.status("running the simulators") as status:
+        result = run_verify(network, sur, post, k=k, seed=seed, workdir=run_dir / "verify",
+                            progress=lambda m: status.update(m))
+    doc = json.dumps(result.to_dict(), indent=1, default=_json_default)
+    (run_dir / "verify.json").write_text(doc)
+    if as_json:
+        print(doc)
+        return
+    table = Table("surrogate", "point", "simulator", "surrogate mean ± sd", "z",
+                  title="surrogates against the simulators at posterior points "
+                  "(modelled scale: ln for log outputs)")
+    for p in result.points:
+        label = p.surrogate + (" (ln)" if result.checks[p.surrogate].transform == "log" else "")
+        if p.status != "ok":
+            table.add_row(label, str(p.point), f"[red]{p.status}[/]: {p.message}",
+                          f"{p.mean:.4g} ± {p.sd:.2g}", "-")
+            continue
+        z = f"{p.z:+.2f}"
+        table.add_row(label, str(p.point), f"{p.simulator:.4g}", f"{p.mean:.4g} ± {p.sd:.2g}",
+                      f"[red]{z}[/]" if abs(p.z) > Z_LIMIT else z)
+    console.print(table)
+    summary = Table("surrogate", "n", "failed", "RMSE", "max |z|", f"|z| > {Z_LIMIT:g}",
+                    "verdict")
+    for c in result.checks.values():
+        summary.add_row(c.surrogate, str(c.n), str(c.n_failed), f"{c.rmse:.3g}",
+                        f"{c.max_abs_z:.2f}", f"{c.share_beyond:.0%}",
+                        c.verdict if c.agrees else f"[yellow]{c.verdict}[/]")
+    console.print(summary)
+    for note in result.notes:
+        console.print(f"note: {note}")
+    console.print(f"written to {run_dir / 'verify.json'}")
 
 
 @app.command()

@@ -81,6 +81,9 @@ class NetworkPosterior:
         KDE mode for ``plug="mode"``, the posterior mean for ``plug="posterior"``).
     notes : tuple of str
         What the user should know about how the posterior was obtained.
+    checks : tuple of SurrogateCheck
+        Per data set, the surrogates' sd at the posterior against the data's
+        (:mod:`calnet.calibration.guard`).
     """
 
     mode: str
@@ -93,6 +96,7 @@ class NetworkPosterior:
     timings: Mapping[str, float] = field(default_factory=dict)
     plugged: Mapping[str, np.ndarray] = field(default_factory=dict)
     notes: tuple[str, ...] = ()
+    checks: tuple = ()
 
     @property
     def n_draws(self) -> int:
@@ -321,8 +325,24 @@ def calibrate(network: Network, surrogates: Surrogates, *, data=None, mode: str 
                                "'parameters:' in a model to calibrate")
     plan = ChainPlan.from_network(network)
     if mode == "joint":
-        return _joint(network, surrogates, data, plan, seed, sampler, emu, progress)
-    return _segmented(network, surrogates, data, plan, seed, sampler, emu, plug, progress)
+        post = _joint(network, surrogates, data, plan, seed, sampler, emu, progress)
+    else:
+        post = _segmented(network, surrogates, data, plan, seed, sampler, emu, plug, progress)
+    return _checked(network, surrogates, post)
+
+
+def _checked(network, surrogates, post: NetworkPosterior) -> NetworkPosterior:
+    """``post`` with its surrogate checks, warning where a surrogate sets the answer."""
+    from calnet.calibration.guard import check_surrogates
+
+    checks = tuple(check_surrogates(network, surrogates, post))
+    for c in checks:
+        message = c.message()
+        if message:
+            warnings.warn(message, CalibrationWarning, stacklevel=3)
+    for note in post.notes:
+        warnings.warn(note, CalibrationWarning, stacklevel=3)
+    return replace(post, checks=checks)
 
 
 def _all_keys(network: Network) -> list[str]:

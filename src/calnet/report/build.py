@@ -196,7 +196,10 @@ def write_outputs(ctx) -> None:
     net, out = ctx.network, ctx.out
     summary = posterior_summary(ctx.network, ctx.post)
     ctx.metrics["calibration"] = {"mode": ctx.post.mode, "plug": ctx.post.plug,
-                                  "sampler": ctx.sampler.model_dump(), "models": summary}
+                                  "sampler": ctx.sampler.model_dump(), "models": summary,
+                                  "notes": list(ctx.post.notes),
+                                  "surrogate_check": {c.dataset: c.to_dict()
+                                                      for c in ctx.post.checks}}
     ctx.metrics["predictions"] = {k: p.to_dict() for k, p in ctx.predictions.items()}
     ctx.metrics["warnings"] = sorted(set(ctx.warnings))
     fig = ctx.figures

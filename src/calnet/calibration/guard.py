@@ -1,0 +1,148 @@
+"""Does the surrogate, rather than the data, set the answer? (a check after calibration)
+
+At posterior draws and the calibration data's settings, each data set's surrogate
+variance (the observed output's GP variance plus, to first order, the variance each
+linked upstream surrogate passes down the chain) is compared with the data's own scale,
+the noise variance plus the discrepancy variance at the data (after the orthogonal
+discrepancy's projection, which removes what the parameters can explain). Where the surrogate's share is large the
+posterior reflects the emulator's error, not the experiments (even with clean sampler
+diagnostics), and more simulator runs are the remedy: their number is estimated from the
+Matern-3/2 rate, GP variance ~ n^(-3/d) in d inputs.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from calnet.calibration.koh import KOHModel
+from calnet.chain import ChainPlan
+
+#: the surrogate sd above this fraction of the data's sd triggers the warning
+RATIO_WARN = 0.5
+#: the estimate of runs needed aims at this fraction
+RATIO_TARGET = 0.25
+
+
+@dataclass(frozen=True)
+class SurrogateCheck:
+    """The surrogate-versus-data comparison of one data set.
+
+    Attributes
+    ----------
+    dataset : str
+    surrogate_sd : dict of ``model.output`` -> float
+        Root mean surrogate variance at the posterior draws and data settings, per
+        surrogate (modelled scale, the data's units).
+    data_sd : float
+        Root of the mean noise plus discrepancy variance.
+    runs : dict of ``model.output`` -> int
+        Campaign runs behind each surrogate.
+    needed : dict of ``model.output`` -> int
+        Rough number of runs that would bring that surrogate's sd to RATIO_TARGET of
+        the data's sd.
+    """
+
+    dataset: str
+    surrogate_sd: dict[str, float]
+    data_sd: float
+    runs: dict[str, int]
+    needed: dict[str, int]
+
+    @property
+    def ratio(self) -> float:
+        total = math.sqrt(sum(v**2 for v in self.surrogate_sd.values()))
+        return total / self.data_sd if self.data_sd > 0 else math.inf
+
+    @property
+    def dominant(self) -> str:
+        return max(self.surrogate_sd, key=self.surrogate_sd.get)
+
+    def message(self) -> str | None:
+        """A warning when the surrogate sets the answer, else None."""
+        if self.ratio <= RATIO_WARN:
+            return None
+        k = self.dominant
+        model = k.split(".")[0]
+        total = math.sqrt(sum(v**2 for v in self.surrogate_sd.values()))
+        return (f"{self.dataset}: the surrogate, not the data, sets the answer: the surrogate "
+                f"sd at the posterior ({total:.3g}) is {self.ratio:.2g} x the data's noise and "
+                f"discrepancy sd ({self.data_sd:.3g}), mostly from {k}; about "
+                f"{self.needed[k]} runs of '{model}' (now {self.runs[k]}) would bring it to "
+                f"{RATIO_TARGET:g} x; check with 'calnet verify'")
+
+    def to_dict(self) -> dict:
+        return {"surrogate_sd": self.surrogate_sd, "data_sd": self.data_sd,
+                "ratio": self.ratio, "runs": self.runs, "runs_needed": self.needed,
+                "warning": self.message()}
+
+
+def _per_surrogate(spec: KOHModel, data, tdata, thetas, hyper):
+    """Variances (2 + links, n) at one draw: the discrepancy's at the data (after its
+    orthogonalisation), the observed output's surrogate and each link's share."""
+    term = spec.terms[0]
+    x, dx = spec.inputs(data, term, tdata["xp"], thetas)
+    theta = thetas[term.model]
+    gps = data["gps"]
+
+    def mean_at(xx):
+        return spec.plan.predict(gps, term.model, term.key, xx, theta)[0]
+
+    _, var = spec.plan.predict(gps, term.model, term.key, x, theta)
+    parts = [var]
+    if dx is not None:
+        parts += [jax.jvp(mean_at, (x,), (dx[k],))[1] ** 2 for k in range(dx.shape[0])]
+    if term.discrepancy:
+        _, K, _ = spec.train(data, term, tdata, thetas, hyper)
+        noise = tdata["noise_var"] if term.noise_known else hyper["se2"]
+        disc = jnp.diag(K) * tdata["y_sd"] ** 2 - noise - sum(parts)
+    else:
+        disc = jnp.zeros_like(var)
+    return jnp.stack([disc, *parts])
+
+
+def check_surrogates(network, surrogates, posterior, *, n_draws: int = 50
+                     ) -> list[SurrogateCheck]:
+    """:class:`SurrogateCheck` of every calibrated data set."""
+    from calnet.calibration.network import make_term
+
+    plan = ChainPlan.from_network(network)
+    gps = {k: s.gp for k, s in surrogates.items.items()}
+    total = posterior.n_draws
+    idx = np.linspace(0, total - 1, min(n_draws, total)).astype(int)
+    thetas = {m: jnp.asarray(v[idx]) for m, v in posterior.theta.items()}
+    for m in plan.models:
+        if m.n_parameters == 0:
+            thetas[m.name] = jnp.zeros((len(idx), 0))
+    out = []
+    for ds, hyper in posterior.hyper.items():
+        d = posterior.data[ds]
+        term, tdata = make_term(network, d, emulator_variance=True, plan=plan)
+        q = len(term.ell_priors)
+        hy = {"ell": jnp.asarray(hyper["ell"][idx]) if "ell" in hyper else jnp.ones((len(idx), q)),
+              "sd2": jnp.asarray(hyper["sd2"][idx]) if "sd2" in hyper else jnp.zeros(len(idx)),
+              "se2": jnp.asarray(hyper["se2"][idx]) if "se2" in hyper else jnp.zeros(len(idx))}
+        term_e = replace(term, emulator_variance=True)
+        spec = KOHModel(plan, (), (), (), (term_e,))
+        var = jax.vmap(lambda th, h, sp=spec, td=tdata: _per_surrogate(sp, {"gps": gps}, td,
+                                                                        th, h))(thetas, hy)
+        var = np.asarray(var).mean(axis=(0, 2))  # (2 + links,)
+        disc, var = max(float(var[0]), 0.0), var[1:]
+        keys = (term.key, *term.links)
+        noise = (float(np.mean(tdata["noise_var"])) if term.noise_known
+                 else float(np.mean(hyper["se2"])))
+        data_sd = math.sqrt(noise + disc)
+        sds = {k: math.sqrt(max(float(v), 0.0)) for k, v in zip(keys, var, strict=True)}
+        runs = {k: int(surrogates[k].n_runs) for k in keys}
+        needed = {}
+        for k in keys:
+            ratio = sds[k] / data_sd if data_sd > 0 else math.inf
+            dim = int(surrogates[k].gp.n_inputs)
+            factor = (ratio / RATIO_TARGET) ** 2
+            needed[k] = int(min(1e6, math.ceil(runs[k] * max(factor, 1.0) ** (dim / 3.0))))
+        out.append(SurrogateCheck(ds, sds, data_sd, runs, needed))
+    return out
