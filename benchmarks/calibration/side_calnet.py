@@ -1,4 +1,5 @@
-"""calnet side: the shipped KOH model (build_koh) + sample_nuts (BlackJAX NUTS, chains over 4 host devices).
+"""calnet side: the shipped KOH model (build_koh) + sample_nuts (BlackJAX NUTS, chains
+over 4 host devices).
 
 usage: python side_calnet.py REP   (run 1: compile + sample; run 2: cached sampler, new seed)
 """
@@ -33,7 +34,7 @@ models:
   m:
     simulator: python:nowhere:f
     inputs: {x1: {lower: 0, upper: 1}, x2: {lower: 0, upper: 1}}
-    parameters: {%s}
+    parameters: {PARAMS}
     outputs: {y: {measurable: true}}
 data:
   obs:
@@ -44,7 +45,7 @@ data:
     discrepancy: {sd_prior: {dist: invgamma, a: 2, b: 1}, orthogonal: false}
 settings:
   calibration: {emulator_variance: false}
-""" % ", ".join(f"t{i}: {{lower: 0, upper: 1}}" for i in range(7))
+""".replace("PARAMS", ", ".join(f"t{i}: {{lower: 0, upper: 1}}" for i in range(7)))
 
 
 def build(P):

@@ -4,10 +4,11 @@ At posterior draws and the calibration data's settings, each data set's surrogat
 variance (the observed output's GP variance plus, to first order, the variance each
 linked upstream surrogate passes down the chain) is compared with the data's own scale,
 the noise variance plus the discrepancy variance at the data (after the orthogonal
-discrepancy's projection, which removes what the parameters can explain). Where the surrogate's share is large the
-posterior reflects the emulator's error, not the experiments (even with clean sampler
-diagnostics), and more simulator runs are the remedy: their number is estimated from the
-Matern-3/2 rate, GP variance ~ n^(-3/d) in d inputs.
+discrepancy's projection, which removes what the parameters can explain). Where the
+surrogate's share is large the posterior reflects the emulator's error, not the
+experiments (even with clean sampler diagnostics), and more simulator runs are the
+remedy: their number is estimated from the Matern-3/2 rate, GP variance ~ n^(-3/d) in d
+inputs.
 """
 
 from __future__ import annotations
