@@ -27,17 +27,22 @@ PEERS = os.path.join(ROOT, "benchmarks", ".venv-peers", "bin", "python")
 SIDES = {
     "calnet": (sys.executable, ["side_calnet.py"]),
     "calnet-dense": (sys.executable, ["side_calnet.py", None, "dense"]),
+    "calnet-own-warmup": (sys.executable, ["side_calnet.py", None, "own-warmup"]),
+    # calnet at another commit: --before DIR (a worktree of it), its own side_calnet.py
+    "calnet-before": (sys.executable, ["side_calnet.py"]),
     "pymc-default": (PEERS, ["side_pymc.py", None, "default"]),
     "pymc-numba": (PEERS, ["side_pymc.py", None, "numba"]),
     "numpyro": (sys.executable, ["side_numpyro.py"]),
 }
 
 
-def run_side(name, rep, timeout):
+def run_side(name, rep, timeout, before=None):
     exe, args = SIDES[name]
-    args = [os.path.join(HERE, args[0]), str(rep)] + [a for a in args[2:]]
+    root = before if name == "calnet-before" else ROOT
+    here = os.path.join(root, "benchmarks", "calibration")
+    args = [os.path.join(here, args[0]), str(rep)] + [a for a in args[2:]]
     env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", MKL_NUM_THREADS="1",
-               PYTHONPATH=os.pathsep.join([HERE, os.path.join(ROOT, "src")]))
+               PYTHONPATH=os.pathsep.join([here, os.path.join(root, "src")]))
     with tempfile.TemporaryDirectory(prefix=f"koh-{name}-") as cwd:
         t0 = time.perf_counter()
         proc = subprocess.run([exe] + args, cwd=cwd, env=env, capture_output=True, text=True,
@@ -91,6 +96,7 @@ def main():
     ap.add_argument("--sides", default="calnet,pymc-default,pymc-numba,numpyro",
                     help=f"comma-separated, from {','.join(SIDES)}")
     ap.add_argument("--timeout", type=int, default=900)
+    ap.add_argument("--before", help="worktree of another calnet commit (side calnet-before)")
     ap.add_argument("--out", default=os.path.join(HERE, "results.jsonl"))
     a = ap.parse_args()
     sides = a.sides.split(",")
@@ -101,8 +107,10 @@ def main():
     stamp = time.strftime("%Y-%m-%dT%H:%M:%S")
     for rep in range(a.reps):
         for side in sides:
-            for r in run_side(side, rep, a.timeout):
+            for r in run_side(side, rep, a.timeout, a.before):
                 r["stamp"] = stamp
+                if side == "calnet-before":
+                    r["side"] = "calnet-before"
                 records.append(r)
                 with open(a.out, "a") as fh:
                     fh.write(json.dumps(r) + "\n")

@@ -27,6 +27,8 @@ from common import (  # noqa: E402
 
 REP = int(sys.argv[1]) if len(sys.argv) > 1 else 0
 DENSE = len(sys.argv) > 2 and sys.argv[2] == "dense"
+# "calnet-warmup": calnet's own warm-up loop instead of blackjax.window_adaptation
+OWN_WARMUP = len(sys.argv) > 2 and sys.argv[2] == "own-warmup"
 
 
 ANCHOR_SPEC = """
@@ -92,16 +94,18 @@ def main():
             t0 = time.perf_counter()
             ld = build(P)
             idata = sample_nuts(ld, seed=1000 * REP + run, num_chains=NCHAINS,
-                                num_warmup=NWARM, num_draws=NDRAW, dense_mass=DENSE)
+                                num_warmup=NWARM, num_draws=NDRAW, dense_mass=DENSE,
+                                adaptation="calnet" if OWN_WARMUP else "blackjax")
             t_total = time.perf_counter() - t0
         lp = float(ld.logdensity(np.asarray(U_TEST)))
         a = idata.posterior.attrs
-        rec = dict(side="calnet" + ("-dense" if DENSE else ""), rep=REP, run=run,
+        side = "calnet" + ("-dense" if DENSE else "") + ("-own-warmup" if OWN_WARMUP else "")
+        rec = dict(side=side, rep=REP, run=run,
                    t_total=t_total, t_compile=a["compile_time"], t_sample=a["sampling_time"],
                    cpu_s=cm.cpu_s, chain_method=a["chain_method"],
                    logp_error=abs(lp - REF_LOGP),
                    mean_n_steps=float(idata.sample_stats["n_steps"].mean()),
-                   **diagnostics(idata))
+                   **diagnostics(idata, names=("theta_m", "ell_obs", "sd2_obs", "se2_obs")))
         emit(rec)
 
 

@@ -453,13 +453,14 @@ def verify(
         table.add_row(label, str(p.point), f"{p.simulator:.4g}", f"{p.mean:.4g} ± {p.sd:.2g}",
                       f"[red]{z}[/]" if abs(p.z) > Z_LIMIT else z)
     console.print(table)
-    summary = Table("surrogate", "n", "failed", "RMSE", "max |z|", f"|z| > {Z_LIMIT:g}",
-                    "verdict")
+    summary = Table("surrogate", "n", "failed", "RMSE", "max |z|", f"|z| > {Z_LIMIT:g}")
     for c in result.checks.values():
         summary.add_row(c.surrogate, str(c.n), str(c.n_failed), f"{c.rmse:.3g}",
-                        f"{c.max_abs_z:.2f}", f"{c.share_beyond:.0%}",
-                        c.verdict if c.agrees else f"[yellow]{c.verdict}[/]")
+                        f"{c.max_abs_z:.2f}", f"{c.share_beyond:.0%}")
     console.print(summary)
+    for c in result.checks.values():
+        console.print(f"{c.surrogate}: " + (c.verdict if c.agrees else f"[yellow]{c.verdict}[/]"),
+                      soft_wrap=True)
     for note in result.notes:
         console.print(f"note: {note}")
     console.print(f"written to {run_dir / 'verify.json'}")

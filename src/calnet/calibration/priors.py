@@ -25,10 +25,10 @@ Three families cover the positive quantities, each in three flavours that share 
 
 :func:`parameter_prior` and :func:`scale_prior` build them from the spec's prior models.
 
-The priors of the reference study (method.md section 3) are the defaults:
-``Beta(1.1, 1.1)`` scaled to the bounds of a calibration parameter, ``LogNormal(0, 0.5)``
-for discrepancy length scales (inputs scaled to the unit cube) and ``InverseGamma(2, 1)``
-for the discrepancy and noise variances (outputs standardised).
+Defaults (docs/method.md section 8): ``Beta(1.1, 1.1)`` scaled to the bounds of a
+calibration parameter and ``LogNormal(0, 0.5)`` for discrepancy length scales (inputs
+scaled to the unit cube), as in the reference study; half-normal priors on the noise and
+discrepancy sds (:class:`HalfNormalSd`) in the output's units.
 
 Examples
 --------
@@ -347,8 +347,8 @@ class _Positive(Prior):
 class InverseGamma(_Positive):
     """InverseGamma(a, b) with density ``b^a / Gamma(a) x^(-a-1) exp(-b / x)``.
 
-    The default ``(2, 1)`` is the reference prior of the discrepancy and noise variances
-    on standardised outputs (method.md section 3).
+    ``(2, s^2)`` on a variance in the output's units is the reference study's
+    ``InverseGamma(2, 1)`` on outputs standardised by their sd ``s`` (method.md section 3).
     """
 
     a: float = 2.0
@@ -694,8 +694,8 @@ def scale_prior(spec_prior) -> Prior:
     Parameters
     ----------
     spec_prior : spec prior with ``dist``
-        ``halfnormal``, ``lognormal`` or ``gamma``: a prior on the SD (units of the
-        standardised output); ``invgamma``: a prior on the variance itself.
+        ``halfnormal``, ``lognormal`` or ``gamma``: a prior on the SD (the output's
+        units); ``invgamma``: a prior on the variance itself.
 
     Returns
     -------

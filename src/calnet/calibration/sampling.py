@@ -41,8 +41,10 @@ from threadpoolctl import threadpool_limits
 
 jax.config.update("jax_enable_x64", True)
 
+import blackjax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
+from blackjax.adaptation.base import get_filter_adapt_info_fn  # noqa: E402
 from blackjax.adaptation.mass_matrix import mass_matrix_adaptation  # noqa: E402
 from blackjax.adaptation.step_size import dual_averaging_adaptation  # noqa: E402
 from blackjax.mcmc import nuts  # noqa: E402
@@ -71,6 +73,7 @@ class _Config:
     chain_method: str
     groups: int  # number of devices the chains are spread over (parallel)
     progress_every: int  # 0: no progress callbacks compiled in
+    adaptation: str = "blackjax"  # "blackjax": blackjax.window_adaptation; "calnet": own loop
 
 
 def stan_schedule(num_steps: int, init_buffer: int = 75, term_buffer: int = 50,
@@ -137,11 +140,52 @@ def _maybe_report(cfg: _Config, chain, i, total):
 
 # ----------------------------------------------------------------------------- one chain
 def _run_chain(cfg: _Config, data, key, u0, chain):
-    """Warm-up then sampling of one chain, as one scan (the NUTS kernel is traced once).
+    """Warm-up then sampling of one chain, as one XLA program.
 
-    Returns the positions and transition statistics of every iteration (warm-up included,
-    sliced off by the caller), the final step size and inverse mass matrix.
+    Returns the positions and transition statistics of the sampling iterations, the
+    final step size and inverse mass matrix.
     """
+    if cfg.adaptation == "calnet":
+        return _run_chain_own(cfg, data, key, u0, chain)
+    logdensity = partial(cfg.spec.logdensity, data)
+    key_w, key_s = jax.random.split(key)
+    if cfg.num_warmup:
+        warmup = blackjax.window_adaptation(
+            blackjax.nuts, logdensity, is_mass_matrix_diagonal=not cfg.dense_mass,
+            target_acceptance_rate=cfg.target_accept,
+            adaptation_info_fn=get_filter_adapt_info_fn(),
+            max_num_doublings=cfg.max_tree_depth)
+        (state, params), _ = warmup.run(key_w, u0, num_steps=cfg.num_warmup)
+        step_size, imm = params["step_size"], params["inverse_mass_matrix"]
+    else:
+        state = nuts.init(u0, logdensity)
+        step_size = jnp.asarray(1.0)
+        imm = jnp.ones(cfg.dim) if not cfg.dense_mass else jnp.eye(cfg.dim)
+    kernel = nuts.build_kernel()
+    total = cfg.num_warmup + cfg.num_draws
+
+    def one_step(state, xs):
+        k, i = xs
+        state, info = kernel(k, state, logdensity, step_size, imm,
+                             max_num_doublings=cfg.max_tree_depth)
+        _maybe_report(cfg, chain, i, total)
+        return state, (state.position, _stats(state, info))
+
+    xs = (jax.random.split(key_s, cfg.num_draws), cfg.num_warmup + jnp.arange(cfg.num_draws))
+    _, (positions, stats) = jax.lax.scan(one_step, state, xs)
+    return positions, stats, step_size, imm
+
+
+def _stats(state, info) -> dict:
+    return {"diverging": info.is_divergent, "energy": info.energy,
+            "n_steps": info.num_integration_steps,
+            "tree_depth": info.num_trajectory_expansions,
+            "acceptance_rate": info.acceptance_rate, "lp": state.logdensity}
+
+
+def _run_chain_own(cfg: _Config, data, key, u0, chain):
+    """:func:`_run_chain` with calnet's own Stan-style warm-up loop (kept for measuring
+    against BlackJAX's window adaptation, benchmarks/README.md)."""
     logdensity = partial(cfg.spec.logdensity, data)
     kernel = nuts.build_kernel()
     mm_init, mm_update, mm_final = mass_matrix_adaptation(not cfg.dense_mass)
@@ -157,8 +201,6 @@ def _run_chain(cfg: _Config, data, key, u0, chain):
         k, (warm, slow, ends), i = xs
         state, info = kernel(k, state, logdensity, step_size, imm,
                              max_num_doublings=cfg.max_tree_depth)
-        # Stan windowed adaptation: dual averaging throughout the warm-up, Welford
-        # estimate of the mass matrix in slow windows, restart at each window end
         da = jax.lax.cond(warm == 1, lambda d: da_update(d, info.acceptance_rate),
                           lambda d: d, da)
         mm = jax.lax.cond(slow == 1, lambda m: mm_update(m, state.position), lambda m: m, mm)
@@ -169,18 +211,15 @@ def _run_chain(cfg: _Config, data, key, u0, chain):
                                                    jnp.exp(da.log_step_size)), step_size)
         imm = jnp.where(warm == 1, mm.inverse_mass_matrix, imm)
         _maybe_report(cfg, chain, i, total)
-        stats = {"diverging": info.is_divergent, "energy": info.energy,
-                 "n_steps": info.num_integration_steps,
-                 "tree_depth": info.num_trajectory_expansions,
-                 "acceptance_rate": info.acceptance_rate, "lp": state.logdensity}
-        return (state, da, mm, step_size, imm), (state.position, stats)
+        return (state, da, mm, step_size, imm), (state.position, _stats(state, info))
 
     mm = mm_init(cfg.dim)
     carry = (nuts.init(u0, logdensity), da_init(1.0), mm, jnp.asarray(1.0),
              mm.inverse_mass_matrix)
     xs = (jax.random.split(key, total), jnp.asarray(sched), jnp.arange(total))
     (_, _, _, step_size, imm), (positions, stats) = jax.lax.scan(one_step, carry, xs)
-    return positions, stats, step_size, imm
+    drop = slice(cfg.num_warmup, None)
+    return positions[drop], jax.tree.map(lambda a: a[drop], stats), step_size, imm
 
 
 def _build(cfg: _Config) -> Callable:
@@ -302,6 +341,7 @@ def sample_nuts(
     dense_mass: bool = False,
     chain_method: str = "auto",
     progress: bool | Callable[[int, int, int], None] = False,
+    adaptation: str = "blackjax",
 ):
     """Sample a calibration log-density with NUTS; return an ArviZ ``InferenceData``.
 
@@ -327,7 +367,11 @@ def sample_nuts(
         share the chains, else ``sequential``. BLAS is held to one thread while the
         chains run (see :func:`_one_blas_thread`).
     progress : bool or callable
-        ``True`` for a text progress line on stderr, or ``fn(chain, iteration, total)``.
+        ``True`` for a text progress line on stderr, or ``fn(chain, iteration, total)``
+        (reported during the sampling iterations).
+    adaptation : {"blackjax", "calnet"}
+        Warm-up: BlackJAX's ``window_adaptation`` (Stan's windowed scheme), or calnet's
+        own loop over BlackJAX's step-size and mass-matrix pieces (for comparison).
 
     Returns
     -------
@@ -349,8 +393,10 @@ def sample_nuts(
     method, groups = _resolve_method(chain_method, num_chains)
     total = num_warmup + num_draws
     every = max(1, total // 50) if progress else 0
+    if adaptation not in ("blackjax", "calnet"):
+        raise CalibrationError(f"adaptation must be 'blackjax' or 'calnet', got {adaptation!r}")
     cfg = _Config(ld.spec, ld.dim, num_warmup, num_draws, thin, float(target_accept),
-                  max_tree_depth, bool(dense_mass), method, groups, every)
+                  max_tree_depth, bool(dense_mass), method, groups, every, adaptation)
     u0 = jnp.asarray(ld.init(seed, num_chains) if init is None else init, dtype=float)
     if u0.shape != (num_chains, ld.dim):
         raise CalibrationError(f"{ld.name}: init must have shape ({num_chains}, {ld.dim}), "
@@ -375,12 +421,12 @@ def sample_nuts(
     if method == "parallel":  # back to (chains, ...)
         out = jax.tree.map(lambda a: np.asarray(a).reshape((num_chains,) + a.shape[2:]), out)
     positions, stats, step_size, _ = jax.tree.map(np.asarray, out)
-    keep = slice(num_warmup + thin - 1, None, thin)
+    keep = slice(thin - 1, None, thin)  # the program returns the sampling iterations only
     constrained = _constrain_draws(ld, positions[:, keep])
     posterior = {v: constrained[v] for v in ld.sampled_vars}
     n_kept = num_draws // thin
     # a kept draw is divergent if any transition since the previous kept draw was
-    div = stats["diverging"][:, num_warmup:num_warmup + n_kept * thin]
+    div = stats["diverging"][:, :n_kept * thin]
     stats = {k: v[:, keep] for k, v in stats.items()}
     stats["diverging"] = div.reshape(num_chains, n_kept, thin).any(axis=2)
     stats["step_size"] = np.repeat(step_size[:, None], n_kept, axis=1)

@@ -82,7 +82,7 @@ class LogNormalPrior(_SpecPrior):
     ``mu`` and ``sigma`` are the mean and sd of ``log x``. On a parameter, ``x`` is the
     parameter in its units, truncated to its bounds (lower >= 0); as a discrepancy length
     scale, ``x`` is the length scale on unit-cube inputs; as a noise or discrepancy scale
-    prior, ``x`` is the sd, in standardised output units.
+    prior, ``x`` is the sd, in the output's units (log units for ``transform: log``).
     """
 
     dist: Literal["lognormal"] = "lognormal"
@@ -95,7 +95,8 @@ class GammaPrior(_SpecPrior):
 
     The mean is ``a / b``; ``b`` is in the inverse units of ``x``. On a parameter, ``x`` is
     the parameter in its units, truncated to its bounds (lower >= 0); as a noise or
-    discrepancy scale prior, ``x`` is the sd, in standardised output units.
+    discrepancy scale prior, ``x`` is the sd, in the output's units (log units for
+    ``transform: log``).
     """
 
     dist: Literal["gamma"] = "gamma"
@@ -108,7 +109,7 @@ class HalfNormalPrior(_SpecPrior):
 
     ``sigma`` > 0 is in the units of ``x``. On a parameter, ``x`` is the parameter in its
     units, truncated to its bounds (lower >= 0); as a noise or discrepancy scale prior,
-    ``x`` is the sd, in standardised output units.
+    ``x`` is the sd, in the output's units (log units for ``transform: log``).
     """
 
     dist: Literal["halfnormal"] = "halfnormal"
@@ -116,7 +117,7 @@ class HalfNormalPrior(_SpecPrior):
 
 
 class InverseGammaPrior(_SpecPrior):
-    """InverseGamma(a, b) on a variance (reference: a 2, b 1, on standardised outputs).
+    """InverseGamma(a, b) on a variance, in the output's units squared.
 
     Density ``b^a x^(-a-1) e^(-b / x) / G(a)`` of the variance ``x``; ``b`` is in its units.
     """

@@ -1,0 +1,337 @@
+"""The surrogates checked against the real simulators where the posterior puts its mass.
+
+Cross-validation says how good a surrogate is over its whole design box; calibration
+uses it in the small region the posterior concentrates on, where a handful of design
+points may decide it. :func:`verify` goes there: it takes ``k`` posterior draws, pairs
+each with one experimental setting of the calibration data, pushes the setting through
+the chain to every surrogate's model (upstream surrogates, the draw's parameters), runs
+the real simulator at those control inputs and parameters, and compares on the modelled
+scale (``ln y`` for ``transform: log``)
+
+    z = (y_sim - m(x, theta)) / s(x, theta),
+
+with ``m`` and ``s`` the GP's predictive mean and sd of a new simulator run (nugget
+included). A surrogate agrees when every ``|z| <= 3``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import jax.numpy as jnp
+import numpy as np
+
+from calnet.calibration.network import NetworkPosterior
+from calnet.campaign.runners import execute_run, make_simulator, run_timeout
+from calnet.chain import ChainPlan
+from calnet.errors import CalnetError
+from calnet.spec import Network
+from calnet.surrogates.network import Surrogates
+
+Z_LIMIT = 3.0
+
+
+@dataclass(frozen=True)
+class VerifyPoint:
+    """One surrogate output against its simulator at one (draw, setting).
+
+    Attributes
+    ----------
+    surrogate : str
+        ``model.output``.
+    point : int
+        Index of the (draw, setting) pair, ``0 .. k - 1``.
+    draw : int
+        Row of ``posterior.theta``.
+    setting : dict of str to float
+        Process inputs (``model.input``) the point was taken at, declared units.
+    inputs : dict of str to float
+        What the simulator was given: the model's control inputs (through the chain) and
+        its parameters (the draw's), declared units.
+    status : str
+        The run's status (``ok``, ``failed``, ``timeout``, ``nonconverged``); ``failed``
+        too when an output modelled on the log scale is not positive.
+    message : str
+        Why the point is not ``ok`` ("" otherwise).
+    simulator, mean, sd, z : float
+        Simulator value, surrogate mean and sd on the modelled scale and
+        ``(simulator - mean) / sd``; ``simulator`` and ``z`` are NaN unless ``ok``.
+    """
+
+    surrogate: str
+    point: int
+    draw: int
+    setting: dict[str, float]
+    inputs: dict[str, float]
+    status: str
+    message: str
+    simulator: float
+    mean: float
+    sd: float
+    z: float
+
+    def to_dict(self) -> dict:
+        return {"surrogate": self.surrogate, "point": self.point, "draw": self.draw,
+                "setting": self.setting, "inputs": self.inputs, "status": self.status,
+                "message": self.message, "simulator": _num(self.simulator),
+                "mean": _num(self.mean), "sd": _num(self.sd), "z": _num(self.z)}
+
+
+@dataclass(frozen=True)
+class SurrogateCheck:
+    """Summary of one surrogate over its points.
+
+    Attributes
+    ----------
+    surrogate : str
+    transform : {None, "log"}
+        The modelled scale of ``rmse``.
+    n : int
+        Points compared (simulator ``ok``).
+    n_failed : int
+        Points whose run did not give a comparable value.
+    rmse : float
+        Root mean square of ``simulator - mean`` on the modelled scale (NaN when n = 0).
+    max_abs_z : float
+    share_beyond : float
+        Share of the ``n`` points with ``|z| > 3``.
+    verdict : str
+        ``"agrees"``, or what is wrong and what to do.
+    """
+
+    surrogate: str
+    transform: str | None
+    n: int
+    n_failed: int
+    rmse: float
+    max_abs_z: float
+    share_beyond: float
+    verdict: str
+
+    @property
+    def agrees(self) -> bool:
+        return self.verdict == "agrees"
+
+    def to_dict(self) -> dict:
+        return {"surrogate": self.surrogate, "transform": self.transform, "n": self.n,
+                "n_failed": self.n_failed, "rmse": _num(self.rmse),
+                "max_abs_z": _num(self.max_abs_z), "share_beyond_3sd": _num(self.share_beyond),
+                "verdict": self.verdict}
+
+
+@dataclass(frozen=True)
+class VerifyResult:
+    """Every surrogate checked at ``k`` posterior points.
+
+    Attributes
+    ----------
+    k, seed : int
+    draws : tuple of int
+        Posterior rows used, one per point.
+    points : tuple of VerifyPoint
+        Grouped by surrogate, then by point.
+    checks : dict of str to SurrogateCheck
+        One per surrogate, keyed ``model.output``.
+    notes : tuple of str
+        How settings were completed where the calibration data did not give them.
+    """
+
+    k: int
+    seed: int
+    draws: tuple[int, ...]
+    points: tuple[VerifyPoint, ...]
+    checks: Mapping[str, SurrogateCheck]
+    notes: tuple[str, ...] = field(default=())
+
+    @property
+    def agrees(self) -> bool:
+        """Whether every surrogate agrees with its simulator."""
+        return all(c.agrees for c in self.checks.values())
+
+    def to_dict(self) -> dict:
+        return {"k": self.k, "seed": self.seed, "z_limit": Z_LIMIT, "agrees": self.agrees,
+                "draws": list(self.draws),
+                "checks": {key: c.to_dict() for key, c in self.checks.items()},
+                "points": [p.to_dict() for p in self.points], "notes": list(self.notes)}
+
+
+def verify(network: Network, surrogates: Surrogates, posterior: NetworkPosterior, *,
+           k: int = 8, seed: int = 0, workdir: str | Path,
+           progress: Callable[[str], None] | None = None) -> VerifyResult:
+    """Run the simulators at ``k`` posterior points and compare every surrogate there.
+
+    Parameters
+    ----------
+    network : Network
+    surrogates : Surrogates
+        Every model with a surrogate here is run; upstream outputs that feed a link must
+        have one too (the chain evaluates them).
+    posterior : NetworkPosterior
+        Draws of the parameters and the calibration data (the settings).
+    k : int
+        Points: posterior draws, each with one setting of the calibration data.
+    seed : int
+        Picks the draws and the order in which the data rows are cycled through.
+    workdir : path
+        Folder for the working directories of command simulators (``<workdir>/<model>``).
+    progress : callable, optional
+        Called with a short message before each model's runs.
+
+    Returns
+    -------
+    VerifyResult
+        A failed run is recorded in its points, never raised.
+
+    Examples
+    --------
+    >>> result = verify(network, surrogates, posterior, k=8, workdir="out/verify")  # doctest: +SKIP
+    >>> result.checks["melt_pool.W"].verdict  # doctest: +SKIP
+    'agrees'
+    """
+    if k < 1:
+        raise CalnetError(f"k must be at least 1, got {k}")
+    if not surrogates.items or posterior.n_draws == 0:
+        raise CalnetError("nothing to verify: no surrogates or no posterior draws; run "
+                          "calnet surrogates and calnet calibrate first")
+    plan = ChainPlan.from_network(network)
+    gps = {key: s.gp for key, s in surrogates.items.items()}
+    _check_links(plan, gps)
+    models = [m for m in network.order if any(s.model == m for s in surrogates.items.values())]
+    rng = np.random.default_rng(seed)
+    draws = tuple(int(i) for i in rng.choice(posterior.n_draws, size=k,
+                                              replace=k > posterior.n_draws))
+    needed = list(dict.fromkeys(key for m in models for key in network.process_input_keys(m)))
+    settings, notes = pick_settings(network, posterior.data, needed, k, rng)
+    points: list[VerifyPoint] = []
+    for m in models:
+        if progress:
+            progress(f"running {m} at {k} posterior points")
+        outputs = [s for s in surrogates.items.values() if s.model == m]
+        points += _check_model(network, plan, gps, posterior, m, outputs, draws, settings,
+                               Path(workdir) / m)
+    checks = {s.key: summarise(s.key, s.transform, [p for p in points if p.surrogate == s.key])
+              for s in surrogates.items.values() if s.model in models}
+    return VerifyResult(k, seed, draws, tuple(points), checks, tuple(notes))
+
+
+def pick_settings(network: Network, data: Mapping, needed: Sequence[str], k: int,
+                  rng: np.random.Generator) -> tuple[list[dict[str, float]], list[str]]:
+    """``k`` process settings (``model.input -> value``) covering the keys ``needed``.
+
+    Point ``i`` takes row ``i`` (cycling) of a seeded shuffle of every calibration data
+    row; keys that row lacks come from a random row of another data set that has them,
+    and keys no data set has are drawn within their declared bounds (log-uniform for
+    ``scale: log``), with a note saying so.
+    """
+    rows = [(name, j) for name, d in data.items() for j in range(len(d.x))]
+    order = rng.permutation(len(rows))
+    unseen = [key for key in needed if not any(key in d.input_keys for d in data.values())]
+    settings = []
+    for i in range(k):
+        setting: dict[str, float] = {}
+        if rows:
+            name, j = rows[order[i % len(rows)]]
+            setting = _row(data[name], j)
+        for d in data.values():
+            if any(key in needed and key not in setting for key in d.input_keys):
+                row = _row(d, int(rng.integers(len(d.x))))
+                setting |= {key: v for key, v in row.items() if key not in setting}
+        for key in unseen:
+            setting[key] = _within_bounds(network, key, rng)
+        settings.append({key: setting[key] for key in needed})
+    notes = [f"inputs {unseen} appear in no calibration data set; drawn within their "
+             "declared bounds"] if unseen else []
+    return settings, notes
+
+
+def summarise(key: str, transform: str | None, points: Sequence[VerifyPoint]) -> SurrogateCheck:
+    """The :class:`SurrogateCheck` of one surrogate's points."""
+    ok = [p for p in points if p.status == "ok"]
+    n, n_failed = len(ok), len(points) - len(ok)
+    if n == 0:
+        return SurrogateCheck(key, transform, 0, n_failed, math.nan, math.nan, math.nan,
+                              f"not checked: none of its {n_failed} simulator runs gave a "
+                              "value; see the messages of its points")
+    err = np.array([p.simulator - p.mean for p in ok])
+    z = np.abs([p.z for p in ok])
+    beyond = int(np.sum(z > Z_LIMIT))
+    verdict = "agrees" if beyond == 0 else (
+        f"surrogate off where the posterior puts its mass: {beyond} of {n} points beyond "
+        f"{Z_LIMIT:g} sd; add runs near the posterior")
+    return SurrogateCheck(key, transform, n, n_failed, float(np.sqrt(np.mean(err**2))),
+                          float(z.max()), beyond / n, verdict)
+
+
+# ----------------------------------------------------------------------------- helpers
+def _check_model(network, plan, gps, posterior, model_name, outputs, draws, settings,
+                 workdir) -> list[VerifyPoint]:
+    """Run ``model_name``'s simulator at every point; one VerifyPoint per output and point."""
+    model = network.model(model_name)
+    sim = make_simulator(network, model, workdir=workdir)
+    timeout = run_timeout(network, model)
+    expected = tuple(s.output for s in outputs)
+    out = {s.key: [] for s in outputs}
+    for i, (draw, setting) in enumerate(zip(draws, settings, strict=True)):
+        thetas = _thetas(plan, posterior, draw)
+        xp = {key: jnp.asarray([v]) for key, v in setting.items()}
+        x = plan.inputs(gps, model_name, xp, thetas)
+        theta = thetas[model_name]
+        inputs = {**dict(zip(model.input_names, np.asarray(x)[0].tolist(), strict=True)),
+                  **dict(zip(model.parameter_names, np.asarray(theta).tolist(), strict=True))}
+        rec = execute_run(sim, i, inputs, timeout, expected)
+        z_in = plan.gp_inputs(model_name, x, theta)
+        for s in outputs:
+            mean, var = (float(np.asarray(a)[0]) for a in s.gp.predict(z_in, include_nugget=True))
+            out[s.key].append(_compare(s, i, draw, setting, inputs, rec, mean, math.sqrt(var)))
+    return [p for key in out for p in out[key]]
+
+
+def _compare(sur, i, draw, setting, inputs, rec, mean, sd) -> VerifyPoint:
+    status, message, value = rec.status, rec.message, math.nan
+    if status == "ok":
+        value = float(rec.outputs[sur.output])
+        if sur.transform == "log":
+            if value > 0:
+                value = math.log(value)
+            else:
+                status, message = "failed", (f"{sur.output} = {value:g} is not positive; it "
+                                             "is modelled on the log scale")
+                value = math.nan
+    z = (value - mean) / sd if sd > 0 else (0.0 if value == mean else math.copysign(
+        math.inf, value - mean))
+    return VerifyPoint(sur.key, i, draw, dict(setting), dict(inputs), status, message,
+                       value, mean, sd, z if status == "ok" else math.nan)
+
+
+def _thetas(plan: ChainPlan, posterior: NetworkPosterior, draw: int) -> dict:
+    """Parameter vector of every model at one draw (empty for models without any)."""
+    return {m.name: jnp.asarray(posterior.theta[m.name][draw]) if m.name in posterior.theta
+            else jnp.zeros(m.n_parameters) for m in plan.models}
+
+
+def _check_links(plan: ChainPlan, gps: Mapping) -> None:
+    missing = sorted({src[2] for m in plan.models for src in m.sources
+                      if src[0] == "output" and src[2] not in gps})
+    if missing:
+        raise CalnetError(f"no surrogate for the linked outputs {missing}; the chain needs "
+                          "them: fit surrogates for the whole network (calnet surrogates SPEC)")
+
+
+def _row(data, j: int) -> dict[str, float]:
+    return {key: float(data.x[j, c]) for c, key in enumerate(data.input_keys)}
+
+
+def _within_bounds(network: Network, key: str, rng: np.random.Generator) -> float:
+    model, name = key.split(".", 1)
+    var = network.model(model).variable(name)
+    if getattr(var, "scale", "linear") == "log":
+        return float(np.exp(rng.uniform(np.log(var.lower), np.log(var.upper))))
+    return float(rng.uniform(var.lower, var.upper))
+
+
+def _num(value: float) -> float | None:
+    """A float for JSON: NaN and infinities become None."""
+    return float(value) if math.isfinite(value) else None

@@ -1,0 +1,247 @@
+"""calnet verify: the surrogates against the real simulators at posterior points.
+
+Oracle: the simulators are closed-form Python functions, so every value the check reports
+as the simulator's can be recomputed from the inputs it records; a surrogate fitted on
+enough runs of a smooth function agrees with it within 3 sd, one fitted on 4 runs of a
+wiggly function does not.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+import textwrap
+import warnings
+
+import numpy as np
+import pytest
+
+from calnet.calibration.network import NetworkPosterior, calibrate
+from calnet.calibration.persist import save_posterior
+from calnet.campaign import run_campaign
+from calnet.errors import CalibrationWarning
+from calnet.spec import load_spec, read_all
+from calnet.spec.models import SamplerSettings
+from calnet.surrogates.network import fit_surrogates
+from calnet.verify import VerifyResult, verify
+
+SIMS = '''
+import math
+
+
+def up(inputs):
+    x, a = inputs["x"], inputs["a"]
+    return {"y": a * (1.0 + x) + 0.4 * math.sin(9.0 * x), "z": math.exp(0.5 * x + 0.2 * a)}
+
+
+def up_flaky(inputs):
+    if inputs["x"] > 0.5:
+        raise ValueError("diverged")
+    return up(inputs)
+
+
+def down(inputs):
+    s, b = inputs["s"], inputs["b"]
+    return {"w": b * s * s - 0.5 * s}
+'''
+
+SPEC = '''
+name: verify_net
+models:
+  up:
+    simulator: python:verify_sims:up
+    inputs: {x: {lower: 0, upper: 1}}
+    parameters: {a: {lower: 0.5, upper: 1.5}}
+    outputs: {y: {measurable: true}, z: {transform: log}}
+    campaign: {runs: 40}
+  down:
+    simulator: python:verify_sims:down
+    inputs: {s: {lower: 1, upper: 2.5}}
+    parameters: {b: {lower: 0.5, upper: 1.5}}
+    outputs: {w: {measurable: true}}
+    campaign: {runs: 20}
+links:
+  - {from: up.z, to: down.s}
+data:
+  ydata: {path: y.csv, observes: up.y, columns: {x: x, y: y}}
+  wdata: {path: w.csv, observes: down.w, columns: {x: x, w: w}}
+settings:
+  seed: 3
+  surrogate: {restarts: 2}
+'''
+
+A_TRUE, B_TRUE = 1.1, 0.9
+SAMPLER = SamplerSettings(chains=2, warmup=200, draws=200)
+
+
+def up_y(x, a):
+    return a * (1 + x) + 0.4 * np.sin(9 * x)
+
+
+def up_z(x, a):
+    return np.exp(0.5 * x + 0.2 * a)
+
+
+def down_w(s, b):
+    return b * s**2 - 0.5 * s
+
+
+@pytest.fixture(scope="module")
+def calibrated(tmp_path_factory):
+    """The network, its surrogates and a posterior around the twin's values, saved as a
+    run folder. The posterior is made here, not sampled, so that these tests check the
+    verification alone (and stay fast); test_verify_after_a_real_calibration samples one."""
+    root = tmp_path_factory.mktemp("verify")
+    (root / "verify_sims.py").write_text(SIMS)
+    (root / "network.yaml").write_text(textwrap.dedent(SPEC))
+    rng = np.random.default_rng(5)
+    x = np.linspace(0.05, 0.95, 8)
+    y = up_y(x, A_TRUE) + 0.02 * rng.standard_normal(8)
+    w = down_w(up_z(x, A_TRUE), B_TRUE) + 0.05 * rng.standard_normal(8)
+    (root / "y.csv").write_text("x,y\n" + "".join(f"{a},{b}\n" for a, b in zip(x, y, strict=True)))
+    (root / "w.csv").write_text("x,w\n" + "".join(f"{a},{b}\n" for a, b in zip(x, w, strict=True)))
+    sys.path.insert(0, str(root))
+    try:
+        network = load_spec(root)
+        for m in network.order:
+            run_campaign(network, m, executor="in-process", progress=False)
+        sur = fit_surrogates(network, seed=1, cv=False)
+        theta = {"up": A_TRUE + 0.02 * rng.standard_normal((400, 1)),
+                 "down": B_TRUE + 0.02 * rng.standard_normal((400, 1))}
+        data = {k: v.train for k, v in read_all(network).items()}
+        post = NetworkPosterior("joint", "-", (), theta, {k: {} for k in data}, data)
+        run = root / "out"
+        sur.save(run / "surrogates")
+        save_posterior(post, run / "posterior")
+        yield network, sur, post, root
+    finally:
+        sys.path.remove(str(root))
+
+
+@pytest.fixture(scope="module")
+def good(calibrated, tmp_path_factory) -> VerifyResult:
+    network, sur, post, _ = calibrated
+    return verify(network, sur, post, k=6, seed=0, workdir=tmp_path_factory.mktemp("work"))
+
+
+def test_a_good_surrogate_agrees_with_its_simulator(good):
+    assert good.agrees, {k: c.to_dict() for k, c in good.checks.items()}
+    assert set(good.checks) == {"up.y", "up.z", "down.w"}
+    for c in good.checks.values():
+        assert c.n == 6 and c.n_failed == 0 and c.max_abs_z <= 3 and c.share_beyond == 0
+        assert c.verdict == "agrees" and c.rmse < 0.1
+    assert len(good.points) == 3 * 6
+
+
+def test_simulator_values_are_the_true_function_at_posterior_points(calibrated, good):
+    network, _, post, _ = calibrated
+    data_x = set(np.round(post.data["ydata"].x[:, 0], 12))
+    for p in good.points:
+        # the parameters are the draw's, the setting a calibration data row
+        model = p.surrogate.split(".")[0]
+        param = "a" if model == "up" else "b"
+        assert p.inputs[param] == pytest.approx(post.theta[model][p.draw, 0], abs=0, rel=1e-15)
+        assert round(p.setting["up.x"], 12) in data_x
+        if p.surrogate == "up.y":
+            assert p.inputs["x"] == p.setting["up.x"]
+            assert p.simulator == pytest.approx(up_y(p.inputs["x"], p.inputs["a"]), rel=1e-12)
+        elif p.surrogate == "up.z":  # modelled on the log scale
+            assert p.simulator == pytest.approx(0.5 * p.inputs["x"] + 0.2 * p.inputs["a"],
+                                                rel=1e-12)
+        else:  # s came through the chain: the upstream surrogate's median of z
+            assert p.inputs["s"] == pytest.approx(up_z(p.setting["up.x"],
+                                                       post.theta["up"][p.draw, 0]), rel=1e-3)
+            assert p.simulator == pytest.approx(down_w(p.inputs["s"], p.inputs["b"]), rel=1e-12)
+        assert p.z == pytest.approx((p.simulator - p.mean) / p.sd)
+
+
+def test_draws_and_settings_are_seeded(calibrated, good, tmp_path):
+    network, sur, post, _ = calibrated
+    again = verify(network, sur, post, k=6, seed=0, workdir=tmp_path)
+    assert again.draws == good.draws
+    assert [p.setting for p in again.points] == [p.setting for p in good.points]
+    other = verify(network, sur, post, k=6, seed=1, workdir=tmp_path)
+    assert other.draws != good.draws
+
+
+def test_a_poor_surrogate_is_flagged(calibrated, tmp_path):
+    network, _, post, root = calibrated
+    store = tmp_path / "poor.sqlite"
+    run_campaign(network, "up", runs=4, store=store, executor="in-process", progress=False)
+    poor = fit_surrogates(network, stores={"up": store}, seed=1, cv=False)
+    result = verify(network, poor, post, k=16, seed=0, workdir=tmp_path)
+    check = result.checks["up.y"]
+    assert not result.agrees and not check.agrees
+    assert check.max_abs_z > 3 and check.share_beyond > 0
+    beyond = round(check.share_beyond * check.n)
+    assert check.verdict == ("surrogate off where the posterior puts its mass: "
+                             f"{beyond} of {check.n} points beyond 3 sd; add runs near the "
+                             "posterior")
+
+
+def test_failed_runs_are_recorded_not_raised(calibrated, tmp_path):
+    _, sur, post, root = calibrated
+    flaky = root / "flaky.yaml"
+    flaky.write_text(textwrap.dedent(SPEC).replace("python:verify_sims:up\n",
+                                                   "python:verify_sims:up_flaky\n"))
+    network = load_spec(flaky)
+    result = verify(network, sur, post, k=8, seed=0, workdir=tmp_path)
+    up_points = [p for p in result.points if p.surrogate == "up.y"]
+    failed = [p for p in up_points if p.status != "ok"]
+    assert failed and len(failed) < len(up_points)  # the data rows span x = 0.05 .. 0.95
+    for p in failed:
+        assert p.setting["up.x"] > 0.5 and p.status == "failed"
+        assert "ValueError: diverged" in p.message
+        assert math.isnan(p.simulator) and math.isnan(p.z)
+    check = result.checks["up.y"]
+    assert check.n_failed == len(failed) and check.n == len(up_points) - len(failed)
+    assert result.checks["down.w"].n_failed == 0  # down runs on its own simulator
+    json.dumps(result.to_dict(), allow_nan=False)  # failures serialise as null, not NaN
+
+
+def test_verify_command_writes_verify_json(calibrated):
+    from typer.testing import CliRunner
+
+    from calnet.cli import app
+
+    _, _, _, root = calibrated
+    run = root / "out"
+    res = CliRunner().invoke(app, ["verify", str(root), "--run", str(run), "-k", "3"])
+    assert res.exit_code == 0, res.output
+    doc = json.loads((run / "verify.json").read_text())
+    assert doc["k"] == 3 and set(doc["checks"]) == {"up.y", "up.z", "down.w"}
+    assert len(doc["points"]) == 9
+    assert "agrees" in res.output and "verify.json" in res.output
+    res = CliRunner().invoke(app, ["verify", str(root), "--run", str(run), "-k", "2", "--json"])
+    assert res.exit_code == 0, res.output
+    assert json.loads(res.output)["k"] == 2
+
+
+def test_verify_command_without_a_run_folder_says_so_in_one_line(calibrated, tmp_path):
+    from typer.testing import CliRunner
+
+    from calnet.cli import app
+
+    root = calibrated[3]
+    res = CliRunner().invoke(app, ["verify", str(root), "--run", str(tmp_path / "none")])
+    assert res.exit_code == 1, res.output
+    lines = [line for line in res.output.splitlines() if line.strip()]
+    assert len(lines) == 1 and "no fitted surrogates" in lines[0], res.output
+    (tmp_path / "half" / "surrogates").mkdir(parents=True)
+    calibrated[1].save(tmp_path / "half" / "surrogates")
+    res = CliRunner().invoke(app, ["verify", str(root), "--run", str(tmp_path / "half")])
+    assert res.exit_code == 1 and "no calibrated posterior" in res.output, res.output
+
+
+@pytest.mark.slow
+def test_verify_after_a_real_calibration(calibrated, tmp_path):
+    network, sur, _, _ = calibrated
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", CalibrationWarning)  # short chains: low ESS
+        post = calibrate(network, sur, mode="joint", sampler=SAMPLER, seed=2)
+    result = verify(network, sur, post, k=4, seed=0, workdir=tmp_path)
+    assert result.agrees, {k: c.to_dict() for k, c in result.checks.items()}
+    for p in result.points:
+        model = p.surrogate.split(".")[0]
+        assert p.inputs["a" if model == "up" else "b"] == post.theta[model][p.draw, 0]
