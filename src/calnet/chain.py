@@ -118,6 +118,10 @@ class ChainPlan:
         """GP ``key`` of ``model`` at inputs ``x`` (n, n_inputs): modelled mean, var (n,)."""
         return gps[key].predict(self.gp_inputs(model, x, theta))
 
+    def predict_cov(self, gps: Mapping, model: str, key: str, x: Array, theta: Array):
+        """GP ``key`` at inputs ``x`` (n, n_inputs): modelled mean (n,) and covariance (n, n)."""
+        return gps[key].predict_cov(self.gp_inputs(model, x, theta))
+
     def output(self, gps: Mapping, model: str, key: str, xp: Mapping[str, Array],
                thetas: Mapping[str, Array], eps: Mapping[str, Array] | None = None):
         """Inputs (n, n_inputs) of ``model`` and the modelled mean and var (n,) of ``key``."""

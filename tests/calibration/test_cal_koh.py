@@ -154,31 +154,46 @@ def chain(tmp_path_factory):
     return network, sur, data
 
 
+def _np_gp(gp, z):
+    """Mean (m,) and covariance (m, m) of a FittedGP at ``z`` with NumPy only."""
+    zs = (z - np.asarray(gp.lower)) / (np.asarray(gp.upper) - np.asarray(gp.lower))
+    X, ls, s2 = np.asarray(gp.x_train), np.asarray(gp.lengthscales), float(gp.signal_var)
+
+    def k32(a, b):
+        r = np.sqrt(3 * (((a[:, None] - b[None]) / ls) ** 2).sum(-1))
+        return s2 * (1 + r) * np.exp(-r)
+
+    L = np.asarray(gp.chol)
+    ks = k32(zs, X)
+    v = np.linalg.solve(L, ks.T)
+    sd = float(gp.y_std)
+    return (float(gp.y_mean) + sd * ks @ np.asarray(gp.alpha),
+            sd**2 * (k32(zs, zs) - v.T @ v))
+
+
 def _numpy_pieces(network, sur, d, a, bc, ell, sd2):
-    """Mean (n,), surrogate variance incl. the first-order upstream share (n,), the
-    orthogonal discrepancy covariance (n, n) and unit inputs, all with NumPy only."""
+    """Mean (n,), surrogate covariance incl. the first-order upstream share (n, n), the
+    discrepancy covariance, orthogonalised, and unit inputs, all with NumPy only."""
     up, dn = sur["up.g"].gp, sur["down.y"].gp
 
     def g_of(x, aa):
-        m, v = up.predict(np.column_stack([x, np.full(len(x), aa)]))
-        return np.asarray(m), np.asarray(v)
+        return _np_gp(up, np.column_stack([x, np.full(len(x), aa)]))
 
     def y_of(g, z, th):
-        m, v = dn.predict(np.column_stack([g, z, np.tile(th, (len(g), 1))]))
-        return np.asarray(m), np.asarray(v)
+        return _np_gp(dn, np.column_stack([g, z, np.tile(th, (len(g), 1))]))
 
     x, z = d.x[:, 0], d.x[:, 1]
-    g, gv = g_of(x, a)
-    m, v = y_of(g, z, bc)
+    g, g_cov = g_of(x, a)
+    m, cov = y_of(g, z, bc)
     h = 1e-6
     dm_dg = (y_of(g + h, z, bc)[0] - y_of(g - h, z, bc)[0]) / (2 * h)
-    v = v + dm_dg**2 * gv
+    cov = cov + np.outer(dm_dg, dm_dg) * g_cov
     G = np.column_stack([(y_of(g, z, bc + h * e)[0] - y_of(g, z, bc - h * e)[0]) / (2 * h)
                          for e in np.eye(2)])
     u = np.column_stack([(g + 3) / 8, z / 2])
     C = sd2 * np.exp(-0.5 * (((u[:, None] - u[None]) / ell) ** 2).sum(-1))
     C_orth = C - C @ G @ np.linalg.solve(G.T @ C @ G, G.T @ C)
-    return m, v, C, C_orth, G, u, (g_of, y_of)
+    return m, cov, C, C_orth, G, u, (g_of, y_of)
 
 
 def test_chain_loglik_matches_numpy(chain):
@@ -186,8 +201,8 @@ def test_chain_loglik_matches_numpy(chain):
     ld = build_koh(network, sur, free=["up.a", "down.b", "down.c"], datasets=data)
     a, bc, ell, sd2 = 0.3, np.array([0.4, -0.2]), np.array([0.5, 0.8]), 0.09
     d = data["obs"]
-    m, v, _, C_orth, _, _, _ = _numpy_pieces(network, sur, d, a, bc, ell, sd2)
-    K = C_orth + np.diag(d.noise_sd**2 + v)
+    m, cov, _, C_orth, _, _, _ = _numpy_pieces(network, sur, d, a, bc, ell, sd2)
+    K = C_orth + cov + np.diag(d.noise_sd**2)
     ref = stats.multivariate_normal(m, K, allow_singular=True).logpdf(d.y)
     spec = ld.spec
     values = {"params": jnp.asarray([a, *bc]), "ell_obs": jnp.asarray(ell),
@@ -204,17 +219,18 @@ def test_chain_predictive_matches_conditioning_by_hand(chain):
     network, sur, data = chain
     d = data["obs"]
     a, bc, ell, sd2 = -0.4, np.array([0.7, 0.1]), np.array([0.6, 0.4]), 0.05
-    m, v, C, C_orth, G, u, (g_of, y_of) = _numpy_pieces(network, sur, d, a, bc, ell, sd2)
+    m, cov, C, C_orth, G, u, (g_of, y_of) = _numpy_pieces(network, sur, d, a, bc, ell, sd2)
     xn = np.array([[0.2, 0.5], [0.8, 1.7], [0.5, 1.0]])
     gn, _ = g_of(xn[:, 0], a)
-    mn, vn = y_of(gn, xn[:, 1], bc)
+    mn, cn = y_of(gn, xn[:, 1], bc)
+    vn = np.diag(cn)
     un = np.column_stack([(gn + 3) / 8, xn[:, 1] / 2])
     # joint covariance of (delta(new), delta(X)) and the constraint G^T delta(X) = 0
     allu = np.vstack([un, u])
     Ca = sd2 * np.exp(-0.5 * (((allu[:, None] - allu[None]) / ell) ** 2).sum(-1))
     Ga = np.vstack([np.zeros((3, 2)), G])
     Co = Ca - Ca @ Ga @ np.linalg.solve(Ga.T @ Ca @ Ga, Ga.T @ Ca)
-    K = Co[3:, 3:] + np.diag(d.noise_sd**2 + v)
+    K = Co[3:, 3:] + cov + np.diag(d.noise_sd**2)
     w = np.linalg.solve(K, d.y - m)
     mean_ref = mn + Co[:3, 3:] @ w
     var_ref = np.diag(Co[:3, :3] - Co[:3, 3:] @ np.linalg.solve(K, Co[3:, :3]))

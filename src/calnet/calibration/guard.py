@@ -86,7 +86,7 @@ def _per_surrogate(spec: KOHModel, data, tdata, thetas, hyper):
     """Variances (2 + links, n) at one draw: the discrepancy's at the data (after its
     orthogonalisation), the observed output's surrogate and each link's share."""
     term = spec.terms[0]
-    x, dx = spec.inputs(data, term, tdata["xp"], thetas)
+    x, dx, _ = spec.inputs(data, term, tdata["xp"], thetas)
     theta = thetas[term.model]
     gps = data["gps"]
 

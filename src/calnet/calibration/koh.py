@@ -246,8 +246,10 @@ class KOHModel:
 
     # ------------------------------------------------------------ one term
     def inputs(self, data, term: Term, xp, thetas, eps=None):
-        """Control inputs (n, q) of the term's model and their first-order responses to
-        each linked surrogate's standard deviation, (K, n, q) (K = len(term.links))."""
+        """Control inputs (n, q) of the term's model; with emulator variance and linked
+        surrogates also, per link, the inputs' first-order response to one standard
+        deviation of that surrogate at each point (K, n, q) and the surrogate's
+        correlation across the points (K, n, n) (K = len(term.links)); else None, None."""
         gps = data["gps"]
 
         def x_of(e):
@@ -257,29 +259,36 @@ class KOHModel:
         base = {**e0, **(eps or {})}
         x = x_of(base)
         if not (term.emulator_variance and term.links):
-            return x, None
-        dx = []
+            return x, None, None
+        dx, corr = [], []
         for k in term.links:
             tangent = {kk: (jnp.ones_like(v) if kk == k else jnp.zeros_like(v))
                        for kk, v in base.items()}
             dx.append(jax.jvp(x_of, (base,), (tangent,))[1])
-        return x, jnp.stack(dx)
+            src = k.split(".")[0]
+            x_src = self.plan.inputs(gps, src, xp, thetas, base)
+            cov = self.plan.predict_cov(gps, src, k, x_src, thetas[src])[1]
+            sd = jnp.sqrt(jnp.maximum(jnp.diag(cov), 0.0) + 1e-30)
+            corr.append(cov / jnp.outer(sd, sd))
+        return x, jnp.stack(dx), jnp.stack(corr)
 
-    def _moments(self, data, term: Term, x, dx, theta):
-        """Surrogate mean (n,) and variance (n,) of the observed output at inputs ``x``,
-        the variance including the first-order share of the linked surrogates."""
+    def _moments(self, data, term: Term, x, dx, corr, theta):
+        """Surrogate mean (n,) of the observed output at inputs ``x`` and the surrogates'
+        covariance across the points (n, n): the observed output's GP covariance plus, to
+        first order, each linked surrogate's (None without emulator variance)."""
         gps = data["gps"]
 
         def mean_at(xx):
             return self.plan.predict(gps, term.model, term.key, xx, theta)[0]
 
-        mean, var = self.plan.predict(gps, term.model, term.key, x, theta)
         if not term.emulator_variance:
-            return mean, jnp.zeros_like(mean)
+            return mean_at(x), None
+        mean, cov = self.plan.predict_cov(gps, term.model, term.key, x, theta)
         if dx is not None:
             for k in range(dx.shape[0]):
-                var = var + jax.jvp(mean_at, (x,), (dx[k],))[1] ** 2
-        return mean, var
+                d = jax.jvp(mean_at, (x,), (dx[k],))[1]
+                cov = cov + corr[k] * jnp.outer(d, d)
+        return mean, cov
 
     def _directions(self, data, term: Term, x, theta, s):
         """``d yhat / d theta_m`` at the data, standardised, (n, p_m); None if p_m = 0."""
@@ -290,20 +299,24 @@ class KOHModel:
             lambda th: self.plan.predict(gps, term.model, term.key, x, th)[0])(theta) / s
 
     def train(self, data, term: Term, tdata, thetas, hyper):
-        """Standardised residual (n,), covariance (n, n) or its diagonal (n,) without a
-        discrepancy, and what prediction needs (unit inputs, directions)."""
+        """Standardised residual (n,), covariance (n, n) (or its diagonal (n,) when it is
+        diagonal: no discrepancy, no emulator variance), and what prediction needs (unit
+        inputs, parameter directions)."""
         if "x_fixed" in tdata:  # inputs precomputed: no sampled parameter upstream
-            x, dx = tdata["x_fixed"], tdata.get("dx_fixed")
+            x, dx, corr = tdata["x_fixed"], tdata.get("dx_fixed"), tdata.get("corr_fixed")
         else:
-            x, dx = self.inputs(data, term, tdata["xp"], thetas)
+            x, dx, corr = self.inputs(data, term, tdata["xp"], thetas)
         theta = thetas[term.model]
         s = tdata["y_sd"]
-        mean, var = self._moments(data, term, x, dx, theta)
+        mean, cov = self._moments(data, term, x, dx, corr, theta)
         r = tdata["y"] - (mean - tdata["y_mean"]) / s
         noise = tdata["noise_var"] if term.noise_known else hyper["se2"]
-        diag = (noise + var) / s**2 + JITTER
-        if not term.discrepancy:
+        diag = noise / s**2 * jnp.ones_like(r) + JITTER
+        if not term.discrepancy and cov is None:
             return r, diag, None
+        K = jnp.diag(diag) if cov is None else cov / s**2 + jnp.diag(diag)
+        if not term.discrepancy:
+            return r, K, None
         u = self.plan.unit_inputs(term.model, x)
         C = hyper["sd2"] / s**2 * se_kernel(u, u, hyper["ell"])
         G = self._directions(data, term, x, theta, s)
@@ -312,11 +325,9 @@ class KOHModel:
             A = C @ G
             M = G.T @ A
             M = M + (1e-9 * jnp.trace(M) / M.shape[0] + 1e-300) * jnp.eye(M.shape[0])
-            Minv_At = jnp.linalg.solve(M, A.T)
-            C = C - A @ Minv_At
+            C = C - A @ jnp.linalg.solve(M, A.T)
             proj = (G, M)
-        K = C + jnp.diag(diag)
-        return r, K, {"u": u, "proj": proj}
+        return r, C + K, {"u": u, "proj": proj}
 
     def term_loglik(self, data, term: Term, tdata, thetas, hyper):
         """Log-likelihood of one data set, in its units on the modelled scale."""
@@ -407,7 +418,8 @@ class KOHDensity:
         ``gps`` (model.output -> FittedGP), ``theta_fixed`` (model -> (p_m,)), ``terms``
         (per data set: ``y`` standardised (n,), ``y_mean``, ``y_sd``, ``xp`` process
         inputs, ``noise_var`` (n,) known noise variance in data units, and
-        ``x_fixed``/``dx_fixed`` where the inputs do not depend on sampled parameters),
+        ``x_fixed``/``dx_fixed``/``corr_fixed`` where the inputs do not depend on
+        sampled parameters),
         ``y`` (all standardised observations, for the InferenceData).
     name : str
     names : dict of variable -> coordinate names (parameters, discrepancy inputs)

@@ -25,6 +25,7 @@ from __future__ import annotations
 import warnings
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
+from functools import partial
 
 import jax
 import jax.numpy as jnp
@@ -245,10 +246,10 @@ def build_koh(network: Network, surrogates: Surrogates, *, free: list[str],
     for term, td in zip(terms, tdata, strict=True):
         if all(i < 0 for m in network.ancestors(term.model) for i in index[m]):
             # no sampled parameter upstream: the model's inputs are computed once
-            x, dx = spec.inputs(data, term, td["xp"], theta_fixed)
+            x, dx, corr = _fixed_inputs(spec, term, data["gps"], td["xp"], theta_fixed)
             td["x_fixed"] = x
             if dx is not None:
-                td["dx_fixed"] = dx
+                td["dx_fixed"], td["corr_fixed"] = dx, corr
     keys = {m: tuple(parameter_keys(network, m)) for m in network.order}
     ld = KOHDensity(spec, data, name, names, keys)
     n_obs = sum(len(d.y) for d in datasets.values())
@@ -257,6 +258,13 @@ def build_koh(network: Network, surrogates: Surrogates, *, free: list[str],
                       "(calibration parameters and discrepancy hyperparameters); the "
                       "posterior will lean on the priors", CalibrationWarning, stacklevel=2)
     return ld
+
+
+@partial(jax.jit, static_argnums=(0, 1))
+def _fixed_inputs(spec: KOHModel, term: Term, gps, xp, thetas):
+    """:meth:`KOHModel.inputs` compiled once per network and shapes (leave-one-out folds
+    and stages share it)."""
+    return spec.inputs({"gps": gps}, term, xp, thetas)
 
 
 def key_draws(stage: StageResult) -> dict[str, np.ndarray]:
@@ -482,7 +490,7 @@ def _fixed_slots(ld: KOHDensity, keys: list[str]) -> list[tuple[str, int]]:
 
 def _with_free_inputs(data: dict) -> dict:
     """``data`` without precomputed inputs, so that they follow ``theta_fixed``."""
-    terms = [{k: v for k, v in t.items() if k not in ("x_fixed", "dx_fixed")}
+    terms = [{k: v for k, v in t.items() if k not in ("x_fixed", "dx_fixed", "corr_fixed")}
              for t in data["terms"]]
     return {**data, "terms": terms}
 

@@ -111,6 +111,15 @@ class FittedGP:
         """
         return _predict(self, jnp.asarray(z, dtype=jnp.float64), include_nugget)
 
+    def predict_cov(self, z: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """Predictive mean (m,) and covariance (m, m) of the latent function at inputs
+        ``z`` (m, d) in physical units, on the modelled scale. Pure and jit-able."""
+        zs = self.scale_inputs(jnp.atleast_2d(jnp.asarray(z, dtype=jnp.float64)))
+        k_star = matern32(zs, self.x_train, self.lengthscales, self.signal_var)
+        v = predictive_solve(self.chol, k_star)  # (n_train, m)
+        cov = matern32(zs, zs, self.lengthscales, self.signal_var) - v.T @ v
+        return self.y_mean + self.y_std * (k_star @ self.alpha), self.y_std**2 * cov
+
     def predict_split(
         self, x: jax.Array, theta: jax.Array, *, include_nugget: bool = False
     ) -> tuple[jax.Array, jax.Array]:
