@@ -234,7 +234,8 @@ def make_simulator(network: Network, model: Model, *, workdir: str | Path) -> Si
         return CallableRunner(ref.target, version, options, (str(Path(network.root).resolve()),))
     if ref.kind == "command":
         _check_template(ref.argv, (*model.input_names, *model.parameter_names, *options))
-        return CommandRunner(resolve_program(ref.argv, network), str(workdir), ref.input_mode,
+        return CommandRunner(resolve_program(ref.argv, network), str(Path(workdir).absolute()),
+                             ref.input_mode,
                              ref.output_mode, run_timeout(network, model), options, version,
                              model.output_names)
     return UMBridgeRunner(ref.url, ref.model, model.input_names + model.parameter_names,
@@ -437,11 +438,25 @@ def _check_template(argv: tuple[str, ...], names: tuple[str, ...]) -> None:
 
 
 def resolve_program(argv: tuple[str, ...], network: Network) -> tuple[str, ...]:
-    """Make a relative program path (``./sim.sh``, ``bin/sim``) relative to the spec."""
+    """Absolute paths for a command's files, relative to the spec's folder.
+
+    The program, when given as a relative path (``./sim.sh``, ``bin/sim``), and every
+    later argument that names an existing file or folder beside the spec (``sim.py``,
+    ``meshes/plate.msh``; not an option ``-x``, not a template ``{...}``), since the
+    program runs in its run's own folder.
+    """
+    root = Path(network.root).resolve()
     program = argv[0]
     if os.sep in program and not os.path.isabs(program):
-        program = str(Path(network.root).resolve() / program)
-    return (program, *argv[1:])
+        program = str(root / program)
+    return (program, *(_beside_spec(arg, root) for arg in argv[1:]))
+
+
+def _beside_spec(arg: str, root: Path) -> str:
+    if not arg or arg.startswith("-") or _FIELD.search(arg) or os.path.isabs(arg):
+        return arg
+    path = root / arg
+    return str(path) if path.exists() else arg
 
 
 def _read(path: Path) -> str:
