@@ -254,7 +254,7 @@ def simulator_version(sim: Simulator) -> str:
     when the spec gives none."""
     if isinstance(sim, CallableRunner) and not sim.version:
         try:
-            module = importlib.import_module(sim.target.partition(":")[0])
+            module = _import(sim.target.partition(":")[0], sim.search_path)
         except ImportError:
             return ""
         return str(getattr(module, "__version__", getattr(module, "VERSION", "")))
@@ -264,18 +264,24 @@ def simulator_version(sim: Simulator) -> str:
 def load_callable(target: str, search_path: tuple[str, ...] = ()) -> Any:
     """Import ``module:function``, trying ``sys.path`` first, then ``search_path``."""
     module_name, _, func_name = target.partition(":")
-    try:
-        module = importlib.import_module(module_name)
-    except ModuleNotFoundError as err:
-        if err.name != module_name.partition(".")[0] or not search_path:
-            raise
-        sys.path.extend(p for p in search_path if p not in sys.path)
-        module = importlib.import_module(module_name)
+    module = _import(module_name, search_path)
     try:
         return getattr(module, func_name)
     except AttributeError:
         raise CampaignError(f"module '{module_name}' has no '{func_name}'; fix the "
                             f"simulator target '{target}'") from None
+
+
+def _import(module_name: str, search_path: tuple[str, ...]) -> Any:
+    """Import ``module_name`` from ``sys.path``, else from the folders of ``search_path``
+    (appended to ``sys.path``)."""
+    try:
+        return importlib.import_module(module_name)
+    except ModuleNotFoundError as err:
+        if err.name != module_name.partition(".")[0] or not search_path:
+            raise
+        sys.path.extend(p for p in search_path if p not in sys.path)
+        return importlib.import_module(module_name)
 
 
 # --------------------------------------------------------------------------- one run
