@@ -13,7 +13,7 @@ import sys
 import warnings
 from collections.abc import Callable
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 import typer
 from rich.console import Console
@@ -222,8 +222,10 @@ def surrogates(
 @user_errors
 def calibrate(
     spec: SpecArg,
-    mode: Annotated[str | None, typer.Option(help="segmented or joint")] = None,
-    plug: Annotated[str | None, typer.Option(help="mode or posterior (segmented)")] = None,
+    mode: Annotated[Literal["segmented", "joint"] | None, typer.Option(
+        help="segmented or joint")] = None,
+    plug: Annotated[Literal["mode", "posterior"] | None, typer.Option(
+        help="mode or posterior (segmented)")] = None,
     surrogates_dir: Annotated[Path, typer.Option("--surrogates", help="from calnet surrogates")
                               ] = Path("out/surrogates"),
     out: Annotated[Path, typer.Option(help="folder for posteriors and plots")] = Path(

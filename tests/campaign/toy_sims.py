@@ -71,6 +71,11 @@ def dies(inputs):
     return quadratic(inputs)
 
 
+def broken(inputs):
+    """Raises at every point (a simulator that cannot work)."""
+    raise RuntimeError("license server unreachable")
+
+
 def exits(inputs):
     """Calls ``sys.exit(4)`` for ``x > 0.9`` (how a script-style simulator gives up)."""
     if inputs["x"] > 0.9:

@@ -34,8 +34,9 @@ from calnet.campaign.design import (
     model_box,
     to_unit,
 )
-from calnet.campaign.executors import executor_kind, make_executor
+from calnet.campaign.executors import WorkerDied, executor_kind, make_executor
 from calnet.campaign.runners import (
+    CallableRunner,
     RunRecord,
     execute_run,
     make_simulator,
@@ -169,7 +170,11 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
         timeout = run_timeout(network, model)
         tasks = ((sim, i, inputs, timeout, model.output_names) for i, inputs, _ in todo)
         failures: dict[int, str] = {}
-        with make_executor(executor, workers=workers, scheduler=scheduler) as ex, \
+        # a user's Python function without a timeout runs in a worker process, so that
+        # one ending the interpreter is recorded as failed instead of ending the campaign
+        isolate = isinstance(sim, CallableRunner) and timeout is None
+        with make_executor(executor, workers=workers, scheduler=scheduler,
+                           isolate=isolate) as ex, \
                 _progress_bar(progress, model_name, len(design), skipped, db) as advance:
             for task, result in ex.run(execute_run, tasks,
                                        on_submit=lambda t: db.mark_started([t[1]])):
@@ -307,6 +312,8 @@ def _plan(db: RunStore, model: Model, runs: int, seed: int) -> Design:
 
 
 def _worker_died(index: int, err: Any) -> RunRecord:
+    if isinstance(err, WorkerDied):
+        return RunRecord(index, "failed", {}, str(err), {}, math.nan)
     return RunRecord(index, "failed", {}, f"the worker running it died ({type(err).__name__}: "
                      f"{err}); set a timeout to run each simulation in its own process",
                      {}, math.nan)
