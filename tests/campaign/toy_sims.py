@@ -96,6 +96,15 @@ def slow(inputs):
     return quadratic(inputs)
 
 
+def counted(inputs):
+    """``quadratic`` after 0.2 s, appending one line per execution to the file named by
+    ``$TOY_COUNT_FILE`` (the two-writers test counts executions)."""
+    with open(os.environ["TOY_COUNT_FILE"], "a") as fh:
+        fh.write(f"{inputs['x']!r}\n")
+    time.sleep(0.2)
+    return quadratic(inputs)
+
+
 def busy(inputs):
     """Computes for 60 s (NumPy, no sleeping) for ``x < 0.5``, else returns at once."""
     import numpy as np

@@ -35,6 +35,7 @@ from calnet.campaign.design import (
     to_unit,
 )
 from calnet.campaign.executors import WorkerDied, executor_kind, make_executor
+from calnet.campaign.lease import holder as lease_holder
 from calnet.campaign.runners import (
     CallableRunner,
     RunRecord,
@@ -150,6 +151,9 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
     seed = network.settings.seed if seed is None else int(seed)
     path = Path(store) if store is not None else default_store(network, model_name)
     if fresh:
+        held = lease_holder(path)
+        if held:
+            raise CampaignError(held)
         remove_store(path)
     sim = make_simulator(network, model, workdir=path.with_suffix(".work"))
     version = simulator_version(sim)
@@ -159,6 +163,7 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
     if done is not None:  # nothing to run: the store is read, never written
         return done
     with RunStore(path) as db:
+        db.take_lease()
         _claim(db, network, model, seed, sim.name, version)
         design = _plan(db, model, _target_runs(runs, model, network, db.planned()), seed)
         if retry_failed:

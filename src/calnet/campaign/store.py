@@ -36,6 +36,8 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
+from calnet.campaign.lease import SCHEMA as LEASE_SCHEMA
+from calnet.campaign.lease import Lease
 from calnet.campaign.runners import RunRecord
 from calnet.errors import CampaignError
 from calnet.spec.models import Model
@@ -130,6 +132,7 @@ class RunStore:
     def __init__(self, path: str | Path, *, readonly: bool = False):
         self.path = Path(path)
         self.readonly = readonly
+        self._lease: Lease | None = None
         if readonly and not self.path.is_file():
             raise CampaignError(f"no campaign store at '{self.path}'")
         if readonly:
@@ -141,12 +144,18 @@ class RunStore:
             if not readonly:
                 self._db.execute("PRAGMA journal_mode=WAL")
                 self._db.execute("PRAGMA synchronous=NORMAL")
-                self._db.executescript(_SCHEMA)
+                self._db.executescript(_SCHEMA + LEASE_SCHEMA)
             self._db.execute("SELECT idx, status FROM runs LIMIT 1")
         except sqlite3.DatabaseError as err:
             self._db.close()
             raise CampaignError(f"'{self.path}' is not a calnet campaign store ({err}); pass "
                                 "another --store or remove the file") from None
+
+    def take_lease(self) -> None:
+        """Hold the store for this process until :meth:`close` (see
+        :mod:`calnet.campaign.lease`); a CampaignError naming the holder when another live
+        campaign holds it."""
+        self._lease = Lease(self._db, self.path)
 
     def __enter__(self) -> RunStore:
         return self
@@ -160,6 +169,9 @@ class RunStore:
             return
         if not self.readonly:
             self._db.commit()
+            if self._lease is not None:
+                self._lease.release(self._db)
+                self._lease = None
             try:  # best effort: another reader may hold the WAL open, which is fine
                 self._db.execute("PRAGMA wal_checkpoint(TRUNCATE)")
                 self._db.execute("PRAGMA journal_mode=DELETE")
