@@ -105,6 +105,14 @@ def counted(inputs):
     return quadratic(inputs)
 
 
+def sleeper(inputs):
+    """Starts ``sleep 61`` and waits for it (a run that hangs, with a child of its own)."""
+    import subprocess
+
+    subprocess.run(["sleep", "61"], check=False)
+    return quadratic(inputs)
+
+
 def busy(inputs):
     """Computes for 60 s (NumPy, no sleeping) for ``x < 0.5``, else returns at once."""
     import numpy as np

@@ -31,11 +31,13 @@ import subprocess
 import sys
 import time
 import traceback
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from calnet.campaign import reaper
 from calnet.errors import CampaignError
 from calnet.simulators.base import STATUSES, SimResult, Simulator, not_numbers
 from calnet.spec.models import Model
@@ -344,24 +346,20 @@ def call_in_child(sim: Simulator, inputs: Mapping[str, float], timeout: float, *
     """
     payload = pickle.dumps((list(sys.path), sim, dict(inputs)))
     argv = [sys.executable, "-c", "from calnet.campaign.runners import child_main; child_main()"]
-    proc = subprocess.Popen(argv, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, start_new_session=True)
-    try:
-        proc.stdin.write(payload)
-        proc.stdin.close()
-        proc.stdin = None
-        ready = _wait_ready(proc, startup_timeout)
-        out, err = proc.communicate(timeout=timeout if ready else 0.1)
-    except subprocess.TimeoutExpired:
-        _kill_group(proc)
-        out, err = proc.communicate()
-        if ready:
-            return SimResult({}, "timeout", f"run exceeded its timeout of {timeout:g} s and "
-                             "was killed")
-    except BaseException:
-        _kill_group(proc)
-        proc.wait()
-        raise
+    with _process_group(argv, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                        stderr=subprocess.PIPE) as proc:
+        try:
+            proc.stdin.write(payload)
+            proc.stdin.close()
+            proc.stdin = None
+            ready = _wait_ready(proc, startup_timeout)
+            out, err = proc.communicate(timeout=timeout if ready else 0.1)
+        except subprocess.TimeoutExpired:
+            _kill_group(proc)
+            out, err = proc.communicate()
+            if ready:
+                return SimResult({}, "timeout", f"run exceeded its timeout of {timeout:g} s "
+                                 "and was killed")
     if proc.returncode != 0 or not out:
         tail = err.decode(errors="replace").strip().splitlines()[-2:]
         what = "died" if ready else "did not start"
@@ -395,20 +393,30 @@ def _run_killable(argv: list[str], cwd: Path | None, timeout: float | None, *,
                   stdin: bytes | None = None, text: bool = True):
     """``subprocess.run`` in its own session; on timeout kill the whole process group and
     return None."""
-    proc = subprocess.Popen(argv, cwd=cwd, stdin=subprocess.PIPE if stdin else subprocess.DEVNULL,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=text,
-                            start_new_session=True)
-    try:
-        out, err = proc.communicate(stdin, timeout=timeout)
-    except subprocess.TimeoutExpired:
-        _kill_group(proc)
-        proc.communicate()
-        return None
-    except BaseException:
-        _kill_group(proc)
-        proc.wait()
-        raise
+    with _process_group(argv, cwd=cwd, stdin=subprocess.PIPE if stdin else subprocess.DEVNULL,
+                        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=text) as proc:
+        try:
+            out, err = proc.communicate(stdin, timeout=timeout)
+        except subprocess.TimeoutExpired:
+            _kill_group(proc)
+            proc.communicate()
+            return None
     return subprocess.CompletedProcess(argv, proc.returncode, out, err)
+
+
+@contextmanager
+def _process_group(argv: list[str], **kwargs: Any) -> Iterator[subprocess.Popen]:
+    """``Popen`` in a new session (so its own process group), which is killed as a whole
+    when the block is left by an exception, or by the reaper when this process dies."""
+    proc = subprocess.Popen(argv, start_new_session=True, **kwargs)
+    reaper.watch(proc.pid)
+    try:
+        yield proc
+    finally:
+        if proc.returncode is None:
+            _kill_group(proc)
+            proc.wait()
+        reaper.unwatch(proc.pid)
 
 
 def _kill_group(proc: subprocess.Popen) -> None:
