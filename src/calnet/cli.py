@@ -387,8 +387,10 @@ def _read_points(path: Path) -> list[dict[str, float]]:
 def _write_predictions(path: Path, results: list[dict]) -> None:
     import csv as csv_mod
 
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with path.open("w", newline="") as fh:
+    from calnet.files import make_folder, replacing
+
+    make_folder(path.parent)
+    with replacing(path) as tmp, tmp.open("w", newline="") as fh:
         writer = csv_mod.writer(fh)
         keys = list(dict.fromkeys(k for r in results for k in r["inputs"]))
         writer.writerow(["dataset", "output", *keys, "mean", "lower95", "upper95"])

@@ -5,16 +5,10 @@ from __future__ import annotations
 import sys
 
 import pytest
-import typer
-from campaign_helpers import toy_spec
+from campaign_helpers import campaign_app, toy_spec
 from typer.testing import CliRunner
 
-from calnet.campaign.command import campaign
-from calnet.cli import user_errors
-
-app = typer.Typer()
-app.command("campaign")(user_errors(campaign))
-app.command("other")(lambda: None)  # two commands, so the app dispatches by name
+app = campaign_app()
 
 
 def test_command_runs_exports_and_resumes(tmp_path):

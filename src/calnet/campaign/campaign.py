@@ -44,8 +44,15 @@ from calnet.campaign.runners import (
     run_timeout,
     simulator_version,
 )
-from calnet.campaign.store import RunStore, describe_change, fingerprint_hash, model_fingerprint
+from calnet.campaign.store import (
+    RunStore,
+    describe_change,
+    fingerprint_hash,
+    model_fingerprint,
+    store_errors,
+)
 from calnet.errors import CampaignError, CampaignWarning
+from calnet.files import why
 from calnet.spec.models import Model
 from calnet.spec.network import Network
 
@@ -162,7 +169,7 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
                               retry_failed, start)
     if done is not None:  # nothing to run: the store is read, never written
         return done
-    with RunStore(path) as db:
+    with store_errors(path), RunStore(path) as db:
         db.take_lease()
         _claim(db, network, model, seed, sim.name, version)
         design = _plan(db, model, _target_runs(runs, model, network, db.planned()), seed)
@@ -235,7 +242,11 @@ def _check_versions(db: RunStore, simulator: str, version: str, more_to_run: boo
 def remove_store(path: Path) -> None:
     """Delete a store and its WAL files."""
     for suffix in ("", "-wal", "-shm"):
-        Path(f"{path}{suffix}").unlink(missing_ok=True)
+        try:
+            Path(f"{path}{suffix}").unlink(missing_ok=True)
+        except OSError as err:
+            raise CampaignError(f"cannot delete the store '{path}' for --fresh: "
+                                f"{why(err)}") from None
 
 
 def _model(network: Network, name: str) -> Model:
