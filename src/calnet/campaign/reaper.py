@@ -12,6 +12,7 @@ still registered, then exits.
 
 from __future__ import annotations
 
+import atexit
 import os
 import subprocess
 import sys
@@ -33,6 +34,7 @@ for pgid in groups:
 
 _lock = threading.Lock()
 _reaper: dict[int, subprocess.Popen] = {}  # this process's reaper, by PID (not a fork's)
+_closing: set[int] = set()  # the processes that close their reaper at exit
 
 
 def watch(pgid: int) -> None:
@@ -60,6 +62,17 @@ def _send(line: str) -> None:
 
 
 def _start() -> subprocess.Popen:
+    if os.getpid() not in _closing:
+        _closing.add(os.getpid())
+        atexit.register(_close)
     return subprocess.Popen([sys.executable, "-I", "-S", "-c", _CODE], stdin=subprocess.PIPE,
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                             start_new_session=True)
+
+
+def _close() -> None:
+    """At a normal exit: end this process's reaper (what it watches has been waited for)."""
+    proc = _reaper.pop(os.getpid(), None)
+    if proc is not None:
+        proc.stdin.close()
+        proc.wait()
