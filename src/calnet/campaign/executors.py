@@ -4,9 +4,9 @@ Every executor has one method, :meth:`Executor.run`, which runs ``fn(*task)`` fo
 of tasks and yields ``(task, result)`` as each finishes (in completion order), keeping at
 most a small window of tasks in flight so that an interrupted campaign has few runs to
 redo. ``result`` is the function's return value, or the exception a dead worker left
-behind (Dask's ``KilledWorker``, for a run that killed its workers). The results do not
-depend on the executor: run ``i``'s inputs are fixed by the design and each run is
-independent.
+behind (Dask's ``KilledWorker``, or :class:`WorkerDied` from local processes, for a run
+that killed its worker). The results do not depend on the executor: run ``i``'s inputs
+are fixed by the design and each run is independent.
 
 Dask is imported only when a Dask executor is made. Worker processes import simulator
 modules by name: a Python callable's module must be importable there (``PYTHONPATH``,
