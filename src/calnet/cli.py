@@ -13,7 +13,7 @@ import sys
 import warnings
 from collections.abc import Callable
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 import typer
 from rich.console import Console
@@ -222,8 +222,10 @@ def surrogates(
 @user_errors
 def calibrate(
     spec: SpecArg,
-    mode: Annotated[str | None, typer.Option(help="segmented or joint")] = None,
-    plug: Annotated[str | None, typer.Option(help="mode or posterior (segmented)")] = None,
+    mode: Annotated[Literal["segmented", "joint"] | None, typer.Option(
+        help="segmented or joint")] = None,
+    plug: Annotated[Literal["mode", "posterior"] | None, typer.Option(
+        help="mode or posterior (segmented)")] = None,
     surrogates_dir: Annotated[Path, typer.Option("--surrogates", help="from calnet surrogates")
                               ] = Path("out/surrogates"),
     out: Annotated[Path, typer.Option(help="folder for posteriors and plots")] = Path(
@@ -387,8 +389,10 @@ def _read_points(path: Path) -> list[dict[str, float]]:
 def _write_predictions(path: Path, results: list[dict]) -> None:
     import csv as csv_mod
 
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with path.open("w", newline="") as fh:
+    from calnet.files import make_folder, replacing
+
+    make_folder(path.parent)
+    with replacing(path) as tmp, tmp.open("w", newline="") as fh:
         writer = csv_mod.writer(fh)
         keys = list(dict.fromkeys(k for r in results for k in r["inputs"]))
         writer.writerow(["dataset", "output", *keys, "mean", "lower95", "upper95"])

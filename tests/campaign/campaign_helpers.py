@@ -43,3 +43,17 @@ def toy_network(folder: Path, simulator: str | dict = "python:toy_sims:quadratic
     from calnet.spec import load_spec
 
     return load_spec(toy_spec(folder, simulator, **kw))
+
+
+def campaign_app():
+    """A Typer app with the ``campaign`` command as the CLI registers it (and another
+    command, so that the app dispatches by name)."""
+    import typer
+
+    from calnet.campaign.command import campaign
+    from calnet.cli import user_errors
+
+    app = typer.Typer()
+    app.command("campaign")(user_errors(campaign))
+    app.command("other")(lambda: None)
+    return app

@@ -202,3 +202,17 @@ def test_resume_keeps_stored_inputs_bit_for_bit(tmp_path):
     with sqlite3.connect(path) as db:
         assert db.execute("SELECT inputs FROM runs WHERE idx < 6 ORDER BY idx").fetchall() \
             == before
+
+
+def test_a_module_beside_the_spec_has_its_version_stored(tmp_path, monkeypatch):
+    """``python:beside_sim:f`` found only in the spec's folder: its ``VERSION`` is
+    recorded in the store's metadata and on every run."""
+    monkeypatch.setattr(sys, "path", list(sys.path))  # the spec's folder is appended
+    monkeypatch.delitem(sys.modules, "beside_sim", raising=False)
+    (tmp_path / "beside_sim.py").write_text(
+        'VERSION = "2.5"\n\ndef f(inputs):\n    return {"y": inputs["x"], "z": inputs["a"]}\n')
+    net = toy_network(tmp_path, "python:beside_sim:f", runs=3)
+    path = run_campaign(net, "toy", progress=False, executor="in-process").store_path
+    with RunStore(path, readonly=True) as db:
+        assert db.meta()["simulator_version"] == "2.5"
+        assert db.versions() == {"2.5": 3}

@@ -5,16 +5,10 @@ from __future__ import annotations
 import sys
 
 import pytest
-import typer
-from campaign_helpers import toy_spec
+from campaign_helpers import campaign_app, toy_spec
 from typer.testing import CliRunner
 
-from calnet.campaign.command import campaign
-from calnet.cli import user_errors
-
-app = typer.Typer()
-app.command("campaign")(user_errors(campaign))
-app.command("other")(lambda: None)  # two commands, so the app dispatches by name
+app = campaign_app()
 
 
 def test_command_runs_exports_and_resumes(tmp_path):
@@ -63,3 +57,52 @@ def test_command_is_import_light():
             "for m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert out.stdout.strip() == "False", out.stderr
+
+
+def test_a_campaign_without_one_ok_run_exits_1(tmp_path):
+    spec = toy_spec(tmp_path, "python:toy_sims:broken", runs=4)
+    result = CliRunner().invoke(app, ["campaign", str(spec), "--no-progress"])
+    assert result.exit_code == 1, result.output
+    assert "license server unreachable" in result.output  # the failures are listed
+    assert "no run of toy finished ok" in " ".join(result.output.split())
+    again = CliRunner().invoke(app, ["campaign", str(spec), "--no-progress"])
+    assert again.exit_code == 1 and "complete" in again.output  # a finished, useless store
+
+
+def test_an_unknown_executor_is_a_usage_error(tmp_path):
+    spec = toy_spec(tmp_path, runs=4)
+    result = CliRunner().invoke(app, ["campaign", str(spec), "--executor", "foo"])
+    assert result.exit_code == 2
+    assert "'foo' is not one of" in result.output
+    assert not (tmp_path / "campaigns").exists()
+
+
+def test_an_unknown_calibration_mode_is_a_usage_error(tmp_path):
+    from calnet.cli import app as calnet_app
+
+    for option in ("--mode", "--plug"):
+        result = CliRunner().invoke(calnet_app, ["calibrate", str(tmp_path), option, "foo"])
+        assert result.exit_code == 2, result.output
+        assert "'foo' is not one of" in result.output
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_a_simulator_ending_its_process_is_a_failed_run(tmp_path, workers):
+    """``os._exit`` in a Python simulator without a timeout: the run is recorded failed
+    with the reason, every other run finishes, the campaign exits 0."""
+    import json
+    import subprocess
+
+    from calnet.campaign.store import RunStore
+
+    spec = toy_spec(tmp_path, "python:toy_sims:dies", runs=12)
+    out = subprocess.run([sys.executable, "-m", "calnet.campaign", str(spec), "--workers",
+                          str(workers), "--no-progress"], capture_output=True, text=True,
+                         timeout=120)
+    assert out.returncode == 0, out.stdout + out.stderr
+    with RunStore(tmp_path / "campaigns" / "toy.sqlite", readonly=True) as db:
+        rows = db.rows()
+    died = [r for r in rows if r["inputs"]["x"] > 0.9]
+    assert died and all(r["status"] == "failed" and "died (exit code 7)" in r["message"]
+                        for r in died), json.dumps(died)
+    assert all(r["status"] == "ok" for r in rows if r["inputs"]["x"] <= 0.9)

@@ -134,6 +134,23 @@ def test_command_failures(tmp_path, mode, timeout, status, message):
     assert rec.wall_time < 30
 
 
+@pytest.mark.parametrize("script", ["cmd_sim.py", str(HERE / "cmd_sim.py")])
+def test_command_paths_hold_from_a_relative_spec_path(tmp_path, monkeypatch, script):
+    """``calnet campaign network.yaml`` from the spec's folder: the files calnet passes
+    (``{input_json}``, ``{output_json}``) and a script beside the spec are given to the
+    program, which runs in its run folder, as absolute paths."""
+    from calnet.campaign import run_campaign
+    from calnet.spec import load_spec
+
+    (tmp_path / "cmd_sim.py").write_text((HERE / "cmd_sim.py").read_text())
+    toy_network(tmp_path, {"kind": "command", "argv": [sys.executable, script, "json",
+                                                       "{input_json}", "{output_json}"]},
+                runs=3)
+    monkeypatch.chdir(tmp_path)
+    summary = run_campaign(load_spec("network.yaml"), "toy", progress=False)
+    assert summary.status_counts == {"ok": 3}, summary.failures
+
+
 def test_command_template_names_are_checked(tmp_path):
     net = toy_network(tmp_path, _command("json", "{inptu_json}"))
     with pytest.raises(CampaignError, match="names {inptu_json}"):

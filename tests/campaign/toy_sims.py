@@ -71,6 +71,11 @@ def dies(inputs):
     return quadratic(inputs)
 
 
+def broken(inputs):
+    """Raises at every point (a simulator that cannot work)."""
+    raise RuntimeError("license server unreachable")
+
+
 def exits(inputs):
     """Calls ``sys.exit(4)`` for ``x > 0.9`` (how a script-style simulator gives up)."""
     if inputs["x"] > 0.9:
@@ -88,6 +93,23 @@ def slower(inputs):
 def slow(inputs):
     """``quadratic`` after 0.1 s (the kill -9 test)."""
     time.sleep(0.1)
+    return quadratic(inputs)
+
+
+def counted(inputs):
+    """``quadratic`` after 0.2 s, appending one line per execution to the file named by
+    ``$TOY_COUNT_FILE`` (the two-writers test counts executions)."""
+    with open(os.environ["TOY_COUNT_FILE"], "a") as fh:
+        fh.write(f"{inputs['x']!r}\n")
+    time.sleep(0.2)
+    return quadratic(inputs)
+
+
+def sleeper(inputs):
+    """Starts ``sleep 61`` and waits for it (a run that hangs, with a child of its own)."""
+    import subprocess
+
+    subprocess.run(["sleep", "61"], check=False)
     return quadratic(inputs)
 
 

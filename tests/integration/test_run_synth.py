@@ -74,3 +74,15 @@ def _check_predict(work: Path, out: Path, tmp_path: Path) -> None:
     res = runner.invoke(app, ["predict", str(work), "--run", str(tmp_path / "none"),
                               "--at", "P=200,v=1"])
     assert res.exit_code == 1 and "no fitted surrogates" in res.output
+
+
+def test_shipped_synth_campaigns_match_the_spec():
+    """The stores in synth/campaigns are the current spec's, complete (so that
+    ``calnet run tests/integration/synth`` reads them instead of refusing them)."""
+    from calnet.campaign import load_runs
+    from calnet.spec import load_spec
+
+    network = load_spec(SYNTH)
+    for name, runs in (("thermal", 40), ("micro", 30), ("hardness", 20)):
+        table = load_runs(network, name)
+        assert table.n_ok == runs and table.status_counts == {"ok": runs}, name

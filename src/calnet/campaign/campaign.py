@@ -34,16 +34,25 @@ from calnet.campaign.design import (
     model_box,
     to_unit,
 )
-from calnet.campaign.executors import executor_kind, make_executor
+from calnet.campaign.executors import WorkerDied, executor_kind, make_executor
+from calnet.campaign.lease import holder as lease_holder
 from calnet.campaign.runners import (
+    CallableRunner,
     RunRecord,
     execute_run,
     make_simulator,
     run_timeout,
     simulator_version,
 )
-from calnet.campaign.store import RunStore, describe_change, fingerprint_hash, model_fingerprint
+from calnet.campaign.store import (
+    RunStore,
+    describe_change,
+    fingerprint_hash,
+    model_fingerprint,
+    store_errors,
+)
 from calnet.errors import CampaignError, CampaignWarning
+from calnet.files import why
 from calnet.spec.models import Model
 from calnet.spec.network import Network
 
@@ -149,6 +158,9 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
     seed = network.settings.seed if seed is None else int(seed)
     path = Path(store) if store is not None else default_store(network, model_name)
     if fresh:
+        held = lease_holder(path)
+        if held:
+            raise CampaignError(held)
         remove_store(path)
     sim = make_simulator(network, model, workdir=path.with_suffix(".work"))
     version = simulator_version(sim)
@@ -157,7 +169,8 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
                               retry_failed, start)
     if done is not None:  # nothing to run: the store is read, never written
         return done
-    with RunStore(path) as db:
+    with store_errors(path), RunStore(path) as db:
+        db.take_lease()
         _claim(db, network, model, seed, sim.name, version)
         design = _plan(db, model, _target_runs(runs, model, network, db.planned()), seed)
         if retry_failed:
@@ -169,7 +182,11 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
         timeout = run_timeout(network, model)
         tasks = ((sim, i, inputs, timeout, model.output_names) for i, inputs, _ in todo)
         failures: dict[int, str] = {}
-        with make_executor(executor, workers=workers, scheduler=scheduler) as ex, \
+        # a user's Python function without a timeout runs in a worker process, so that
+        # one ending the interpreter is recorded as failed instead of ending the campaign
+        isolate = isinstance(sim, CallableRunner) and timeout is None
+        with make_executor(executor, workers=workers, scheduler=scheduler,
+                           isolate=isolate) as ex, \
                 _progress_bar(progress, model_name, len(design), skipped, db) as advance:
             for task, result in ex.run(execute_run, tasks,
                                        on_submit=lambda t: db.mark_started([t[1]])):
@@ -225,7 +242,11 @@ def _check_versions(db: RunStore, simulator: str, version: str, more_to_run: boo
 def remove_store(path: Path) -> None:
     """Delete a store and its WAL files."""
     for suffix in ("", "-wal", "-shm"):
-        Path(f"{path}{suffix}").unlink(missing_ok=True)
+        try:
+            Path(f"{path}{suffix}").unlink(missing_ok=True)
+        except OSError as err:
+            raise CampaignError(f"cannot delete the store '{path}' for --fresh: "
+                                f"{why(err)}") from None
 
 
 def _model(network: Network, name: str) -> Model:
@@ -307,6 +328,8 @@ def _plan(db: RunStore, model: Model, runs: int, seed: int) -> Design:
 
 
 def _worker_died(index: int, err: Any) -> RunRecord:
+    if isinstance(err, WorkerDied):
+        return RunRecord(index, "failed", {}, str(err), {}, math.nan)
     return RunRecord(index, "failed", {}, f"the worker running it died ({type(err).__name__}: "
                      f"{err}); set a timeout to run each simulation in its own process",
                      {}, math.nan)

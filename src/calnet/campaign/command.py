@@ -7,7 +7,7 @@ Import-light: the spec, the driver, Dask and UM-Bridge load when the command run
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 import typer
 
@@ -26,8 +26,8 @@ def campaign(
         help="address of a running Dask scheduler, e.g. tcp://host:8786")] = None,
     store: Annotated[Path | None, typer.Option(
         help="SQLite store (default: <spec folder>/campaigns/<model>.sqlite)")] = None,
-    executor: Annotated[str, typer.Option(
-        help="auto, in-process, processes or dask")] = "auto",
+    executor: Annotated[Literal["auto", "in-process", "processes", "dask"], typer.Option(
+        help="where the runs execute")] = "auto",
     seed: Annotated[int | None, typer.Option(
         help="design seed (default: the spec's settings.seed)", min=0)] = None,
     fresh: Annotated[bool, typer.Option(
@@ -58,6 +58,7 @@ def campaign(
     if export:
         check_export(export)
     console = Console(highlight=False)
+    useless = []
     for name in names:
         summary = run_campaign(network, name, runs=runs, workers=workers, scheduler=scheduler,
                                store=store, executor=executor, seed=seed, progress=progress,
@@ -65,6 +66,12 @@ def campaign(
         print_summary(summary, console)
         if export:
             console.print(f"exported to {export_runs(summary.store_path, export)}")
+        if summary.planned and not summary.n_ok:
+            useless.append(name)
+    if useless:
+        raise CampaignError(f"no run of {', '.join(useless)} finished ok (the first failures "
+                            "are listed above); fix the simulator, then run again with "
+                            "--retry-failed")
 
 
 def print_summary(summary: Any, console: Any) -> None:

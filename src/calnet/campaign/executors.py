@@ -4,9 +4,9 @@ Every executor has one method, :meth:`Executor.run`, which runs ``fn(*task)`` fo
 of tasks and yields ``(task, result)`` as each finishes (in completion order), keeping at
 most a small window of tasks in flight so that an interrupted campaign has few runs to
 redo. ``result`` is the function's return value, or the exception a dead worker left
-behind (Dask's ``KilledWorker``, for a run that killed its workers). The results do not
-depend on the executor: run ``i``'s inputs are fixed by the design and each run is
-independent.
+behind (Dask's ``KilledWorker``, or :class:`WorkerDied` from local processes, for a run
+that killed its worker). The results do not depend on the executor: run ``i``'s inputs
+are fixed by the design and each run is independent.
 
 Dask is imported only when a Dask executor is made. Worker processes import simulator
 modules by name: a Python callable's module must be importable there (``PYTHONPATH``,
@@ -64,11 +64,17 @@ class InProcessExecutor:
         self.close()
 
 
+class WorkerDied(RuntimeError):
+    """What a run that took its worker process down with it leaves as its result."""
+
+
 class ProcessExecutor:
     """A pool of ``workers`` local processes (``spawn`` start method).
 
-    A worker that dies (a simulator crashing the interpreter without a timeout set) stops
-    the campaign with a :class:`CampaignError`; the runs in flight stay unfinished.
+    A worker that dies (a simulator crashing the interpreter or calling ``os._exit``)
+    breaks the pool: the runs then in flight are run again one at a time in a new pool,
+    so that the run that kills its worker is found and its result is a
+    :class:`WorkerDied`, while the others finish normally.
     """
 
     name = "processes"
@@ -76,6 +82,7 @@ class ProcessExecutor:
     def __init__(self, workers: int):
         self.workers = workers
         self._pool = self._new_pool()
+        self._processes: list[Any] = []
 
     def _new_pool(self) -> ProcessPoolExecutor:
         # spawn: the workers are children of this process, so they die with it (see
@@ -86,38 +93,65 @@ class ProcessExecutor:
     def run(self, fn, tasks, on_submit=None):
         pending: dict[Future, Task] = {}
         stream = iter(tasks)
+        suspects: list[Task] = []  # in flight when a worker died: run again one at a time
         try:
-            self._fill(fn, stream, pending, on_submit)
-            while pending:
+            while self._fill(fn, stream, suspects, pending, on_submit):
+                alone = len(pending) == 1
                 done, _ = wait(pending, return_when=FIRST_COMPLETED)
+                if any(isinstance(fut.exception(), BrokenProcessPool) for fut in done):
+                    done, _ = wait(pending)  # a broken pool fails every run in flight
+                crashed = []
                 for fut in done:
                     task = pending.pop(fut)
                     err = fut.exception()
                     if isinstance(err, BrokenProcessPool):
-                        self._pool.shutdown(wait=False, cancel_futures=True)
-                        self._pool = self._new_pool()
-                        raise CampaignError(
-                            "a worker process died (a simulator crashed the interpreter); "
-                            "the runs in flight are left unfinished. Set a timeout "
-                            "(campaign.timeout) so that each run has its own process and a "
-                            "crash is recorded as a failed run, then run again to resume")
-                    if err is not None:
+                        crashed.append(task)
+                    elif err is not None:
                         raise CampaignError(f"a run could not be executed in a worker "
                                             f"({type(err).__name__}: {err})") from err
-                    yield task, fut.result()
-                self._fill(fn, stream, pending, on_submit)
+                    else:
+                        yield task, fut.result()
+                if crashed:
+                    code = self._restart()
+                    if alone:
+                        yield crashed[0], WorkerDied(f"the process running it died{code}; "
+                                                     "the simulator crashed the interpreter "
+                                                     "or ended it (os._exit)")
+                    else:
+                        suspects.extend(crashed)
         finally:
             for fut in pending:
                 fut.cancel()
 
-    def _fill(self, fn, stream, pending, on_submit) -> None:
-        while len(pending) < 2 * self.workers:
-            task = next(stream, None)
-            if task is None:
-                return
+    def _fill(self, fn, stream, suspects, pending, on_submit) -> bool:
+        """Submit tasks up to the window (a suspect only into an empty pool); False when
+        nothing is left to run."""
+        while len(pending) < (1 if suspects else 2 * self.workers):
+            if suspects:
+                if pending:
+                    break
+                task = suspects.pop(0)
+            else:
+                task = next(stream, None)
+                if task is None:
+                    break
             if on_submit:
                 on_submit(task)
             pending[self._pool.submit(fn, *task)] = task
+            self._processes = list((getattr(self._pool, "_processes", None) or {}).values())
+        return bool(pending)
+
+    def _restart(self) -> str:
+        """A new pool for a broken one; returns `` (exit code N)`` of the dead worker."""
+        self._pool.shutdown(wait=False, cancel_futures=True)
+        codes = []
+        for proc in self._processes:
+            proc.join(5)
+            codes.append(proc.exitcode)
+        self._pool = self._new_pool()
+        self._processes = []
+        code = next((c for c in codes if c not in (None, 0, -15)), None)
+        return f" (exit code {code})" if code is not None else ""
 
     def close(self, *, wait: bool = True) -> None:
         """Shut the pool down; ``wait=False`` also stops the runs in flight (the
@@ -229,20 +263,23 @@ class DaskExecutor:
 
 
 def make_executor(kind: str = "auto", *, workers: int | None = None,
-                  scheduler: str | None = None) -> Executor:
+                  scheduler: str | None = None, isolate: bool = False) -> Executor:
     """Choose an executor.
 
     Parameters
     ----------
     kind : {"auto", "in-process", "processes", "dask"}
-        ``auto``: Dask with ``scheduler`` given; in-process for ``workers`` None or 1;
-        local processes otherwise.
+        ``auto``: Dask with ``scheduler`` given; in-process for ``workers`` None or 1
+        (one local process with ``isolate``); local processes otherwise.
     workers : int, optional
         Number of parallel runs (processes, or LocalCluster workers).
     scheduler : str, optional
         Address of a running Dask scheduler.
+    isolate : bool
+        The runs must not share the calling process (a user's Python simulator that may
+        end the interpreter): ``auto`` then never picks in-process.
     """
-    kind = executor_kind(kind, workers=workers, scheduler=scheduler)
+    kind = executor_kind(kind, workers=workers, scheduler=scheduler, isolate=isolate)
     if kind == "in-process":
         return InProcessExecutor()
     if kind == "processes":
@@ -251,7 +288,7 @@ def make_executor(kind: str = "auto", *, workers: int | None = None,
 
 
 def executor_kind(kind: str = "auto", *, workers: int | None = None,
-                  scheduler: str | None = None) -> str:
+                  scheduler: str | None = None, isolate: bool = False) -> str:
     """The executor :func:`make_executor` makes for these options ("in-process",
     "processes" or "dask"), without making it: a campaign checks its options with this
     before it runs anything.
@@ -270,7 +307,8 @@ def executor_kind(kind: str = "auto", *, workers: int | None = None,
         raise CampaignError("give --workers or --scheduler, not both (an existing scheduler "
                             "brings its own workers)")
     if kind == "auto":
-        kind = "dask" if scheduler else ("processes" if (workers or 1) > 1 else "in-process")
+        parallel = (workers or 1) > 1 or isolate
+        kind = "dask" if scheduler else ("processes" if parallel else "in-process")
     if scheduler and kind != "dask":
         raise CampaignError(f"--scheduler needs the Dask executor, not '{kind}'")
     if kind == "in-process" and workers and workers > 1:

@@ -31,11 +31,13 @@ import subprocess
 import sys
 import time
 import traceback
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from calnet.campaign import reaper
 from calnet.errors import CampaignError
 from calnet.simulators.base import STATUSES, SimResult, Simulator, not_numbers
 from calnet.spec.models import Model
@@ -234,7 +236,8 @@ def make_simulator(network: Network, model: Model, *, workdir: str | Path) -> Si
         return CallableRunner(ref.target, version, options, (str(Path(network.root).resolve()),))
     if ref.kind == "command":
         _check_template(ref.argv, (*model.input_names, *model.parameter_names, *options))
-        return CommandRunner(resolve_program(ref.argv, network), str(workdir), ref.input_mode,
+        return CommandRunner(resolve_program(ref.argv, network), str(Path(workdir).absolute()),
+                             ref.input_mode,
                              ref.output_mode, run_timeout(network, model), options, version,
                              model.output_names)
     return UMBridgeRunner(ref.url, ref.model, model.input_names + model.parameter_names,
@@ -253,7 +256,7 @@ def simulator_version(sim: Simulator) -> str:
     when the spec gives none."""
     if isinstance(sim, CallableRunner) and not sim.version:
         try:
-            module = importlib.import_module(sim.target.partition(":")[0])
+            module = _import(sim.target.partition(":")[0], sim.search_path)
         except ImportError:
             return ""
         return str(getattr(module, "__version__", getattr(module, "VERSION", "")))
@@ -263,18 +266,24 @@ def simulator_version(sim: Simulator) -> str:
 def load_callable(target: str, search_path: tuple[str, ...] = ()) -> Any:
     """Import ``module:function``, trying ``sys.path`` first, then ``search_path``."""
     module_name, _, func_name = target.partition(":")
-    try:
-        module = importlib.import_module(module_name)
-    except ModuleNotFoundError as err:
-        if err.name != module_name.partition(".")[0] or not search_path:
-            raise
-        sys.path.extend(p for p in search_path if p not in sys.path)
-        module = importlib.import_module(module_name)
+    module = _import(module_name, search_path)
     try:
         return getattr(module, func_name)
     except AttributeError:
         raise CampaignError(f"module '{module_name}' has no '{func_name}'; fix the "
                             f"simulator target '{target}'") from None
+
+
+def _import(module_name: str, search_path: tuple[str, ...]) -> Any:
+    """Import ``module_name`` from ``sys.path``, else from the folders of ``search_path``
+    (appended to ``sys.path``)."""
+    try:
+        return importlib.import_module(module_name)
+    except ModuleNotFoundError as err:
+        if err.name != module_name.partition(".")[0] or not search_path:
+            raise
+        sys.path.extend(p for p in search_path if p not in sys.path)
+        return importlib.import_module(module_name)
 
 
 # --------------------------------------------------------------------------- one run
@@ -337,24 +346,20 @@ def call_in_child(sim: Simulator, inputs: Mapping[str, float], timeout: float, *
     """
     payload = pickle.dumps((list(sys.path), sim, dict(inputs)))
     argv = [sys.executable, "-c", "from calnet.campaign.runners import child_main; child_main()"]
-    proc = subprocess.Popen(argv, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, start_new_session=True)
-    try:
-        proc.stdin.write(payload)
-        proc.stdin.close()
-        proc.stdin = None
-        ready = _wait_ready(proc, startup_timeout)
-        out, err = proc.communicate(timeout=timeout if ready else 0.1)
-    except subprocess.TimeoutExpired:
-        _kill_group(proc)
-        out, err = proc.communicate()
-        if ready:
-            return SimResult({}, "timeout", f"run exceeded its timeout of {timeout:g} s and "
-                             "was killed")
-    except BaseException:
-        _kill_group(proc)
-        proc.wait()
-        raise
+    with _process_group(argv, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                        stderr=subprocess.PIPE) as proc:
+        try:
+            proc.stdin.write(payload)
+            proc.stdin.close()
+            proc.stdin = None
+            ready = _wait_ready(proc, startup_timeout)
+            out, err = proc.communicate(timeout=timeout if ready else 0.1)
+        except subprocess.TimeoutExpired:
+            _kill_group(proc)
+            out, err = proc.communicate()
+            if ready:
+                return SimResult({}, "timeout", f"run exceeded its timeout of {timeout:g} s "
+                                 "and was killed")
     if proc.returncode != 0 or not out:
         tail = err.decode(errors="replace").strip().splitlines()[-2:]
         what = "died" if ready else "did not start"
@@ -388,20 +393,30 @@ def _run_killable(argv: list[str], cwd: Path | None, timeout: float | None, *,
                   stdin: bytes | None = None, text: bool = True):
     """``subprocess.run`` in its own session; on timeout kill the whole process group and
     return None."""
-    proc = subprocess.Popen(argv, cwd=cwd, stdin=subprocess.PIPE if stdin else subprocess.DEVNULL,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=text,
-                            start_new_session=True)
-    try:
-        out, err = proc.communicate(stdin, timeout=timeout)
-    except subprocess.TimeoutExpired:
-        _kill_group(proc)
-        proc.communicate()
-        return None
-    except BaseException:
-        _kill_group(proc)
-        proc.wait()
-        raise
+    with _process_group(argv, cwd=cwd, stdin=subprocess.PIPE if stdin else subprocess.DEVNULL,
+                        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=text) as proc:
+        try:
+            out, err = proc.communicate(stdin, timeout=timeout)
+        except subprocess.TimeoutExpired:
+            _kill_group(proc)
+            proc.communicate()
+            return None
     return subprocess.CompletedProcess(argv, proc.returncode, out, err)
+
+
+@contextmanager
+def _process_group(argv: list[str], **kwargs: Any) -> Iterator[subprocess.Popen]:
+    """``Popen`` in a new session (so its own process group), which is killed as a whole
+    when the block is left by an exception, or by the reaper when this process dies."""
+    proc = subprocess.Popen(argv, start_new_session=True, **kwargs)
+    reaper.watch(proc.pid)
+    try:
+        yield proc
+    finally:
+        if proc.returncode is None:
+            _kill_group(proc)
+            proc.wait()
+        reaper.unwatch(proc.pid)
 
 
 def _kill_group(proc: subprocess.Popen) -> None:
@@ -437,11 +452,25 @@ def _check_template(argv: tuple[str, ...], names: tuple[str, ...]) -> None:
 
 
 def resolve_program(argv: tuple[str, ...], network: Network) -> tuple[str, ...]:
-    """Make a relative program path (``./sim.sh``, ``bin/sim``) relative to the spec."""
+    """Absolute paths for a command's files, relative to the spec's folder.
+
+    The program, when given as a relative path (``./sim.sh``, ``bin/sim``), and every
+    later argument that names an existing file or folder beside the spec (``sim.py``,
+    ``meshes/plate.msh``; not an option ``-x``, not a template ``{...}``), since the
+    program runs in its run's own folder.
+    """
+    root = Path(network.root).resolve()
     program = argv[0]
     if os.sep in program and not os.path.isabs(program):
-        program = str(Path(network.root).resolve() / program)
-    return (program, *argv[1:])
+        program = str(root / program)
+    return (program, *(_beside_spec(arg, root) for arg in argv[1:]))
+
+
+def _beside_spec(arg: str, root: Path) -> str:
+    if not arg or arg.startswith("-") or _FIELD.search(arg) or os.path.isabs(arg):
+        return arg
+    path = root / arg
+    return str(path) if path.exists() else arg
 
 
 def _read(path: Path) -> str:

@@ -32,12 +32,16 @@ import json
 import math
 import sqlite3
 import time
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Iterator, Mapping
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
+from calnet.campaign.lease import SCHEMA as LEASE_SCHEMA
+from calnet.campaign.lease import Lease
 from calnet.campaign.runners import RunRecord
 from calnet.errors import CampaignError
+from calnet.files import make_folder
 from calnet.spec.models import Model
 
 SCHEMA_VERSION = "1"
@@ -130,43 +134,61 @@ class RunStore:
     def __init__(self, path: str | Path, *, readonly: bool = False):
         self.path = Path(path)
         self.readonly = readonly
+        self._lease: Lease | None = None
         if readonly and not self.path.is_file():
             raise CampaignError(f"no campaign store at '{self.path}'")
-        if readonly:
-            self._db = sqlite3.connect(f"file:{self.path.resolve()}?mode=ro", uri=True)
-        else:
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-            self._db = sqlite3.connect(self.path, timeout=30)
+        try:
+            if readonly:
+                self._db = sqlite3.connect(f"file:{self.path.resolve()}?mode=ro", uri=True)
+            else:
+                make_folder(self.path.parent)
+                self._db = sqlite3.connect(self.path, timeout=30)
+        except sqlite3.Error as err:
+            raise store_error(self.path, err) from None
         try:
             if not readonly:
                 self._db.execute("PRAGMA journal_mode=WAL")
                 self._db.execute("PRAGMA synchronous=NORMAL")
-                self._db.executescript(_SCHEMA)
+                self._db.executescript(_SCHEMA + LEASE_SCHEMA)
             self._db.execute("SELECT idx, status FROM runs LIMIT 1")
-        except sqlite3.DatabaseError as err:
+        except sqlite3.Error as err:
             self._db.close()
-            raise CampaignError(f"'{self.path}' is not a calnet campaign store ({err}); pass "
-                                "another --store or remove the file") from None
+            raise store_error(self.path, err) from None
+
+    def take_lease(self) -> None:
+        """Hold the store for this process until :meth:`close` (see
+        :mod:`calnet.campaign.lease`); a CampaignError naming the holder when another live
+        campaign holds it."""
+        self._lease = Lease(self._db, self.path)
 
     def __enter__(self) -> RunStore:
         return self
 
-    def __exit__(self, *exc: object) -> None:
-        self.close()
+    def __exit__(self, kind: object, *exc: object) -> None:
+        try:
+            self.close()
+        except sqlite3.Error:
+            if kind is None:  # else the error in flight is the one to report
+                raise
 
     def close(self) -> None:
-        """Commit, checkpoint the WAL into the main file and close."""
+        """Commit, give the lease back, checkpoint the WAL into the main file and close."""
         if self._db is None:
             return
-        if not self.readonly:
-            self._db.commit()
-            try:  # best effort: another reader may hold the WAL open, which is fine
-                self._db.execute("PRAGMA wal_checkpoint(TRUNCATE)")
-                self._db.execute("PRAGMA journal_mode=DELETE")
-            except sqlite3.OperationalError:
-                pass
-        self._db.close()
-        self._db = None
+        try:
+            if not self.readonly:
+                self._db.commit()
+                if self._lease is not None:
+                    self._lease.release(self._db)
+                    self._lease = None
+                try:  # best effort: another reader may hold the WAL open, which is fine
+                    self._db.execute("PRAGMA wal_checkpoint(TRUNCATE)")
+                    self._db.execute("PRAGMA journal_mode=DELETE")
+                except sqlite3.OperationalError:
+                    pass
+        finally:
+            self._db.close()
+            self._db = None
 
     # ---------------------------------------------------------------- metadata
     def meta(self) -> dict[str, str]:
@@ -250,6 +272,38 @@ class RunStore:
                 row[key] = json.loads(row[key]) if row[key] is not None else None
             out.append(row)
         return out
+
+
+# primary SQLite result codes (https://sqlite.org/rescode.html)
+_UNWRITABLE = {3: "permission denied", 8: "it is read-only", 10: "a disk I/O error (is its "
+               "disk full or read-only?)", 13: "no space left on its disk",
+               14: "it cannot be opened for writing (is its folder read-only?)"}
+_BUSY = (5, 6)
+
+
+def store_error(path: Path, err: sqlite3.Error) -> CampaignError:
+    """The one-line error of a store that SQLite refused: cannot be written (full,
+    read-only), locked, or not a store at all."""
+    code = (getattr(err, "sqlite_errorcode", None) or 0) & 0xFF
+    if code in _UNWRITABLE:
+        return CampaignError(f"cannot write the campaign store '{path}': {_UNWRITABLE[code]} "
+                             f"({err}); the store is kept as it is: free some space or make "
+                             "it writable, then run again (or copy it to a writable disk "
+                             "and pass that --store)")
+    if code in _BUSY:
+        return CampaignError(f"the campaign store '{path}' is locked by another process "
+                             f"({err}); wait for it to finish, then run again")
+    return CampaignError(f"'{path}' is not a calnet campaign store ({err}); pass another "
+                         "--store or remove the file")
+
+
+@contextmanager
+def store_errors(path: Path) -> Iterator[None]:
+    """Turn SQLite's errors on the store at ``path`` into :func:`store_error`'s."""
+    try:
+        yield
+    except sqlite3.Error as err:
+        raise store_error(path, err) from None
 
 
 def _dumps(obj: Any) -> str:

@@ -13,6 +13,7 @@ from calnet.campaign.campaign import default_store
 from calnet.campaign.design import design_columns
 from calnet.campaign.store import RunStore, describe_change, fingerprint_hash, model_fingerprint
 from calnet.errors import CampaignError
+from calnet.files import make_folder, replacing
 from calnet.spec.network import Network
 
 
@@ -140,17 +141,22 @@ def export_runs(store: str | Path, out: str | Path) -> Path:
     ------
     CampaignError
         For another suffix, or for Parquet without pyarrow.
+    CalnetError
+        When a file cannot be written (no space left, read-only); each is replaced whole
+        or left as it was.
     """
     out = Path(out)
     suffix = check_export(out)
     frame = runs_frame(store)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    if suffix == ".csv":
-        frame.to_csv(out, index=False, float_format="%.17g")
-    else:
-        frame.to_parquet(out, index=False)
+    make_folder(out.parent)
+    with replacing(out) as tmp:
+        if suffix == ".csv":
+            frame.to_csv(tmp, index=False, float_format="%.17g")
+        else:
+            frame.to_parquet(tmp, index=False)
     with RunStore(store, readonly=True) as db:
         meta = {**db.meta(), "status_counts": db.status_counts(), "store": Path(store).name}
     meta["model_spec"] = json.loads(meta.get("model_spec", "{}"))
-    out.with_suffix(".meta.json").write_text(json.dumps(meta, indent=2) + "\n")
+    with replacing(out.with_suffix(".meta.json")) as tmp:
+        tmp.write_text(json.dumps(meta, indent=2) + "\n")
     return out

@@ -19,6 +19,7 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 from calnet.errors import SurrogateError  # noqa: E402
+from calnet.files import make_folder, replacing  # noqa: E402
 from calnet.surrogates.gp import ARRAY_FIELDS, FittedGP  # noqa: E402
 
 FORMAT = "calnet.FittedGP"
@@ -44,11 +45,17 @@ def save_gp(gp: FittedGP, path: str | Path) -> Path:
     -------
     Path
         The ``.npz`` path written.
+
+    Raises
+    ------
+    CalnetError
+        When a file cannot be written (no space left, read-only); each file is replaced
+        whole or left as it was.
     """
     npz, sidecar = _paths(path)
-    npz.parent.mkdir(parents=True, exist_ok=True)
+    make_folder(npz.parent)
     arrays = {f: np.asarray(getattr(gp, f), dtype=np.float64) for f in ARRAY_FIELDS}
-    with open(npz, "wb") as fh:
+    with replacing(npz) as tmp, open(tmp, "wb") as fh:
         np.savez(fh, **arrays)
     meta = {
         "format": FORMAT,
@@ -65,7 +72,8 @@ def save_gp(gp: FittedGP, path: str | Path) -> Path:
         "lower": arrays["lower"].tolist(),
         "upper": arrays["upper"].tolist(),
     }
-    sidecar.write_text(json.dumps(meta, indent=2, allow_nan=True) + "\n")
+    with replacing(sidecar) as tmp:
+        tmp.write_text(json.dumps(meta, indent=2, allow_nan=True) + "\n")
     return npz
 
 

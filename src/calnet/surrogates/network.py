@@ -16,6 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from calnet.errors import SurrogateError
+from calnet.files import make_folder, replacing
 from calnet.spec import Model, Network
 from calnet.surrogates.cv import CVResult, cross_validate
 from calnet.surrogates.fit import fit_gp
@@ -99,13 +100,13 @@ class Surrogates:
 
     def save(self, folder: str | Path) -> Path:
         """Write every GP (``.npz`` + JSON, no pickle) and an index to ``folder``."""
-        folder = Path(folder)
-        folder.mkdir(parents=True, exist_ok=True)
+        folder = make_folder(folder)
         index = {}
         for key, s in self.items.items():
             save_gp(s.gp, folder / key)
             index[key] = {**s.summary(), "file": key}
-        (folder / "surrogates.json").write_text(json.dumps(index, indent=2, default=float))
+        with replacing(folder / "surrogates.json") as tmp:
+            tmp.write_text(json.dumps(index, indent=2, default=float))
         return folder
 
     @classmethod

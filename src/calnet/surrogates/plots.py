@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from calnet.files import make_folder, replacing
 from calnet.surrogates.cv import CVResult
 
 
@@ -48,7 +49,7 @@ def parity_plot(
     from matplotlib.figure import Figure
 
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    make_folder(path.parent)
     fig = Figure(figsize=(4.5, 4.5))
     FigureCanvasAgg(fig)
     ax = fig.add_subplot()
@@ -71,5 +72,6 @@ def parity_plot(
     ax.set_title(title if title is not None else f"{name}: {cv.k}-fold CV")
     ax.legend(loc="upper left", fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=dpi)
+    with replacing(path) as tmp:
+        fig.savefig(tmp, dpi=dpi)
     return path

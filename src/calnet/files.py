@@ -1,0 +1,78 @@
+"""Writing result files safely: all of a file or none of it, and one line on failure.
+
+:func:`replacing` hands a writer a temporary path beside the target and moves the
+finished file over the target (``os.replace``, atomic within a folder), so a full or
+read-only disk leaves the previous file, or none, never a truncated one. An
+``OSError`` while writing becomes a :class:`~calnet.errors.CalnetError` naming the path
+and the cause (:func:`write_error`).
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+from calnet.errors import CalnetError
+
+_CAUSES = {
+    errno.ENOSPC: "no space left on the device (free some space, or write to another "
+                  "folder)",
+    errno.EDQUOT: "disk quota exceeded (free some space, or write to another folder)",
+    errno.EROFS: "the file system is read-only (write to another folder)",
+    errno.EACCES: "permission denied (make the folder writable, or write to another "
+                  "folder)",
+    errno.EPERM: "permission denied (make the folder writable, or write to another "
+                 "folder)",
+}
+
+
+def why(err: OSError) -> str:
+    """The cause of a failed write, with its remedy, in words."""
+    return _CAUSES.get(err.errno, f"{err.strerror or err} (check the folder and the disk)")
+
+
+def write_error(path: str | Path, err: OSError) -> CalnetError:
+    """The one-line error of a file that could not be written."""
+    return CalnetError(f"cannot write '{path}': {why(err)}")
+
+
+def make_folder(path: str | Path) -> Path:
+    """``mkdir -p path``; a CalnetError naming it when it cannot be made."""
+    path = Path(path)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise write_error(path, err) from None
+    return path
+
+
+@contextmanager
+def replacing(path: str | Path) -> Iterator[Path]:
+    """A temporary path to write ``path``'s new content to, moved over ``path`` when the
+    block ends without an error and deleted otherwise.
+
+    The temporary file is in the same folder, with the same suffix (writers that pick a
+    format by suffix, such as ``savefig`` or ``np.savez``, see the right one).
+
+    Raises
+    ------
+    CalnetError
+        For an ``OSError`` (no space left, read-only, permission denied), naming ``path``.
+    """
+    path = Path(path)
+    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")
+    try:
+        yield tmp
+        with open(tmp, "rb+") as fh:  # on the disk before it replaces the old file
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except OSError as err:
+        raise write_error(path, err) from None
+    finally:
+        try:
+            tmp.unlink(missing_ok=True)
+        except OSError:
+            pass
