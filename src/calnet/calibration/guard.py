@@ -147,3 +147,41 @@ def check_surrogates(network, surrogates, posterior, *, n_draws: int = 50
             needed[k] = int(min(1e6, math.ceil(runs[k] * max(factor, 1.0) ** (dim / 3.0))))
         out.append(SurrogateCheck(ds, sds, data_sd, runs, needed))
     return out
+
+
+#: a posterior median within this fraction of the range from a bound ...
+BOUND_NEAR = 0.03
+#: ... with a 95 % interval narrower than this fraction of the range is pressed against it
+BOUND_NARROW = 0.6
+
+
+def check_bounds(network, posterior) -> list[str]:
+    """A message for every calibrated parameter whose posterior presses against one of
+    its bounds: the data ask for values the bounds (and the campaign) exclude."""
+    from calnet.calibration.network import parameter_keys
+
+    out, seen = [], set()
+    for model, draws in posterior.theta.items():
+        if model in posterior.prior_only:
+            continue
+        orthogonal = any(d.discrepancy.enabled and d.discrepancy.orthogonal
+                         for d in network.datasets_for(model))
+        for j, (p, key) in enumerate(zip(network.model(model).parameters,
+                                         parameter_keys(network, model), strict=True)):
+            if key in seen:
+                continue
+            seen.add(key)
+            lo, med, hi = np.percentile(draws[:, j], [2.5, 50, 97.5])
+            width = p.upper - p.lower
+            if hi - lo > BOUND_NARROW * width:
+                continue
+            for side, bound in (("lower", p.lower), ("upper", p.upper)):
+                if abs(med - bound) < BOUND_NEAR * width:
+                    hint = (" (with discrepancy: {orthogonal: false} the discrepancy may take "
+                            "up that misfit instead)" if orthogonal else "")
+                    out.append(f"{model}.{p.name}: the posterior presses against its {side} "
+                               f"bound {bound:g} (median {med:.4g}); the data ask for values "
+                               f"outside [{p.lower:g}, {p.upper:g}]: widen the bounds and "
+                               "extend the campaign if such values are physical, otherwise "
+                               "the model misses what this parameter stands in for" + hint)
+    return out

@@ -341,15 +341,13 @@ def calibrate(network: Network, surrogates: Surrogates, *, data=None, mode: str 
 
 def _checked(network, surrogates, post: NetworkPosterior) -> NetworkPosterior:
     """``post`` with its surrogate checks, warning where a surrogate sets the answer."""
-    from calnet.calibration.guard import check_surrogates
+    from calnet.calibration.guard import check_bounds, check_surrogates
 
     checks = tuple(check_surrogates(network, surrogates, post))
-    for c in checks:
-        message = c.message()
-        if message:
-            warnings.warn(message, CalibrationWarning, stacklevel=3)
-    for note in post.notes:
-        warnings.warn(note, CalibrationWarning, stacklevel=3)
+    messages = [c.message() for c in checks if c.message()]
+    messages += check_bounds(network, post) + list(post.notes)
+    for message in messages:
+        warnings.warn(message, CalibrationWarning, stacklevel=3)
     return replace(post, checks=checks)
 
 

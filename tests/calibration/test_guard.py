@@ -1,0 +1,157 @@
+"""The checks after calibration: a surrogate that sets the answer, a parameter pressed
+against its bound, and the notes of shared parameters in segmented mode."""
+
+from __future__ import annotations
+
+import sys
+import textwrap
+import warnings
+
+import numpy as np
+import pytest
+
+from calnet.calibration.network import calibrate
+from calnet.campaign import run_campaign
+from calnet.errors import CalibrationWarning
+from calnet.spec import load_spec
+from calnet.spec.models import SamplerSettings
+from calnet.surrogates.network import fit_surrogates
+
+SIMS = '''
+import math
+
+
+def wiggly(inputs):
+    x, a = inputs["x"], inputs["a"]
+    return {"y": a * x + 0.8 * math.sin(9.0 * x)}
+'''
+
+SPEC = '''
+models:
+  m:
+    simulator: python:guard_sims:wiggly
+    inputs: {x: {lower: 0, upper: 1}}
+    parameters: {a: {lower: LOWER, upper: UPPER}}
+    outputs: {y: {measurable: true}}
+    campaign: {runs: RUNS}
+data:
+  d: {path: d.csv, observes: m.y, columns: {x: x, y: y}, noise: {sd: 0.02}}
+settings:
+  seed: 4
+  sampler: {chains: 2, warmup: 300, draws: 300}
+  calibration: {mode: joint}
+'''
+SAMPLER = SamplerSettings(chains=2, warmup=300, draws=300, target_accept=0.95)
+
+
+def _case(root, runs: int, lower=0.5, upper=2.0, a_true=1.3):
+    root.mkdir()
+    (root / "guard_sims.py").write_text(SIMS)
+    spec = SPEC.replace("RUNS", str(runs)).replace("LOWER", str(lower))
+    (root / "network.yaml").write_text(textwrap.dedent(spec.replace("UPPER", str(upper))))
+    x = np.linspace(0.0, 1.0, 15)
+    y = a_true * x + 0.8 * np.sin(9 * x) + 0.02 * np.random.default_rng(1).standard_normal(15)
+    (root / "d.csv").write_text("x,y\n" + "".join(f"{a},{b}\n" for a, b in zip(x, y,
+                                                                              strict=True)))
+    sys.path.insert(0, str(root))
+    try:
+        network = load_spec(root)
+        run_campaign(network, "m", executor="in-process", progress=False)
+        sur = fit_surrogates(network, seed=1, cv=False)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", CalibrationWarning)
+            post = calibrate(network, sur, sampler=SAMPLER, seed=2)
+    finally:
+        sys.path.remove(str(root))
+        sys.modules.pop("guard_sims", None)
+    return post, [str(w.message) for w in caught if w.category is CalibrationWarning]
+
+
+def test_a_poor_surrogate_is_named_with_the_runs_it_needs(tmp_path):
+    post, messages = _case(tmp_path / "poor", runs=5)
+    (check,) = post.checks
+    assert check.ratio > 1.0 and check.runs == {"m.y": 5} and check.needed["m.y"] > 5
+    assert any("the surrogate, not the data, sets the answer" in m and "m.y" in m
+               and "runs of 'm' (now 5)" in m for m in messages), messages
+    assert check.to_dict()["warning"] is not None
+
+
+def test_a_good_surrogate_passes_quietly(tmp_path):
+    post, messages = _case(tmp_path / "good", runs=60)
+    (check,) = post.checks
+    assert check.ratio < 0.5, check.to_dict()
+    assert not [m for m in messages if "sets the answer" in m], messages
+    lo, hi = np.percentile(post.theta["m"][:, 0], [2.5, 97.5])
+    assert lo < 1.3 < hi
+
+
+def test_a_parameter_pressed_against_its_bound_is_reported(tmp_path):
+    post, messages = _case(tmp_path / "bound", runs=60, lower=0.5, upper=1.1, a_true=1.3)
+    assert np.median(post.theta["m"][:, 0]) > 1.05
+    assert any("m.a: the posterior presses against its upper bound 1.1" in m
+               for m in messages), messages
+
+
+@pytest.mark.parametrize("mode", ["segmented", "joint"])
+def test_a_shared_parameter_is_one_parameter(tmp_path, mode):
+    root = tmp_path / mode
+    root.mkdir()
+    (root / "share_sims.py").write_text(textwrap.dedent('''
+        def one(inputs):
+            return {"y": inputs["k"] * inputs["x"]}
+
+
+        def two(inputs):
+            return {"z": inputs["k"] + inputs["x"] * inputs["c"]}
+    '''))
+    (root / "network.yaml").write_text(textwrap.dedent(f'''
+        models:
+          one:
+            simulator: python:share_sims:one
+            inputs: {{x: {{lower: 0, upper: 1}}}}
+            parameters: {{k: {{lower: 0, upper: 2, shared: true}}}}
+            outputs: {{y: {{measurable: true}}}}
+            campaign: {{runs: 30}}
+          two:
+            simulator: python:share_sims:two
+            inputs: {{x: {{lower: 0, upper: 1}}}}
+            parameters: {{k: {{lower: 0, upper: 2, shared: true}}, c: {{lower: 0, upper: 2}}}}
+            outputs: {{z: {{measurable: true}}}}
+            campaign: {{runs: 40}}
+        data:
+          dy: {{path: y.csv, observes: one.y, columns: {{x: x, y: y}}, noise: {{sd: 0.05}},
+               discrepancy: none}}
+          dz: {{path: z.csv, observes: two.z, columns: {{x: x, z: z}}, noise: {{sd: 0.05}},
+               discrepancy: none}}
+        settings: {{seed: 5, calibration: {{mode: {mode}}}}}
+    '''))
+    x = np.linspace(0, 1, 8)
+    rng = np.random.default_rng(3)
+    (root / "y.csv").write_text("x,y\n" + "".join(
+        f"{a},{b}\n" for a, b in zip(x, 1.2 * x + 0.05 * rng.standard_normal(8), strict=True)))
+    (root / "z.csv").write_text("x,z\n" + "".join(
+        f"{a},{b}\n" for a, b in zip(x, 1.2 + 0.7 * x + 0.05 * rng.standard_normal(8),
+                                     strict=True)))
+    sys.path.insert(0, str(root))
+    try:
+        network = load_spec(root)
+        for m in network.order:
+            run_campaign(network, m, executor="in-process", progress=False)
+        sur = fit_surrogates(network, seed=1, cv=False)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", CalibrationWarning)
+            post = calibrate(network, sur, sampler=SAMPLER, seed=2)
+    finally:
+        sys.path.remove(str(root))
+        sys.modules.pop("share_sims", None)
+    k_one, k_two = post.theta["one"][:, 0], post.theta["two"][:, 0]
+    np.testing.assert_array_equal(k_one, k_two)  # one parameter, the same draws
+    assert 1.0 < np.median(k_one) < 1.4
+    messages = [str(w.message) for w in caught]
+    noted = [m for m in messages if "shared parameter 'k'" in m]
+    if mode == "segmented":  # calibrated with the data of 'one', held fixed in 'two'
+        assert noted and "'one'" in noted[0] and "['two']" in noted[0], messages
+        assert np.ptp(k_one) > 0 and post.plugged["two"][0] == pytest.approx(np.mean(k_one))
+    else:
+        assert not noted
+        assert post.stages[0].idata.posterior["theta_shared"].shape[-1] == 1
