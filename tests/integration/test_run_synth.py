@@ -83,6 +83,6 @@ def test_shipped_synth_campaigns_match_the_spec():
     from calnet.spec import load_spec
 
     network = load_spec(SYNTH)
-    for name, runs in (("thermal", 40), ("micro", 30), ("hardness", 20)):
+    for name, runs in (("thermal", 40), ("micro", 30), ("hardness", 60)):
         table = load_runs(network, name)
         assert table.n_ok == runs and table.status_counts == {"ok": runs}, name
