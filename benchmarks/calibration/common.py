@@ -36,7 +36,7 @@ def diagnostics(idata, names=("theta", "ell", "sd2", "se2")):
     ess, rhat = az.ess(post, method="bulk"), az.rhat(post)
     ess_all = np.concatenate([np.ravel(ess[v].values) for v in names])
     rhat_all = np.concatenate([np.ravel(rhat[v].values) for v in names])
-    theta = post["theta"].values
+    theta = post[names[0]].values
     return {"min_ess_bulk": float(ess_all.min()), "max_rhat": float(rhat_all.max()),
             "divergences": int(np.asarray(idata.sample_stats["diverging"]).sum()),
             "theta_mean": np.round(theta.reshape(-1, theta.shape[-1]).mean(0), 4).tolist()}

@@ -27,7 +27,6 @@ PEERS = os.path.join(ROOT, "benchmarks", ".venv-peers", "bin", "python")
 SIDES = {
     "calnet": (sys.executable, ["side_calnet.py"]),
     "calnet-dense": (sys.executable, ["side_calnet.py", None, "dense"]),
-    "calnet-own-warmup": (sys.executable, ["side_calnet.py", None, "own-warmup"]),
     # calnet at another commit: --before DIR (a worktree of it), its own side_calnet.py
     "calnet-before": (sys.executable, ["side_calnet.py"]),
     "pymc-default": (PEERS, ["side_pymc.py", None, "default"]),

@@ -27,8 +27,7 @@ from common import (  # noqa: E402
 
 REP = int(sys.argv[1]) if len(sys.argv) > 1 else 0
 DENSE = len(sys.argv) > 2 and sys.argv[2] == "dense"
-# "calnet-warmup": calnet's own warm-up loop instead of blackjax.window_adaptation
-OWN_WARMUP = len(sys.argv) > 2 and sys.argv[2] == "own-warmup"
+
 
 
 ANCHOR_SPEC = """
@@ -94,12 +93,11 @@ def main():
             t0 = time.perf_counter()
             ld = build(P)
             idata = sample_nuts(ld, seed=1000 * REP + run, num_chains=NCHAINS,
-                                num_warmup=NWARM, num_draws=NDRAW, dense_mass=DENSE,
-                                adaptation="calnet" if OWN_WARMUP else "blackjax")
+                                num_warmup=NWARM, num_draws=NDRAW, dense_mass=DENSE)
             t_total = time.perf_counter() - t0
         lp = float(ld.logdensity(np.asarray(U_TEST)))
         a = idata.posterior.attrs
-        side = "calnet" + ("-dense" if DENSE else "") + ("-own-warmup" if OWN_WARMUP else "")
+        side = "calnet" + ("-dense" if DENSE else "")
         rec = dict(side=side, rep=REP, run=run,
                    t_total=t_total, t_compile=a["compile_time"], t_sample=a["sampling_time"],
                    cpu_s=cm.cpu_s, chain_method=a["chain_method"],

@@ -196,16 +196,25 @@ def _numpy_pieces(network, sur, d, a, bc, ell, sd2):
     return m, cov, C, C_orth, G, u, (g_of, y_of)
 
 
-def test_chain_loglik_matches_numpy(chain):
+@pytest.mark.parametrize("upstream", ["sampled", "fixed"])
+def test_chain_loglik_matches_numpy(chain, upstream):
+    """With the upstream parameter fixed (a segmented stage) the inputs and the control
+    part of the surrogate's distances are precomputed: the same value."""
     network, sur, data = chain
-    ld = build_koh(network, sur, free=["up.a", "down.b", "down.c"], datasets=data)
+    if upstream == "fixed":
+        ld = build_koh(network, sur, free=["down.b", "down.c"], datasets=data,
+                       fixed={"up.a": 0.3})
+        assert "r2_fixed" in ld.data["terms"][0] and "corr_fixed" in ld.data["terms"][0]
+    else:
+        ld = build_koh(network, sur, free=["up.a", "down.b", "down.c"], datasets=data)
     a, bc, ell, sd2 = 0.3, np.array([0.4, -0.2]), np.array([0.5, 0.8]), 0.09
     d = data["obs"]
     m, cov, _, C_orth, _, _, _ = _numpy_pieces(network, sur, d, a, bc, ell, sd2)
     K = C_orth + cov + np.diag(d.noise_sd**2)
     ref = stats.multivariate_normal(m, K, allow_singular=True).logpdf(d.y)
     spec = ld.spec
-    values = {"params": jnp.asarray([a, *bc]), "ell_obs": jnp.asarray(ell),
+    params = [a, *bc] if upstream == "sampled" else list(bc)
+    values = {"params": jnp.asarray(params), "ell_obs": jnp.asarray(ell),
               "sd2_obs": jnp.asarray(sd2)}
     thetas = spec.thetas(ld.data, values["params"])
     got = spec.term_loglik(ld.data, spec.terms[0], ld.data["terms"][0], thetas,

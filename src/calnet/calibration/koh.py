@@ -227,10 +227,10 @@ class KOHModel:
         for model, idx in self.theta_index:
             idx_a = np.asarray(idx, dtype=int)
             fixed = data["theta_fixed"][model]
-            if not len(idx_a):
+            if not len(idx_a) or np.all(idx_a < 0):
                 out[model] = fixed
-            elif np.all(idx_a < 0):
-                out[model] = fixed
+            elif np.all(np.diff(idx_a) == 1) and idx_a[0] >= 0:  # a run of params: a slice
+                out[model] = params[idx_a[0]:idx_a[-1] + 1]
             else:
                 take = params[np.clip(idx_a, 0, None)]
                 out[model] = jnp.where(jnp.asarray(idx_a >= 0), take, fixed)
@@ -272,7 +272,7 @@ class KOHModel:
             corr.append(cov / jnp.outer(sd, sd))
         return x, jnp.stack(dx), jnp.stack(corr)
 
-    def _moments(self, data, term: Term, x, dx, corr, theta):
+    def _moments(self, data, term: Term, x, dx, corr, theta, r2=None):
         """Surrogate mean (n,) of the observed output at inputs ``x`` and the surrogates'
         covariance across the points (n, n): the observed output's GP covariance plus, to
         first order, each linked surrogate's (None without emulator variance)."""
@@ -281,9 +281,15 @@ class KOHModel:
         def mean_at(xx):
             return self.plan.predict(gps, term.model, term.key, xx, theta)[0]
 
-        if not term.emulator_variance:
+        if r2 is not None:  # fixed inputs: only the parameter part of the distances
+            mean, cov = self.plan.moments_at(gps, term.model, term.key, r2, theta,
+                                             cov=term.emulator_variance)
+        elif not term.emulator_variance:
             return mean_at(x), None
-        mean, cov = self.plan.predict_cov(gps, term.model, term.key, x, theta)
+        else:
+            mean, cov = self.plan.predict_cov(gps, term.model, term.key, x, theta)
+        if not term.emulator_variance:
+            return mean, None
         if dx is not None:
             for k in range(dx.shape[0]):
                 d = jax.jvp(mean_at, (x,), (dx[k],))[1]
@@ -302,13 +308,15 @@ class KOHModel:
         """Standardised residual (n,), covariance (n, n) (or its diagonal (n,) when it is
         diagonal: no discrepancy, no emulator variance), and what prediction needs (unit
         inputs, parameter directions)."""
+        r2 = None
         if "x_fixed" in tdata:  # inputs precomputed: no sampled parameter upstream
             x, dx, corr = tdata["x_fixed"], tdata.get("dx_fixed"), tdata.get("corr_fixed")
+            r2 = tdata["r2_fixed"]
         else:
             x, dx, corr = self.inputs(data, term, tdata["xp"], thetas)
         theta = thetas[term.model]
         s = tdata["y_sd"]
-        mean, cov = self._moments(data, term, x, dx, corr, theta)
+        mean, cov = self._moments(data, term, x, dx, corr, theta, r2)
         r = tdata["y"] - (mean - tdata["y_mean"]) / s
         noise = tdata["noise_var"] if term.noise_known else hyper["se2"]
         diag = noise / s**2 * jnp.ones_like(r) + JITTER
@@ -318,7 +326,8 @@ class KOHModel:
         if not term.discrepancy:
             return r, K, None
         u = self.plan.unit_inputs(term.model, x)
-        C = hyper["sd2"] / s**2 * se_kernel(u, u, hyper["ell"])
+        d2 = tdata["d2u_fixed"] if "d2u_fixed" in tdata else (u[:, None, :] - u[None]) ** 2
+        C = hyper["sd2"] / s**2 * jnp.exp(-0.5 * jnp.sum(d2 / hyper["ell"] ** 2, axis=-1))
         G = self._directions(data, term, x, theta, s)
         proj = None
         if G is not None:
@@ -418,8 +427,8 @@ class KOHDensity:
         ``gps`` (model.output -> FittedGP), ``theta_fixed`` (model -> (p_m,)), ``terms``
         (per data set: ``y`` standardised (n,), ``y_mean``, ``y_sd``, ``xp`` process
         inputs, ``noise_var`` (n,) known noise variance in data units, and
-        ``x_fixed``/``dx_fixed``/``corr_fixed`` where the inputs do not depend on
-        sampled parameters),
+        ``x_fixed``/``dx_fixed``/``corr_fixed``/``r2_fixed``/``d2u_fixed`` where the
+        inputs do not depend on sampled parameters),
         ``y`` (all standardised observations, for the InferenceData).
     name : str
     names : dict of variable -> coordinate names (parameters, discrepancy inputs)

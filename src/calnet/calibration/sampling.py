@@ -1,28 +1,23 @@
 """NUTS sampling of a calibration log-density: several chains, compiled once, reused.
 
-The sampler is BlackJAX's NUTS kernel driven by Stan's windowed warm-up (dual averaging of
-the step size, Welford estimate of a diagonal or dense inverse mass matrix, Stan 2.x window
-schedule), the whole warm-up + sampling run of a chain being one XLA program. Chains run
-in parallel across XLA host devices (``pmap``) when there are at least two devices (see
-:func:`calnet.calibration.devices.configure_host_devices`), otherwise one after another
-inside one program (``sequential``) or in lock-step (``vectorized``).
+The sampler is BlackJAX's NUTS kernel after BlackJAX's ``window_adaptation`` (Stan's
+windowed warm-up: dual averaging of the step size, Welford estimate of a diagonal or
+dense inverse mass matrix), the whole warm-up + sampling run of a chain being one XLA
+program. Chains run in parallel across XLA host devices (``pmap``) when there are at
+least two devices (see :func:`calnet.calibration.devices.configure_host_devices`),
+otherwise one after another inside one program (``sequential``) or in lock-step
+(``vectorized``).
 
 The compiled program takes the log-density's data as an *argument*: it is cached under
 the log-density's hashable ``spec``, the sampler settings and the data shapes, so that a
 second calibration with new data of the same shapes (leave-one-out folds, repeated runs)
 does not recompile (koh_anchor README, pitfall 4).
 
-Examples
---------
->>> import jax.numpy as jnp
->>> from calnet.calibration.koh import build_logdensity
->>> from calnet.calibration.priors import Normal
->>> ld = build_logdensity(lambda th: th[0] * jnp.ones(4), jnp.zeros(4),
-...                       jnp.linspace(0, 1, 4)[:, None], theta_priors=[Normal(0, 1)],
-...                       fixed={"ell": 0.3, "sd2": 0.01, "se2": 0.1})
->>> idata = sample_nuts(ld, seed=0, num_chains=2, num_warmup=50, num_draws=50)
->>> idata.posterior["theta"].shape
-(2, 50, 1)
+Any object with a hashable ``spec`` (pure ``spec.logdensity(data, u)`` and
+``spec.constrain(data, u)``), ``data``, ``dim``, ``name``, ``init(seed, n_chains)``,
+``sampled_vars``, ``dims`` and ``coords`` can be sampled; the network's KOH model
+(:class:`calnet.calibration.koh.KOHDensity`, built by
+:func:`calnet.calibration.network.build_koh`) is the one calnet uses.
 """
 
 from __future__ import annotations
@@ -45,8 +40,6 @@ import blackjax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 from blackjax.adaptation.base import get_filter_adapt_info_fn  # noqa: E402
-from blackjax.adaptation.mass_matrix import mass_matrix_adaptation  # noqa: E402
-from blackjax.adaptation.step_size import dual_averaging_adaptation  # noqa: E402
 from blackjax.mcmc import nuts  # noqa: E402
 
 from calnet.calibration.koh import check_initial  # noqa: E402
@@ -73,31 +66,6 @@ class _Config:
     chain_method: str
     groups: int  # number of devices the chains are spread over (parallel)
     progress_every: int  # 0: no progress callbacks compiled in
-    adaptation: str = "blackjax"  # "blackjax": blackjax.window_adaptation; "calnet": own loop
-
-
-def stan_schedule(num_steps: int, init_buffer: int = 75, term_buffer: int = 50,
-                  base_window: int = 25) -> np.ndarray:
-    """Stan's warm-up schedule: rows ``(slow, ends_window)`` of shape (num_steps, 2).
-
-    Fast (step size only) initial and terminal buffers around slow windows (step size and
-    mass matrix) that double in size; the last slow window absorbs the remainder.
-    """
-    sched = np.zeros((num_steps, 2), dtype=np.int32)
-    if num_steps < 20:
-        return sched
-    if init_buffer + base_window + term_buffer > num_steps:
-        init_buffer, term_buffer = int(0.15 * num_steps), int(0.1 * num_steps)
-        base_window = num_steps - init_buffer - term_buffer
-    end_slow = num_steps - term_buffer
-    start, size = init_buffer, base_window
-    while start < end_slow:
-        if 3 * size > end_slow - start:  # too little room for the next one: extend this one
-            size = end_slow - start
-        sched[start:start + size, 0] = 1
-        sched[start + size - 1, 1] = 1
-        start, size = start + size, 2 * size
-    return sched
 
 
 # ----------------------------------------------------------------------------- progress
@@ -145,8 +113,6 @@ def _run_chain(cfg: _Config, data, key, u0, chain):
     Returns the positions and transition statistics of the sampling iterations, the
     final step size and inverse mass matrix.
     """
-    if cfg.adaptation == "calnet":
-        return _run_chain_own(cfg, data, key, u0, chain)
     logdensity = partial(cfg.spec.logdensity, data)
     key_w, key_s = jax.random.split(key)
     if cfg.num_warmup:
@@ -181,45 +147,6 @@ def _stats(state, info) -> dict:
             "n_steps": info.num_integration_steps,
             "tree_depth": info.num_trajectory_expansions,
             "acceptance_rate": info.acceptance_rate, "lp": state.logdensity}
-
-
-def _run_chain_own(cfg: _Config, data, key, u0, chain):
-    """:func:`_run_chain` with calnet's own Stan-style warm-up loop (kept for measuring
-    against BlackJAX's window adaptation, benchmarks/README.md)."""
-    logdensity = partial(cfg.spec.logdensity, data)
-    kernel = nuts.build_kernel()
-    mm_init, mm_update, mm_final = mass_matrix_adaptation(not cfg.dense_mass)
-    da_init, da_update, da_final = dual_averaging_adaptation(cfg.target_accept)
-    total = cfg.num_warmup + cfg.num_draws
-    # per iteration: (warm-up?, slow window?, ends a slow window?)
-    sched = np.zeros((total, 3), dtype=np.int32)
-    sched[:cfg.num_warmup, 0] = 1
-    sched[:cfg.num_warmup, 1:] = stan_schedule(cfg.num_warmup)
-
-    def one_step(carry, xs):
-        state, da, mm, step_size, imm = carry
-        k, (warm, slow, ends), i = xs
-        state, info = kernel(k, state, logdensity, step_size, imm,
-                             max_num_doublings=cfg.max_tree_depth)
-        da = jax.lax.cond(warm == 1, lambda d: da_update(d, info.acceptance_rate),
-                          lambda d: d, da)
-        mm = jax.lax.cond(slow == 1, lambda m: mm_update(m, state.position), lambda m: m, mm)
-        da, mm = jax.lax.cond(ends == 1, lambda d, m: (da_init(da_final(d)), mm_final(m)),
-                              lambda d, m: (d, m), da, mm)
-        last_warm = i == cfg.num_warmup - 1
-        step_size = jnp.where(warm == 1, jnp.where(last_warm, da_final(da),
-                                                   jnp.exp(da.log_step_size)), step_size)
-        imm = jnp.where(warm == 1, mm.inverse_mass_matrix, imm)
-        _maybe_report(cfg, chain, i, total)
-        return (state, da, mm, step_size, imm), (state.position, _stats(state, info))
-
-    mm = mm_init(cfg.dim)
-    carry = (nuts.init(u0, logdensity), da_init(1.0), mm, jnp.asarray(1.0),
-             mm.inverse_mass_matrix)
-    xs = (jax.random.split(key, total), jnp.asarray(sched), jnp.arange(total))
-    (_, _, _, step_size, imm), (positions, stats) = jax.lax.scan(one_step, carry, xs)
-    drop = slice(cfg.num_warmup, None)
-    return positions[drop], jax.tree.map(lambda a: a[drop], stats), step_size, imm
 
 
 def _build(cfg: _Config) -> Callable:
@@ -341,7 +268,6 @@ def sample_nuts(
     dense_mass: bool = False,
     chain_method: str = "auto",
     progress: bool | Callable[[int, int, int], None] = False,
-    adaptation: str = "blackjax",
 ):
     """Sample a calibration log-density with NUTS; return an ArviZ ``InferenceData``.
 
@@ -369,9 +295,6 @@ def sample_nuts(
     progress : bool or callable
         ``True`` for a text progress line on stderr, or ``fn(chain, iteration, total)``
         (reported during the sampling iterations).
-    adaptation : {"blackjax", "calnet"}
-        Warm-up: BlackJAX's ``window_adaptation`` (Stan's windowed scheme), or calnet's
-        own loop over BlackJAX's step-size and mass-matrix pieces (for comparison).
 
     Returns
     -------
@@ -393,10 +316,8 @@ def sample_nuts(
     method, groups = _resolve_method(chain_method, num_chains)
     total = num_warmup + num_draws
     every = max(1, total // 50) if progress else 0
-    if adaptation not in ("blackjax", "calnet"):
-        raise CalibrationError(f"adaptation must be 'blackjax' or 'calnet', got {adaptation!r}")
     cfg = _Config(ld.spec, ld.dim, num_warmup, num_draws, thin, float(target_accept),
-                  max_tree_depth, bool(dense_mass), method, groups, every, adaptation)
+                  max_tree_depth, bool(dense_mass), method, groups, every)
     u0 = jnp.asarray(ld.init(seed, num_chains) if init is None else init, dtype=float)
     if u0.shape != (num_chains, ld.dim):
         raise CalibrationError(f"{ld.name}: init must have shape ({num_chains}, {ld.dim}), "

@@ -120,6 +120,33 @@ class FittedGP:
         cov = matern32(zs, zs, self.lengthscales, self.signal_var) - v.T @ v
         return self.y_mean + self.y_std * (k_star @ self.alpha), self.y_std**2 * cov
 
+    def control_sqdist(self, x: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """The control-input part of the scaled squared distances: to the training points
+        (m, n_train) and among the points (m, m), for inputs ``x`` (m, d_x) already in the
+        GP's input space (logs taken), physical units. With :meth:`moments_at` it gives
+        the predictive at fixed control inputs for many parameter values at the cost of
+        the parameter part only."""
+        dx = x.shape[1]
+        xs = (x - self.lower[:dx]) / (self.upper[:dx] - self.lower[:dx])
+        return (scaled_sqdist(xs, self.x_train[:, :dx], self.lengthscales[:dx]),
+                scaled_sqdist(xs, xs, self.lengthscales[:dx]))
+
+    def moments_at(self, r2_train: jax.Array, r2_among: jax.Array, theta: jax.Array, *,
+                   cov: bool) -> tuple[jax.Array, jax.Array | None]:
+        """Mean (m,) and, if ``cov``, covariance (m, m) at fixed control inputs (their
+        :meth:`control_sqdist`) and parameters ``theta`` (d_theta,) in the GP's input
+        space; modelled scale."""
+        dx = self.n_inputs - theta.shape[0]
+        ts = (theta - self.lower[dx:]) / (self.upper[dx:] - self.lower[dx:])
+        r2t = jnp.sum(((self.x_train[:, dx:] - ts) / self.lengthscales[dx:]) ** 2, axis=-1)
+        k = matern32_from_sqdist(r2_train + r2t[None, :], self.signal_var)
+        mean = self.y_mean + self.y_std * (k @ self.alpha)
+        if not cov:
+            return mean, None
+        v = predictive_solve(self.chol, k)
+        kss = matern32_from_sqdist(r2_among, self.signal_var)
+        return mean, self.y_std**2 * (kss - v.T @ v)
+
     def predict_split(
         self, x: jax.Array, theta: jax.Array, *, include_nugget: bool = False
     ) -> tuple[jax.Array, jax.Array]:
