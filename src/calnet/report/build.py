@@ -253,7 +253,8 @@ def _sections(ctx, summary) -> list[Section]:
         figures=pick("network") + pick("data"))
     sur = Section("Surrogates (k-fold cross-validation)", tables=[Table(
         "GP surrogates", ["output", "runs", "excluded", "k", "MAPE %", "RMSE", "95% coverage"],
-        [[k, s["n_runs"], s["n_excluded"], s.get("cv", {}).get("k"), fmt(s.get("cv", {}).get("mape")),
+        [[k, s["n_runs"], s["n_excluded"], s.get("cv", {}).get("k"),
+          fmt(s.get("cv", {}).get("mape")),
           fmt(s.get("cv", {}).get("rmse")), fmt(s.get("cv", {}).get("coverage95"))]
          for k, s in m["surrogates"].items()])], figures=pick("cv "))
     rows = []
@@ -274,8 +275,8 @@ def _sections(ctx, summary) -> list[Section]:
         + "; intervals are central 95 %."], tables=[
         Table("Posterior summary", ["model", "parameter", "range", "mode", "mean", "95% interval",
                                     "unit", "R-hat", "bulk ESS"], rows),
-        Table("Sampler diagnostics (all sampled variables)", ["model", "divergences",
-                                                                "max R-hat", "min bulk ESS"], diag)],
+        Table("Sampler diagnostics (all sampled variables)",
+              ["model", "divergences", "max R-hat", "min bulk ESS"], diag)],
         figures=pick("posterior "))
     vrows = []
     for name, v in m["validation"].items():
@@ -291,7 +292,8 @@ def _sections(ctx, summary) -> list[Section]:
             vrows.append([name, "calnet (leave-one-out)", fmt(loo["calnet"]["mape"]),
                           fmt(loo["calnet"]["se_pred"]), fmt(loo["calnet"].get("coverage95"))])
             vrows.append([name, "training mean (leave-one-out)",
-                          fmt(loo["training_mean"]["mape"]), fmt(loo["training_mean"]["se_pred"]), ""])
+                          fmt(loo["training_mean"]["mape"]),
+                          fmt(loo["training_mean"]["se_pred"]), ""])
     brows = [[name, src, fmt(share)] for name, v in m["validation"].items()
              for src, share in v["variance_shares"].items()]
     val = Section("Prediction and validation", tables=[
