@@ -10,3 +10,29 @@ if "jax" not in __import__("sys").modules:
     flags = os.environ.get("XLA_FLAGS", "")
     if "xla_force_host_platform_device_count" not in flags:
         os.environ["XLA_FLAGS"] = (flags + " --xla_force_host_platform_device_count=4").strip()
+
+
+import gc  # noqa: E402
+
+import pytest  # noqa: E402
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _release_compiled_programs():
+    """Drop JAX's and calnet's compiled programs after each test module.
+
+    Every XLA CPU executable holds memory mappings; a whole suite in one process compiles
+    thousands of programs, and past the kernel's vm.max_map_count (65530) the compiler's
+    next mmap fails and the process dies with a segmentation fault.
+    """
+    yield
+    import sys
+
+    if "jax" in sys.modules:
+        import jax
+
+        from calnet.calibration.sampling import clear_cache
+
+        clear_cache()
+        jax.clear_caches()
+        gc.collect()

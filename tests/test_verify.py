@@ -10,12 +10,12 @@ from __future__ import annotations
 
 import json
 import math
-import sys
 import textwrap
 import warnings
 
 import numpy as np
 import pytest
+from network_helpers import fitted_network, on_path, write_csv
 
 from calnet.calibration.network import NetworkPosterior, calibrate
 from calnet.calibration.persist import save_posterior
@@ -99,14 +99,10 @@ def calibrated(tmp_path_factory):
     x = np.linspace(0.05, 0.95, 8)
     y = up_y(x, A_TRUE) + 0.02 * rng.standard_normal(8)
     w = down_w(up_z(x, A_TRUE), B_TRUE) + 0.05 * rng.standard_normal(8)
-    (root / "y.csv").write_text("x,y\n" + "".join(f"{a},{b}\n" for a, b in zip(x, y, strict=True)))
-    (root / "w.csv").write_text("x,w\n" + "".join(f"{a},{b}\n" for a, b in zip(x, w, strict=True)))
-    sys.path.insert(0, str(root))
-    try:
-        network = load_spec(root)
-        for m in network.order:
-            run_campaign(network, m, executor="in-process", progress=False)
-        sur = fit_surrogates(network, seed=1, cv=False)
+    write_csv(root / "y.csv", x=x, y=y)
+    write_csv(root / "w.csv", x=x, w=w)
+    with on_path(root):
+        network, sur = fitted_network(root)
         theta = {"up": A_TRUE + 0.02 * rng.standard_normal((400, 1)),
                  "down": B_TRUE + 0.02 * rng.standard_normal((400, 1))}
         data = {k: v.train for k, v in read_all(network).items()}
@@ -115,8 +111,6 @@ def calibrated(tmp_path_factory):
         sur.save(run / "surrogates")
         save_posterior(post, run / "posterior")
         yield network, sur, post, root
-    finally:
-        sys.path.remove(str(root))
 
 
 @pytest.fixture(scope="module")

@@ -118,7 +118,7 @@ def _setup(network: Network, surrogates: Surrogates, posterior: NetworkPosterior
     plan = ChainPlan.from_network(network)
     emu = network.settings.calibration.emulator_variance
     term, tdata = make_term(network, posterior.data[dataset], emulator_variance=emu, plan=plan)
-    spec = KOHModel(plan, (), (), (), (term,))
+    spec = KOHModel(plan, (), (), (), (term.without_priors(),))
     n = len(idx)
     thetas = {m: jnp.asarray(v[idx]) for m, v in posterior.theta.items()}
     for m in plan.models:

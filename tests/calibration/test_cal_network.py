@@ -9,20 +9,18 @@ within Monte Carlo error (tolerances from the effective sample sizes).
 
 from __future__ import annotations
 
-import sys
 import textwrap
 import warnings
 
 import numpy as np
 import pytest
+from network_helpers import fitted_network, on_path, write_csv
 
 from calnet.calibration.network import calibrate
 from calnet.calibration.persist import load_posterior, save_posterior
-from calnet.campaign import run_campaign
 from calnet.errors import CalibrationError, CalibrationWarning
 from calnet.spec import load_spec, read_all
 from calnet.spec.models import SamplerSettings
-from calnet.surrogates.network import fit_surrogates
 
 SIMS = '''
 def up(inputs):
@@ -74,17 +72,11 @@ def indep(tmp_path_factory):
     y = A_TRUE * (1 + x) + 0.3 * x**2 + 0.02 * rng.standard_normal(8)
     s = 1 + x
     w = B_TRUE * s**2 - 0.5 * s + 0.05 * rng.standard_normal(8)
-    (root / "y.csv").write_text("x,y\n" + "".join(f"{a},{b}\n" for a, b in zip(x, y, strict=True)))
-    (root / "w.csv").write_text("x,w\n" + "".join(f"{a},{b}\n" for a, b in zip(x, w, strict=True)))
-    sys.path.insert(0, str(root))
-    try:
-        network = load_spec(root)
-        for m in network.order:
-            run_campaign(network, m, executor="in-process", progress=False)
-        sur = fit_surrogates(network, seed=1, cv=False)
+    write_csv(root / "y.csv", x=x, y=y)
+    write_csv(root / "w.csv", x=x, w=w)
+    with on_path(root):
+        network, sur = fitted_network(root)
         yield network, sur, root
-    finally:
-        sys.path.remove(str(root))
 
 
 SAMPLER = SamplerSettings(chains=2, warmup=500, draws=1000, target_accept=0.95)

@@ -9,13 +9,11 @@ import warnings
 
 import numpy as np
 import pytest
+from network_helpers import fitted_network, on_path, write_csv
 
 from calnet.calibration.network import calibrate
-from calnet.campaign import run_campaign
 from calnet.errors import CalibrationWarning
-from calnet.spec import load_spec
 from calnet.spec.models import SamplerSettings
-from calnet.surrogates.network import fit_surrogates
 
 SIMS = '''
 import math
@@ -51,20 +49,20 @@ def _case(root, runs: int, lower=0.5, upper=2.0, a_true=1.3):
     (root / "network.yaml").write_text(textwrap.dedent(spec.replace("UPPER", str(upper))))
     x = np.linspace(0.0, 1.0, 15)
     y = a_true * x + 0.8 * np.sin(9 * x) + 0.02 * np.random.default_rng(1).standard_normal(15)
-    (root / "d.csv").write_text("x,y\n" + "".join(f"{a},{b}\n" for a, b in zip(x, y,
-                                                                              strict=True)))
-    sys.path.insert(0, str(root))
-    try:
-        network = load_spec(root)
-        run_campaign(network, "m", executor="in-process", progress=False)
-        sur = fit_surrogates(network, seed=1, cv=False)
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always", CalibrationWarning)
-            post = calibrate(network, sur, sampler=SAMPLER, seed=2)
-    finally:
-        sys.path.remove(str(root))
-        sys.modules.pop("guard_sims", None)
-    return post, [str(w.message) for w in caught if w.category is CalibrationWarning]
+    write_csv(root / "d.csv", x=x, y=y)
+    with on_path(root):
+        post, caught = _calibrated(root)
+    sys.modules.pop("guard_sims", None)
+    return post, [m for c, m in caught if c is CalibrationWarning]
+
+
+def _calibrated(root):
+    """Posterior of the network in ``root`` and the (category, message) of its warnings."""
+    network, sur = fitted_network(root)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", CalibrationWarning)
+        post = calibrate(network, sur, sampler=SAMPLER, seed=2)
+    return post, [(w.category, str(w.message)) for w in caught]
 
 
 def test_a_poor_surrogate_is_named_with_the_runs_it_needs(tmp_path):
@@ -127,27 +125,15 @@ def test_a_shared_parameter_is_one_parameter(tmp_path, mode):
     '''))
     x = np.linspace(0, 1, 8)
     rng = np.random.default_rng(3)
-    (root / "y.csv").write_text("x,y\n" + "".join(
-        f"{a},{b}\n" for a, b in zip(x, 1.2 * x + 0.05 * rng.standard_normal(8), strict=True)))
-    (root / "z.csv").write_text("x,z\n" + "".join(
-        f"{a},{b}\n" for a, b in zip(x, 1.2 + 0.7 * x + 0.05 * rng.standard_normal(8),
-                                     strict=True)))
-    sys.path.insert(0, str(root))
-    try:
-        network = load_spec(root)
-        for m in network.order:
-            run_campaign(network, m, executor="in-process", progress=False)
-        sur = fit_surrogates(network, seed=1, cv=False)
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always", CalibrationWarning)
-            post = calibrate(network, sur, sampler=SAMPLER, seed=2)
-    finally:
-        sys.path.remove(str(root))
-        sys.modules.pop("share_sims", None)
+    write_csv(root / "y.csv", x=x, y=1.2 * x + 0.05 * rng.standard_normal(8))
+    write_csv(root / "z.csv", x=x, z=1.2 + 0.7 * x + 0.05 * rng.standard_normal(8))
+    with on_path(root):
+        post, caught = _calibrated(root)
+    sys.modules.pop("share_sims", None)
     k_one, k_two = post.theta["one"][:, 0], post.theta["two"][:, 0]
     np.testing.assert_array_equal(k_one, k_two)  # one parameter, the same draws
     assert 1.0 < np.median(k_one) < 1.4
-    messages = [str(w.message) for w in caught]
+    messages = [m for _, m in caught]
     noted = [m for m in messages if "shared parameter 'k'" in m]
     if mode == "segmented":  # calibrated with the data of 'one', held fixed in 'two'
         assert noted and "'one'" in noted[0] and "['two']" in noted[0], messages

@@ -14,7 +14,8 @@ inputs.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
+from functools import partial
 
 import jax
 import jax.numpy as jnp
@@ -106,6 +107,14 @@ def _per_surrogate(spec: KOHModel, data, tdata, thetas, hyper):
     return jnp.stack([disc, *parts])
 
 
+@partial(jax.jit, static_argnums=0)
+def _over_draws(spec: KOHModel, gps, tdata, thetas, hyper):
+    """:func:`_per_surrogate` at every draw, (draws, 2 + links, n); compiled once per
+    network structure and shapes."""
+    return jax.vmap(lambda th, h: _per_surrogate(spec, {"gps": gps}, tdata, th, h))(
+        thetas, hyper)
+
+
 def check_surrogates(network, surrogates, posterior, *, n_draws: int = 50
                      ) -> list[SurrogateCheck]:
     """:class:`SurrogateCheck` of every calibrated data set."""
@@ -127,11 +136,8 @@ def check_surrogates(network, surrogates, posterior, *, n_draws: int = 50
         hy = {"ell": jnp.asarray(hyper["ell"][idx]) if "ell" in hyper else jnp.ones((len(idx), q)),
               "sd2": jnp.asarray(hyper["sd2"][idx]) if "sd2" in hyper else jnp.zeros(len(idx)),
               "se2": jnp.asarray(hyper["se2"][idx]) if "se2" in hyper else jnp.zeros(len(idx))}
-        term_e = replace(term, emulator_variance=True)
-        spec = KOHModel(plan, (), (), (), (term_e,))
-        var = jax.vmap(lambda th, h, sp=spec, td=tdata: _per_surrogate(sp, {"gps": gps}, td,
-                                                                        th, h))(thetas, hy)
-        var = np.asarray(var).mean(axis=(0, 2))  # (2 + links,)
+        spec = KOHModel(plan, (), (), (), (term.without_priors(),))
+        var = np.asarray(_over_draws(spec, gps, tdata, thetas, hy)).mean(axis=(0, 2))
         disc, var = max(float(var[0]), 0.0), var[1:]
         keys = (term.key, *term.links)
         noise = (float(np.mean(tdata["noise_var"])) if term.noise_known

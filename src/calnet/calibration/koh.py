@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import jax
 
@@ -46,7 +46,12 @@ import jax.numpy as jnp  # noqa: E402
 import jax.scipy.linalg as jsl  # noqa: E402
 import numpy as np  # noqa: E402
 
-from calnet.calibration.priors import Prior, init_from_priors, stack_priors  # noqa: E402
+from calnet.calibration.priors import (  # noqa: E402
+    LogNormal,
+    Prior,
+    init_from_priors,
+    stack_priors,
+)
 from calnet.chain import ChainPlan  # noqa: E402
 from calnet.errors import CalibrationError  # noqa: E402
 
@@ -56,6 +61,7 @@ __all__ = ["Term", "KOHModel", "KOHDensity", "se_kernel", "mvn_logpdf_chol", "ch
 HYPERPARAMETERS = ("ell", "sd2", "se2")
 _LOG_2PI = math.log(2.0 * math.pi)
 JITTER = 1e-10  # added to the diagonal of standardised covariances
+_STAND_IN = LogNormal(0.0, 1.0)  # see Term.without_priors
 
 
 @jax.custom_vjp
@@ -154,6 +160,15 @@ class Term:
     @property
     def noise_known(self) -> bool:
         return self.se2_prior is None
+
+    def without_priors(self) -> Term:
+        """This term with its priors replaced by one fixed stand-in (prediction and the
+        checks after calibration use no prior), so that terms of the same structure share
+        one compiled program whatever data set their default priors were scaled on."""
+        stand_in = _STAND_IN
+        return replace(self, ell_priors=(stand_in,) * len(self.ell_priors),
+                       sd2_prior=None if self.sd2_prior is None else stand_in,
+                       se2_prior=None if self.se2_prior is None else stand_in)
 
     def blocks(self) -> list[tuple[str, tuple[Prior, ...]]]:
         """(variable, priors) of this term's sampled hyperparameters, in ``u`` order."""
