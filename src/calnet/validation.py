@@ -79,14 +79,13 @@ def leave_one_out(network: Network, surrogates: Surrogates, posterior: NetworkPo
         for j, k in enumerate(parameter_keys(network, m)):
             if k not in own:
                 fixed[k] = float(np.mean(draws[:, j]))
-    free = [k for k in own]
     scales = {full.name: data_scale(network, full)}
     mean, lo, hi = np.empty(len(full.y)), np.empty(len(full.y)), np.empty(len(full.y))
     for i in range(len(full.y)):
         if progress:
             progress(i, len(full.y))
         data_i = full.subset(np.arange(len(full.y)) != i)
-        ld = build_koh(network, surrogates, free=free, datasets={full.name: data_i},
+        ld = build_koh(network, surrogates, free=own, datasets={full.name: data_i},
                        fixed=fixed, name=f"{model} LOO", plan=plan, scales=scales,
                        emulator_variance=network.settings.calibration.emulator_variance)
         idata = _sample(ld, sampler, seed + i)

@@ -350,7 +350,7 @@ class KOHModel:
             M = G.T @ A
             M = M + (1e-9 * jnp.trace(M) / M.shape[0] + 1e-300) * jnp.eye(M.shape[0])
             C = C - A @ jnp.linalg.solve(M, A.T)
-            proj = (G, M)
+            proj = (G, M, A)
         return r, C + K, {"u": u, "proj": proj}
 
     def term_loglik(self, data, term: Term, tdata, thetas, hyper):
@@ -386,10 +386,9 @@ class KOHModel:
         kpe = sd2 * se_kernel(up, extra["u"], hyper["ell"])  # (m, n)
         prior_var = sd2 * jnp.ones_like(mean)
         if extra["proj"] is not None:  # condition on G^T delta(X) = 0
-            G, M = extra["proj"]
-            C_xx = sd2 * se_kernel(extra["u"], extra["u"], hyper["ell"])
+            G, M, A = extra["proj"]  # A = C(X, X) G, from train
             B = kpe @ G  # (m, p)
-            kpe = kpe - B @ jnp.linalg.solve(M, (C_xx @ G).T)
+            kpe = kpe - B @ jnp.linalg.solve(M, A.T)
             prior_var = prior_var - jnp.sum(B * jnp.linalg.solve(M, B.T).T, axis=1)
         L = jnp.linalg.cholesky(K)
         mean = mean + kpe @ jsl.cho_solve((L, True), r)
@@ -398,9 +397,8 @@ class KOHModel:
         return mean, var_delta, v_emu, noise
 
     # ------------------------------------------------------------ whole network
-    def loglik(self, data, u):
-        """Log-likelihood of every data set at ``u`` (dim,)."""
-        values, _ = self.unpack(u)
+    def _terms_loglik(self, data, values):
+        """Summed log-likelihood of every data set at constrained ``values``."""
         thetas = self.thetas(data, values["params"])
         total = 0.0
         for term, tdata in zip(self.terms, data["terms"], strict=True):
@@ -408,15 +406,14 @@ class KOHModel:
                                              self.hyper(term, tdata, values))
         return total
 
+    def loglik(self, data, u):
+        """Log-likelihood of every data set at ``u`` (dim,)."""
+        return self._terms_loglik(data, self.unpack(u)[0])
+
     def logdensity(self, data, u):
         """Unnormalised log posterior density of ``u`` (dim,); ``-inf`` where non-finite."""
         values, lp = self.unpack(u)
-        thetas = self.thetas(data, values["params"])
-        total = lp
-        for term, tdata in zip(self.terms, data["terms"], strict=True):
-            total = total + self.term_loglik(data, term, tdata, thetas,
-                                             self.hyper(term, tdata, values))
-        return finite_or_neg_inf(total)
+        return finite_or_neg_inf(lp + self._terms_loglik(data, values))
 
     def constrain(self, data, u):
         """Posterior variables from ``u``: ``theta_<model>`` / ``theta_shared`` and each

@@ -483,7 +483,7 @@ def cut_by_linear_response(ld: KOHDensity, idata, upstream: Mapping[str, np.ndar
     return idata
 
 
-def _fixed_slots(ld: KOHDensity, keys: list[str]) -> list[tuple[str, int]]:
+def _fixed_slots(ld: KOHDensity, keys: list[str]) -> list[list[tuple[str, int]]]:
     """(model, position) in ``theta_fixed`` of each upstream key, for every model that
     uses it (a shared key may sit in several)."""
     return [[(m, ks.index(k)) for m, ks in ld.param_keys.items() if k in ks] for k in keys]
