@@ -122,14 +122,15 @@ class ChainPlan:
         """GP ``key`` at inputs ``x`` (n, n_inputs): modelled mean (n,) and covariance (n, n)."""
         return gps[key].predict_cov(self.gp_inputs(model, x, theta))
 
-    def control_sqdist(self, gps: Mapping, model: str, key: str, x: Array):
-        """:meth:`FittedGP.control_sqdist` of GP ``key`` at control inputs ``x`` (n, q)."""
+    def at_controls(self, gps: Mapping, model: str, key: str, x: Array) -> dict:
+        """:meth:`FittedGP.at_controls` of GP ``key`` at control inputs ``x`` (n, q)."""
         q = x.shape[1]
         z = self.gp_inputs(model, x, jnp.ones(self.model(model).n_parameters))[:, :q]
-        return gps[key].control_sqdist(z)
+        return gps[key].at_controls(z)
 
-    def moments_at(self, gps: Mapping, model: str, key: str, r2, theta: Array, *, cov: bool):
-        """GP ``key`` at fixed control inputs (``r2`` from :meth:`control_sqdist`) and
+    def moments_at(self, gps: Mapping, model: str, key: str, fixed: dict, theta: Array, *,
+                   cov: bool):
+        """GP ``key`` at fixed control inputs (``fixed`` from :meth:`at_controls`) and
         parameters ``theta``: modelled mean (n,) and covariance (n, n) or None."""
         plan = self.model(model)
         q = len(plan.sources)
@@ -137,7 +138,7 @@ class ChainPlan:
         t = jnp.asarray(theta, dtype=float)
         if any(plan.log_mask[q:]):
             t = jnp.where(mask, jnp.log(jnp.where(mask, t, 1.0)), t)
-        return gps[key].moments_at(r2[0], r2[1], t, cov=cov)
+        return gps[key].moments_at(fixed, t, cov=cov)
 
     def output(self, gps: Mapping, model: str, key: str, xp: Mapping[str, Array],
                thetas: Mapping[str, Array], eps: Mapping[str, Array] | None = None):

@@ -204,7 +204,7 @@ def test_chain_loglik_matches_numpy(chain, upstream):
     if upstream == "fixed":
         ld = build_koh(network, sur, free=["down.b", "down.c"], datasets=data,
                        fixed={"up.a": 0.3})
-        assert "r2_fixed" in ld.data["terms"][0] and "corr_fixed" in ld.data["terms"][0]
+        assert "gp_fixed" in ld.data["terms"][0] and "corr_fixed" in ld.data["terms"][0]
     else:
         ld = build_koh(network, sur, free=["up.a", "down.b", "down.c"], datasets=data)
     a, bc, ell, sd2 = 0.3, np.array([0.4, -0.2]), np.array([0.5, 0.8]), 0.09

@@ -287,7 +287,7 @@ class KOHModel:
             corr.append(cov / jnp.outer(sd, sd))
         return x, jnp.stack(dx), jnp.stack(corr)
 
-    def _moments(self, data, term: Term, x, dx, corr, theta, r2=None):
+    def _moments(self, data, term: Term, x, dx, corr, theta, at=None):
         """Surrogate mean (n,) of the observed output at inputs ``x`` and the surrogates'
         covariance across the points (n, n): the observed output's GP covariance plus, to
         first order, each linked surrogate's (None without emulator variance)."""
@@ -296,8 +296,8 @@ class KOHModel:
         def mean_at(xx):
             return self.plan.predict(gps, term.model, term.key, xx, theta)[0]
 
-        if r2 is not None:  # fixed inputs: only the parameter part of the distances
-            mean, cov = self.plan.moments_at(gps, term.model, term.key, r2, theta,
+        if at is not None:  # fixed inputs: only the parameter part of the distances
+            mean, cov = self.plan.moments_at(gps, term.model, term.key, at, theta,
                                              cov=term.emulator_variance)
         elif not term.emulator_variance:
             return mean_at(x), None
@@ -323,15 +323,15 @@ class KOHModel:
         """Standardised residual (n,), covariance (n, n) (or its diagonal (n,) when it is
         diagonal: no discrepancy, no emulator variance), and what prediction needs (unit
         inputs, parameter directions)."""
-        r2 = None
+        at = None
         if "x_fixed" in tdata:  # inputs precomputed: no sampled parameter upstream
             x, dx, corr = tdata["x_fixed"], tdata.get("dx_fixed"), tdata.get("corr_fixed")
-            r2 = tdata["r2_fixed"]
+            at = tdata["gp_fixed"]
         else:
             x, dx, corr = self.inputs(data, term, tdata["xp"], thetas)
         theta = thetas[term.model]
         s = tdata["y_sd"]
-        mean, cov = self._moments(data, term, x, dx, corr, theta, r2)
+        mean, cov = self._moments(data, term, x, dx, corr, theta, at)
         r = tdata["y"] - (mean - tdata["y_mean"]) / s
         noise = tdata["noise_var"] if term.noise_known else hyper["se2"]
         diag = noise / s**2 * jnp.ones_like(r) + JITTER
@@ -439,7 +439,7 @@ class KOHDensity:
         ``gps`` (model.output -> FittedGP), ``theta_fixed`` (model -> (p_m,)), ``terms``
         (per data set: ``y`` standardised (n,), ``y_mean``, ``y_sd``, ``xp`` process
         inputs, ``noise_var`` (n,) known noise variance in data units, and
-        ``x_fixed``/``dx_fixed``/``corr_fixed``/``r2_fixed``/``d2u_fixed`` where the
+        ``x_fixed``/``dx_fixed``/``corr_fixed``/``gp_fixed``/``d2u_fixed`` where the
         inputs do not depend on sampled parameters),
         ``y`` (all standardised observations, for the InferenceData).
     name : str

@@ -248,7 +248,7 @@ def build_koh(network: Network, surrogates: Surrogates, *, free: list[str],
             # no sampled parameter upstream: the model's inputs are computed once
             x, dx, corr = _fixed_inputs(spec, term, data["gps"], td["xp"], theta_fixed)
             td["x_fixed"] = x
-            td["r2_fixed"] = plan.control_sqdist(data["gps"], term.model, term.key, x)
+            td["gp_fixed"] = plan.at_controls(data["gps"], term.model, term.key, x)
             u = plan.unit_inputs(term.model, x)
             td["d2u_fixed"] = (u[:, None, :] - u[None]) ** 2  # discrepancy distances
             if dx is not None:
@@ -491,7 +491,7 @@ def _fixed_slots(ld: KOHDensity, keys: list[str]) -> list[list[tuple[str, int]]]
 
 def _with_free_inputs(data: dict) -> dict:
     """``data`` without precomputed inputs, so that they follow ``theta_fixed``."""
-    precomputed = ("x_fixed", "dx_fixed", "corr_fixed", "r2_fixed", "d2u_fixed")
+    precomputed = ("x_fixed", "dx_fixed", "corr_fixed", "gp_fixed", "d2u_fixed")
     terms = [{k: v for k, v in t.items() if k not in precomputed} for t in data["terms"]]
     return {**data, "terms": terms}
 

@@ -24,7 +24,12 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 from calnet.errors import SurrogateError  # noqa: E402
-from calnet.surrogates.kernels import matern32, matern32_from_sqdist, scaled_sqdist  # noqa: E402
+from calnet.surrogates.kernels import (  # noqa: E402
+    _matern32_corr,
+    matern32,
+    matern32_from_sqdist,
+    scaled_sqdist,
+)
 from calnet.surrogates.likelihood import neg_log_marginal_likelihood, predictive_solve  # noqa: E402
 
 ARRAY_FIELDS = ("x_train", "alpha", "chol", "lengthscales", "signal_var", "nugget",
@@ -120,31 +125,39 @@ class FittedGP:
         cov = matern32(zs, zs, self.lengthscales, self.signal_var) - v.T @ v
         return self.y_mean + self.y_std * (k_star @ self.alpha), self.y_std**2 * cov
 
-    def control_sqdist(self, x: jax.Array) -> tuple[jax.Array, jax.Array]:
-        """The control-input part of the scaled squared distances: to the training points
-        (m, n_train) and among the points (m, m), for inputs ``x`` (m, d_x) already in the
-        GP's input space (logs taken), physical units. With :meth:`moments_at` it gives
-        the predictive at fixed control inputs for many parameter values at the cost of
-        the parameter part only."""
+    def at_controls(self, x: jax.Array) -> dict[str, jax.Array]:
+        """What :meth:`moments_at` needs at fixed control inputs ``x`` (m, d_x), already
+        in the GP's input space (logs taken), physical units: the control-input part of
+        the scaled squared distances to the training points ``r2_train`` (m, n_train)
+        and among the points ``r2_among`` (m, m), and the parameter columns of the
+        training inputs rescaled so that a parameter vector needs one multiply,
+        ``theta_train`` (n_train, d_theta) and ``theta_scale`` (d_theta,), and the mean's
+        weights on the modelled scale ``weights`` (n_train,). The predictive at many
+        parameter values then costs the parameter part only."""
         dx = x.shape[1]
-        xs = (x - self.lower[:dx]) / (self.upper[:dx] - self.lower[:dx])
-        return (scaled_sqdist(xs, self.x_train[:, :dx], self.lengthscales[:dx]),
-                scaled_sqdist(xs, xs, self.lengthscales[:dx]))
+        span = self.upper - self.lower
+        xs = (x - self.lower[:dx]) / span[:dx]
+        scale = 1.0 / (span[dx:] * self.lengthscales[dx:])  # physical theta -> scaled
+        return {"r2_train": scaled_sqdist(xs, self.x_train[:, :dx], self.lengthscales[:dx]),
+                "r2_among": scaled_sqdist(xs, xs, self.lengthscales[:dx]),
+                "theta_train": self.x_train[:, dx:] / self.lengthscales[dx:]
+                + self.lower[dx:] * scale,
+                "theta_scale": scale,
+                "weights": self.y_std * self.signal_var * self.alpha}
 
-    def moments_at(self, r2_train: jax.Array, r2_among: jax.Array, theta: jax.Array, *,
+    def moments_at(self, fixed: dict[str, jax.Array], theta: jax.Array, *,
                    cov: bool) -> tuple[jax.Array, jax.Array | None]:
-        """Mean (m,) and, if ``cov``, covariance (m, m) at fixed control inputs (their
-        :meth:`control_sqdist`) and parameters ``theta`` (d_theta,) in the GP's input
+        """Mean (m,) and, if ``cov``, covariance (m, m) at fixed control inputs (``fixed``
+        from :meth:`at_controls`) and parameters ``theta`` (d_theta,) in the GP's input
         space; modelled scale."""
-        dx = self.n_inputs - theta.shape[0]
-        ts = (theta - self.lower[dx:]) / (self.upper[dx:] - self.lower[dx:])
-        r2t = jnp.sum(((self.x_train[:, dx:] - ts) / self.lengthscales[dx:]) ** 2, axis=-1)
-        k = matern32_from_sqdist(r2_train + r2t[None, :], self.signal_var)
-        mean = self.y_mean + self.y_std * (k @ self.alpha)
+        r2t = jnp.sum((theta * fixed["theta_scale"] - fixed["theta_train"]) ** 2, axis=-1)
+        corr = _matern32_corr(fixed["r2_train"] + r2t[None, :])
+        mean = self.y_mean + corr @ fixed["weights"]
         if not cov:
             return mean, None
+        k = self.signal_var * corr
         v = predictive_solve(self.chol, k)
-        kss = matern32_from_sqdist(r2_among, self.signal_var)
+        kss = matern32_from_sqdist(fixed["r2_among"], self.signal_var)
         return mean, self.y_std**2 * (kss - v.T @ v)
 
     def predict_split(
