@@ -372,7 +372,7 @@ def test_scale_prior_spec_is_discriminated_by_dist():
 @pytest.mark.parametrize("bad,match", [(float("nan"), "must be a finite number, got nan"),
                                        (float("inf"), "must be a finite number, got inf"),
                                        ("-inf", "must be a finite number"),
-                                       (True, "must be a number, got True")])
+                                       (True, "must be a number, got true")])
 def test_spec_priors_reject_non_finite_and_boolean_numbers(model, field, bad, match):
     good = {"a": 2.0, "b": 1.0, "mu": 0.5, "sigma": 1.0}
     kwargs = {k: v for k, v in good.items() if k in model.model_fields}

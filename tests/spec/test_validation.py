@@ -248,3 +248,35 @@ def test_predict_settings_outside_bounds_note_names_the_unit_only_if_any(base_sp
     _, notes = settings_matrix(net, "width", [{"P": 300, "v": 3.0}])
     assert "heat.P = 300 lies outside its bounds [50, 250]; the surrogates" in notes[0]
     assert "heat.v = 3 lies outside its bounds [0.1, 2] m/s; the surrogates" in notes[1]
+
+
+@pytest.mark.parametrize("path,field", [
+    (("models", "heat", "inputs", "P", "upper"), "upper"),
+    (("models", "heat", "parameters", "k", "lower"), "lower"),
+    (("data", "width", "noise"), "sd"),
+    (("settings", "sampler", "chains"), "chains"),
+    (("settings", "seed"), "seed"),
+])
+def test_boolean_where_a_number_is_expected(base_spec, write_spec, path, field):
+    """YAML reads ``true`` as a boolean; pydantic would take it as 1.0 or 1."""
+    node = base_spec
+    for key in path[:-1]:
+        node = node.setdefault(key, {})
+    node[path[-1]] = {"sd": True} if field == "sd" else True
+    err = _error(write_spec(base_spec))
+    assert f"{field} must be a number, got true" in str(err)
+
+
+def test_spec_file_that_is_not_utf8(base_spec, write_spec):
+    path = write_spec(base_spec)
+    path.write_bytes(b"# Temp\xe9rature\n" + path.read_bytes())
+    err = _error(path)
+    assert "not UTF-8 text (byte 0xe9 at line 1)" in str(err) and "save the file" in str(err)
+
+
+def test_one_output_linked_into_two_inputs_of_one_model(base_spec, write_spec):
+    base_spec["links"] = [{"from": "heat.G", "to": "micro.G"}, {"from": "heat.G", "to": "micro.S"}]
+    base_spec["models"]["micro"]["inputs"]["S"]["unit"] = "K/m"
+    err = _error(write_spec(base_spec))
+    assert "'heat.G' feeds both 'micro.G' and 'micro.S'" in str(err)
+    assert "links[0]" in str(err)

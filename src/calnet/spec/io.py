@@ -100,6 +100,11 @@ def _read_yaml(path: Path) -> Any:
     try:
         with open(path, encoding="utf-8") as fh:
             return yaml.load(fh, Loader=_UniqueKeyLoader)  # noqa: S506 (safe loader subclass)
+    except UnicodeDecodeError as err:
+        text = path.read_bytes()
+        line = text[:err.start].count(b"\n") + 1
+        raise SpecError(f"not UTF-8 text (byte 0x{text[err.start]:02x} at line {line}); save "
+                        "the file as UTF-8", file=str(path)) from None
     except yaml.YAMLError as err:
         mark = getattr(err, "problem_mark", None)
         line = f"line {mark.line + 1}" if mark else None

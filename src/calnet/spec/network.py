@@ -106,6 +106,13 @@ class Network(Frozen):
         if len(others) > 1:
             raise ValueError(f"{where}.to: '{link.target}' is fed by {len(others)} links; "
                              "an input can be fed by one link only")
+        twins = [ln.target for ln in self.links if ln.source == link.source
+                 and ln.target_model == link.target_model and ln.target != link.target]
+        if twins:
+            raise ValueError(
+                f"{where}: '{link.source}' feeds both '{link.target}' and '{twins[0]}' of "
+                f"model '{link.target_model}', so the two inputs are always equal; declare "
+                "one input and let the simulator use it twice")
 
     def _check_parameters(self) -> None:
         """A parameter name in several models must be shared, with one declaration."""

@@ -7,7 +7,9 @@ builds them directly.
 from __future__ import annotations
 
 import math
-from typing import Annotated, Literal
+import types
+import typing
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
 
@@ -15,22 +17,39 @@ NAME_PATTERN = r"^[A-Za-z_][A-Za-z0-9_]*$"
 Name = Annotated[str, Field(pattern=NAME_PATTERN)]
 
 
+def _numeric(annotation: Any) -> bool:
+    """Whether a field's annotation admits a number but not a boolean."""
+    args = typing.get_args(annotation) if isinstance(
+        annotation, types.UnionType) or typing.get_origin(annotation) is typing.Union else ()
+    kinds = set(args) if args else {annotation}
+    return bool(kinds & {float, int}) and bool not in kinds
+
+
 class Frozen(BaseModel):
-    """Base of every spec object: immutable, unknown keys rejected."""
+    """Base of every spec object: immutable, unknown keys rejected, no boolean where a
+    number is expected (YAML reads ``true`` as 1.0 otherwise)."""
 
     model_config = ConfigDict(frozen=True, extra="forbid", populate_by_name=True)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _no_bool_numbers(cls, data: Any) -> Any:
+        if isinstance(data, dict):
+            for name, field in cls.model_fields.items():
+                value = data.get(name, data.get(field.alias) if field.alias else None)
+                if isinstance(value, bool) and _numeric(field.annotation):
+                    raise ValueError(f"{name} must be a number, got {str(value).lower()}; "
+                                     "write a number such as 1.0, not true/false")
+        return data
 
 
 # ---------------------------------------------------------------- priors (method.md section 3)
 class _SpecPrior(Frozen):
-    """Base of the prior models: every number is finite and not a boolean."""
+    """Base of the prior models: every number is finite."""
 
     @field_validator("a", "b", "mu", "sigma", mode="before", check_fields=False)
     @classmethod
     def _finite_number(cls, value: object, info: ValidationInfo) -> object:
-        if isinstance(value, bool):
-            raise ValueError(f"{info.field_name} must be a number, got {value}; write a number "
-                             "such as 1.0, not true/false")
         try:
             number = float(value)
         except (TypeError, ValueError):
