@@ -193,3 +193,18 @@ def test_check_warns_of_a_umbridge_server_that_cannot_run_the_model(tmp_path):
     assert f"a: UM-Bridge server '{closed}' cannot be reached (ConnectionError)" in warned[0]
     assert "b: UM-Bridge server" in warned[1] and "(HTTP 404)" in warned[1]
     assert "c: UM-Bridge server" in warned[2] and "serves ['forward'], not 'other'" in warned[2]
+
+
+def test_simulator_forms_in_campaigns_doc_parse():
+    """Every ``simulator:`` example of docs/campaigns.md is a valid SimulatorRef."""
+    import re
+    from pathlib import Path
+
+    doc = (Path(__file__).resolve().parents[2] / "docs" / "campaigns.md").read_text()
+    entries = []
+    for block in re.findall(r"```yaml\n(.*?)```", doc, re.S):
+        chunks = re.split(r"^(?=simulator:)", block, flags=re.M)
+        entries += [yaml.safe_load(c)["simulator"] for c in chunks if c.startswith("simulator:")]
+    refs = [SimulatorRef.model_validate(e) for e in entries]
+    assert {r.kind for r in refs} == {"builtin", "python", "command", "umbridge"}
+    assert len(refs) >= 7
