@@ -135,6 +135,70 @@ def _setup(network: Network, surrogates: Surrogates, posterior: NetworkPosterior
                   tuple(network.process_input_keys(ds.observed_model)), log)
 
 
+@partial(jax.jit, static_argnums=(0,))
+def _loo_conditionals(spec, gps, tdata, thetas, hyper):
+    """Per draw and point, the mean and precision of the point given the other points of
+    the data set under the KOH model, standardised: (S, n) each.
+
+    For ``r ~ N(0, K)``: ``r_i | r_-i ~ N(r_i - g_i / c_i, 1 / c_i)`` with ``g = K^-1 r``,
+    ``c = diag(K^-1)`` (the discrepancy and the surrogates' covariance make the points
+    dependent, so the pointwise likelihood is this conditional, not ``N(r_i; 0, K_ii)``).
+    """
+    term = spec.terms[0]
+    data = {"gps": gps}
+
+    def one(th, hy):
+        r, K, _ = spec.train(data, term, tdata, th, hy)
+        if K.ndim == 1:
+            g, c = r / K, 1.0 / K
+        else:
+            L = jnp.linalg.cholesky(K)
+            g = jax.scipy.linalg.cho_solve((L, True), r)
+            c = jnp.diag(jax.scipy.linalg.cho_solve((L, True), jnp.eye(r.shape[0])))
+        return tdata["y"] - g / c, c
+    return jax.vmap(one)(thetas, hyper)
+
+
+@dataclass(frozen=True)
+class LOOConditionals:
+    """Leave-one-out conditionals of a data set's calibration points, per posterior draw.
+
+    Attributes
+    ----------
+    mean, sd : ndarray (S, n)
+        Mean and sd of point i given the other points, on the modelled scale (logs for a
+        log-modelled output), data units.
+    loglik : ndarray (S, n)
+        ``log p(y_i | y_-i, draw)`` on the modelled scale: the pointwise log-likelihood
+        for PSIS leave-one-out.
+    y : ndarray (n,)
+        The observations on the modelled scale.
+    log : bool
+        Whether the output is modelled on the log scale.
+    """
+
+    mean: np.ndarray
+    sd: np.ndarray
+    loglik: np.ndarray
+    y: np.ndarray
+    log: bool
+
+
+def loo_conditionals(network: Network, surrogates: Surrogates, posterior: NetworkPosterior,
+                     dataset: str, idx: np.ndarray | None = None) -> LOOConditionals:
+    """:class:`LOOConditionals` of ``dataset``'s calibration points at draws ``idx``
+    (default: every draw)."""
+    idx = np.arange(posterior.n_draws) if idx is None else np.asarray(idx)
+    st = _setup(network, surrogates, posterior, dataset, idx)
+    mean, prec = (np.asarray(a) for a in _loo_conditionals(st.spec, st.gps, st.tdata,
+                                                               st.thetas, st.hyper))
+    s, mu = float(st.tdata["y_sd"]), float(st.tdata["y_mean"])
+    y = np.asarray(st.tdata["y"]) * s + mu
+    m, sd = mean * s + mu, s / np.sqrt(prec)
+    loglik = -0.5 * np.log(2 * np.pi) - np.log(sd) - 0.5 * ((y - m) / sd) ** 2
+    return LOOConditionals(m, sd, loglik, y, st.log)
+
+
 def _noise_at(st: _Setup, m: int, noise_var: np.ndarray | None) -> jnp.ndarray:
     """Known noise variance at ``m`` new points: given, or the calibration data's mean."""
     if noise_var is not None:

@@ -15,7 +15,7 @@ from calnet.calibration.network import (
     with_stage,
 )
 from calnet.chain import ChainPlan
-from calnet.predict import metrics, predict
+from calnet.predict import loo_conditionals, metrics, predict
 from calnet.spec import ExperimentalData, Network
 from calnet.spec.models import SamplerSettings
 from calnet.surrogates.network import Surrogates
@@ -61,42 +61,122 @@ def _power_law(train: ExperimentalData, test: ExperimentalData) -> dict | None:
     return {**metrics(test.y, pred), "exponents": coef[1:].tolist()}
 
 
+K_HAT_MAX = 0.7  # Pareto k above which PSIS is unreliable (Vehtari et al. 2024)
+
+
+def psis_loo(network: Network, surrogates: Surrogates, posterior: NetworkPosterior,
+             dataset: str, *, sampler: SamplerSettings | None = None, seed: int = 0,
+             k_max: float = K_HAT_MAX, refit_max: int | None = None, n_samples: int = 4000,
+             progress=None) -> dict:
+    """Leave-one-out predictive of every calibration point of ``dataset`` by
+    Pareto-smoothed importance sampling of the posterior (ArviZ's ``loo``/``psislw``).
+
+    The pointwise log-likelihood is the KOH model's density of a point given the data
+    set's other points (:func:`calnet.predict.loo_conditionals`), so the discrepancy's
+    and the surrogates' correlation between points is accounted for. The LOO predictive
+    of point i is the mixture over draws of those conditionals with the PSIS weights.
+    Points whose Pareto k exceeds ``k_max`` are refitted exactly (the observing model's
+    stage re-sampled without the point, as :func:`leave_one_out`) when ``sampler`` is
+    given, the highest k first and at most ``refit_max`` of them; the others keep the
+    PSIS answer and are counted in ``n_unreliable``.
+
+    Returns a dict: ``calnet`` (metrics of the LOO predictive), ``training_mean``
+    (the mean of the other points), ``mean``/``lower95``/``upper95`` per point,
+    ``elpd_loo``, ``elpd_se``, ``p_loo`` (modelled scale), ``pareto_k`` per point,
+    ``refit`` (indices refitted exactly) and ``method``.
+    """
+    import arviz as az
+    from scipy.special import logsumexp
+
+    full = posterior.data[dataset]
+    cond = loo_conditionals(network, surrogates, posterior, dataset)
+    S, n = cond.loglik.shape
+    idata = az.from_dict(log_likelihood={dataset: cond.loglik[None]})
+    loo = az.loo(idata, pointwise=True, reff=1.0)
+    logw, khat = az.psislw(-cond.loglik.T.copy(), reff=1.0)  # (n, S) normalised log weights
+    khat = np.asarray(khat)
+    w = np.exp(np.asarray(logw))
+    rng = np.random.default_rng(seed)
+    mean, lo, hi = np.empty(n), np.empty(n), np.empty(n)
+    for i in range(n):
+        comp = rng.choice(S, size=n_samples, p=w[i] / w[i].sum())
+        z = cond.mean[comp, i] + cond.sd[comp, i] * rng.standard_normal(n_samples)
+        q = np.percentile(z, [2.5, 97.5])
+        if cond.log:
+            mean[i] = np.exp(logsumexp(np.log(w[i]) + cond.mean[:, i] + 0.5 * cond.sd[:, i] ** 2)
+                             - logsumexp(np.log(w[i])))
+            lo[i], hi[i] = np.exp(q)
+        else:
+            mean[i] = np.sum(w[i] * cond.mean[:, i]) / w[i].sum()
+            lo[i], hi[i] = q
+    bad = np.flatnonzero(khat > k_max)
+    todo = bad[np.argsort(-khat[bad], kind="stable")][:refit_max] if sampler else bad[:0]
+    refit = []
+    if len(todo):
+        refitter = _Refitter(network, surrogates, posterior, full, sampler)
+        for j, i in enumerate(todo):
+            if progress:
+                progress(j, len(todo))
+            mean[i], lo[i], hi[i] = refitter.predict(int(i), seed + int(i))
+            refit.append(int(i))
+    refit.sort()
+    naive = np.array([np.delete(full.y, i).mean() for i in range(n)])
+    return {"method": "psis", "calnet": metrics(full.y, mean, lo, hi),
+            "training_mean": metrics(full.y, naive),
+            "mean": mean.tolist(), "lower95": lo.tolist(), "upper95": hi.tolist(),
+            "elpd_loo": float(loo.elpd_loo), "elpd_se": float(loo.se),
+            "p_loo": float(loo.p_loo), "pareto_k": khat.tolist(), "k_max": k_max,
+            "n_unreliable": int(len(bad)) - len(refit), "refit": refit, "n_draws": S}
+
+
+class _Refitter:
+    """Exact leave-one-out of single points: the observing model's stage re-sampled
+    without the point, the other models' parameters held at their posterior means (a
+    segmented view). Every fold has the same shapes and priors (the full data set's
+    scale), so one compiled sampler serves all of them."""
+
+    def __init__(self, network, surrogates, posterior, full, sampler):
+        self.network, self.surrogates, self.posterior = network, surrogates, posterior
+        self.full, self.sampler = full, sampler
+        self.model = network.dataset(full.name).observed_model
+        self.plan = ChainPlan.from_network(network)
+        self.own = parameter_keys(network, self.model)
+        self.fixed = {}
+        for m, draws in posterior.theta.items():
+            for j, k in enumerate(parameter_keys(network, m)):
+                if k not in self.own:
+                    self.fixed[k] = float(np.mean(draws[:, j]))
+        self.scales = {full.name: data_scale(network, full)}
+
+    def predict(self, i: int, seed: int) -> tuple[float, float, float]:
+        full, network = self.full, self.network
+        data_i = full.subset(np.arange(len(full.y)) != i)
+        ld = build_koh(network, self.surrogates, free=self.own, datasets={full.name: data_i},
+                       fixed=self.fixed, name=f"{self.model} LOO", plan=self.plan,
+                       scales=self.scales,
+                       emulator_variance=network.settings.calibration.emulator_variance)
+        idata = _sample(ld, self.sampler, seed)
+        stage = StageResult((self.model,), (full.name,), idata, ld)
+        post_i = with_stage(self.posterior, stage, {full.name: data_i})
+        pred = predict(network, self.surrogates, post_i, full.name, full.x[i:i + 1],
+                       n_draws=100, seed=seed, noise_var=_noise_var(network, full, i))
+        return float(pred.mean[0]), float(pred.lower[0]), float(pred.upper[0])
+
+
 def leave_one_out(network: Network, surrogates: Surrogates, posterior: NetworkPosterior,
                   full: ExperimentalData, *, sampler: SamplerSettings, seed: int = 0,
                   progress=None) -> dict:
-    """Re-calibrate the observing model without each point in turn and predict it.
-
-    The other models' parameters are held at their posterior means (a segmented view),
-    so only the observing model's stage is repeated; every fold has the same shapes and
-    priors (the full data set's scale), so one compiled sampler serves all of them.
-    """
-    ds = network.dataset(full.name)
-    model = ds.observed_model
-    plan = ChainPlan.from_network(network)
-    own = parameter_keys(network, model)
-    fixed = {}
-    for m, draws in posterior.theta.items():
-        for j, k in enumerate(parameter_keys(network, m)):
-            if k not in own:
-                fixed[k] = float(np.mean(draws[:, j]))
-    scales = {full.name: data_scale(network, full)}
+    """Re-calibrate the observing model without each point in turn and predict it
+    (exact leave-one-out; see :class:`_Refitter`)."""
+    refitter = _Refitter(network, surrogates, posterior, full, sampler)
     mean, lo, hi = np.empty(len(full.y)), np.empty(len(full.y)), np.empty(len(full.y))
     for i in range(len(full.y)):
         if progress:
             progress(i, len(full.y))
-        data_i = full.subset(np.arange(len(full.y)) != i)
-        ld = build_koh(network, surrogates, free=own, datasets={full.name: data_i},
-                       fixed=fixed, name=f"{model} LOO", plan=plan, scales=scales,
-                       emulator_variance=network.settings.calibration.emulator_variance)
-        idata = _sample(ld, sampler, seed + i)
-        stage = StageResult((model,), (full.name,), idata, ld)
-        post_i = with_stage(posterior, stage, {full.name: data_i})
-        pred = predict(network, surrogates, post_i, full.name, full.x[i:i + 1], n_draws=100,
-                       seed=seed, noise_var=_noise_var(network, full, i))
-        mean[i], lo[i], hi[i] = pred.mean[0], pred.lower[0], pred.upper[0]
+        mean[i], lo[i], hi[i] = refitter.predict(i, seed + i)
     result = metrics(full.y, mean, lo, hi)
     naive = np.array([np.delete(full.y, i).mean() for i in range(len(full.y))])
-    return {"calnet": result, "training_mean": metrics(full.y, naive),
+    return {"method": "refit", "calnet": result, "training_mean": metrics(full.y, naive),
             "mean": mean.tolist(), "lower95": lo.tolist(), "upper95": hi.tolist()}
 
 
