@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from calnet.spec import ExperimentalData
 from calnet.validation import _power_law
@@ -27,3 +28,30 @@ def test_power_law_baseline_is_skipped_for_non_positive_or_too_few_points():
     x = np.array([[1.0, 2.0], [2.0, 1.0], [3.0, 3.0]])
     assert _power_law(_data(x, [1.0, -1.0, 2.0]), _data(x, [1.0, 1.0, 1.0])) is None
     assert _power_law(_data(x, [1.0, 2.0, 3.0]), _data(x, [1.0, 1.0, 1.0])) is None  # 3 <= 3
+
+
+def test_metrics_scores_against_closed_forms():
+    """CRPS of a Gaussian predictive (closed form), the interval score, NRMSE, and MAPE
+    left out where observations come near zero."""
+    from scipy import stats
+
+    from calnet.predict import metrics
+
+    rng = np.random.default_rng(0)
+    y = np.array([1.0, 2.0, 4.0])
+    samples = rng.normal(y[None] + 0.5, 1.0, size=(200000, 3))
+    z = -0.5
+    crps = z * (2 * stats.norm.cdf(z) - 1) + 2 * stats.norm.pdf(z) - 1 / np.sqrt(np.pi)
+    m = metrics(y, y + 0.5, y - 1.0, y + 0.2, samples=samples,
+                pit=np.array([0.3, 0.95, 0.99]))
+    assert abs(m["crps"] - crps) < 5e-3
+    assert m["rmse"] == pytest.approx(0.5) and m["nrmse"] == pytest.approx(0.5 / 3)
+    assert m["interval_score95"] == pytest.approx(1.2)  # every y inside its band
+    assert m["mape"] == pytest.approx(100 * np.mean(0.5 / y))
+    assert (m["pit_coverage50"], m["pit_coverage80"], m["pit_coverage95"]) == \
+        pytest.approx((1 / 3, 1 / 3, 2 / 3))
+    missed = metrics(np.array([0.0, 1.0]), np.array([0.0, 1.0]), np.array([0.5, 0.5]),
+                     np.array([1.0, 1.0]))
+    assert missed["interval_score95"] == pytest.approx(0.5 + (2 / 0.05) * 0.5 / 2)
+    assert missed["mape"] is None  # a zero observation: percentages are meaningless
+    assert metrics(np.array([-0.2, 1.0]), np.array([0.0, 1.0]))["mape"] is None

@@ -157,11 +157,16 @@ class _Context:
         out = {}
         for name, d in self.data.items():
             pred = self.predictions[name]
+            pit = pred.pit(d.y)  # posterior predictive check: uniform if calibrated
             entry = {"train": metrics(d.y[~d.is_test], pred.mean[~d.is_test],
-                                      pred.lower[~d.is_test], pred.upper[~d.is_test])}
+                                      pred.lower[~d.is_test], pred.upper[~d.is_test],
+                                      samples=pred.samples[:, ~d.is_test],
+                                      pit=pit[~d.is_test]),
+                     "pit": pit.tolist()}
             if d.is_test.any():
                 entry["test"] = metrics(d.test.y, pred.mean[d.is_test], pred.lower[d.is_test],
-                                        pred.upper[d.is_test])
+                                        pred.upper[d.is_test], samples=pred.samples[:, d.is_test],
+                                        pit=pit[d.is_test])
                 entry["baselines_test"] = baselines(self.network, d.train, d.test,
                                                     seed=self.seed)
             note(f"leave-one-out {name}")

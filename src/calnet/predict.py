@@ -48,6 +48,8 @@ class Prediction:
         Variance contributions on the modelled, standardised scale, by source:
         ``parameters``, ``emulator <model.output>`` (one per surrogate), ``discrepancy``,
         ``noise``.
+    samples : ndarray (k, n), optional
+        Predictive samples of a new measurement, natural scale.
     """
 
     dataset: str
@@ -59,6 +61,12 @@ class Prediction:
     upper: np.ndarray
     budget: dict[str, np.ndarray] = field(default_factory=dict)
     prob: np.ndarray | None = None
+    samples: np.ndarray | None = field(default=None, repr=False)
+
+    def pit(self, y: np.ndarray) -> np.ndarray:
+        """Probability integral transform of observations ``y`` (n,) under the predictive
+        (from its samples): uniform on [0, 1] for a calibrated predictive."""
+        return np.mean(self.samples <= np.asarray(y, float)[None], axis=0)
 
     def point_shares(self) -> dict[str, np.ndarray]:
         """Share of each source in the predictive variance at every point, (n,) each."""
@@ -291,7 +299,7 @@ def predict(network: Network, surrogates: Surrogates, posterior: NetworkPosterio
             ok &= samples <= within[1]
         prob = ok.mean(axis=0)
     return Prediction(dataset, key, st.keys, x, samples.mean(axis=0), lo, hi,
-                      budget, prob)
+                      budget, prob, samples)
 
 
 def predict_data(network: Network, surrogates: Surrogates, posterior: NetworkPosterior,
@@ -301,15 +309,61 @@ def predict_data(network: Network, surrogates: Surrogates, posterior: NetworkPos
                    noise_var=known_noise_var(network, data), **kwargs)
 
 
+def mape_meaningful(y: np.ndarray) -> bool:
+    """Whether a percentage error is meaningful for observations ``y``: all of one sign
+    and every |y| at least a tenth of their spread away from zero (else a near-zero
+    value turns a small error into hundreds of percent)."""
+    y = np.asarray(y, float)
+    if not len(y) or not (np.all(y > 0) or np.all(y < 0)):
+        return False
+    return float(np.abs(y).min()) >= 0.1 * float(np.ptp(y))
+
+
+def crps_from_samples(y: np.ndarray, samples: np.ndarray) -> np.ndarray:
+    """Continuous ranked probability score of each point (n,) from predictive samples
+    (k, n): ``E|X - y| - E|X - X'| / 2``, with the second term from the sorted samples
+    (exact for the empirical distribution)."""
+    x = np.sort(np.asarray(samples, float), axis=0)
+    k = x.shape[0]
+    first = np.mean(np.abs(x - np.asarray(y, float)[None]), axis=0)
+    weights = (2 * np.arange(1, k + 1) - k - 1)[:, None]
+    return first - np.sum(weights * x, axis=0) / k**2
+
+
+def interval_score(y: np.ndarray, lower: np.ndarray, upper: np.ndarray,
+                   alpha: float = 0.05) -> np.ndarray:
+    """Interval score of central (1 - alpha) intervals, per point (Gneiting & Raftery
+    2007): the width plus 2 / alpha times the miss."""
+    y, lower, upper = (np.asarray(a, float) for a in (y, lower, upper))
+    return ((upper - lower) + (2 / alpha) * np.maximum(lower - y, 0)
+            + (2 / alpha) * np.maximum(y - upper, 0))
+
+
 def metrics(y: np.ndarray, mean: np.ndarray, lower: np.ndarray | None = None,
-            upper: np.ndarray | None = None) -> dict[str, float]:
-    """MAPE (%), SE_pred (= RMSE, method.md §5) and 95 % coverage of predictions."""
+            upper: np.ndarray | None = None, *, samples: np.ndarray | None = None,
+            pit: np.ndarray | None = None) -> dict[str, float | None]:
+    """Errors of predictions of ``y``: RMSE (the reference study's SE_pred, method.md
+    section 5), NRMSE (RMSE / range of y), MAPE (%, None where :func:`mape_meaningful`
+    says no); with a 95 % band its coverage and mean interval score; with predictive
+    samples (k, n) the mean CRPS; with PIT values (n,) the coverage of the central 50,
+    80 and 95 % intervals."""
     y, mean = np.asarray(y, float), np.asarray(mean, float)
-    out = {"n": int(len(y)), "mape": float(np.mean(np.abs(y - mean) / np.abs(y)) * 100),
-           "se_pred": float(np.sqrt(np.mean((y - mean) ** 2)))}
-    out["rmse"] = out["se_pred"]
+    rmse = float(np.sqrt(np.mean((y - mean) ** 2)))
+    spread = float(np.ptp(y)) if len(y) > 1 else 0.0
+    out: dict[str, float | None] = {
+        "n": int(len(y)), "rmse": rmse, "se_pred": rmse,
+        "nrmse": rmse / spread if spread > 0 else None,
+        "mape": (float(np.mean(np.abs(y - mean) / np.abs(y)) * 100)
+                 if mape_meaningful(y) else None)}
     if lower is not None and upper is not None:
         out["coverage95"] = float(np.mean((y >= lower) & (y <= upper)))
+        out["interval_score95"] = float(np.mean(interval_score(y, lower, upper)))
+    if samples is not None:
+        out["crps"] = float(np.mean(crps_from_samples(y, samples)))
+    if pit is not None:
+        pit = np.asarray(pit, float)
+        for level in (50, 80, 95):
+            out[f"pit_coverage{level}"] = float(np.mean(np.abs(pit - 0.5) <= level / 200))
     return out
 
 

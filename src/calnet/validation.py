@@ -86,6 +86,7 @@ def psis_loo(network: Network, surrogates: Surrogates, posterior: NetworkPosteri
     ``refit`` (indices refitted exactly) and ``method``.
     """
     import arviz as az
+    from scipy import stats
     from scipy.special import logsumexp
 
     full = posterior.data[dataset]
@@ -98,9 +99,14 @@ def psis_loo(network: Network, surrogates: Surrogates, posterior: NetworkPosteri
     w = np.exp(np.asarray(logw))
     rng = np.random.default_rng(seed)
     mean, lo, hi = np.empty(n), np.empty(n), np.empty(n)
+    samples = np.empty((n_samples, n))
+    # LOO-PIT, exact for the mixture (a monotone transform leaves it unchanged)
+    pit = np.sum(w * stats.norm.cdf((cond.y[None] - cond.mean) / cond.sd).T, axis=1) \
+        / w.sum(axis=1)
     for i in range(n):
         comp = rng.choice(S, size=n_samples, p=w[i] / w[i].sum())
         z = cond.mean[comp, i] + cond.sd[comp, i] * rng.standard_normal(n_samples)
+        samples[:, i] = np.exp(z) if cond.log else z
         q = np.percentile(z, [2.5, 97.5])
         if cond.log:
             mean[i] = np.exp(logsumexp(np.log(w[i]) + cond.mean[:, i] + 0.5 * cond.sd[:, i] ** 2)
@@ -117,14 +123,16 @@ def psis_loo(network: Network, surrogates: Surrogates, posterior: NetworkPosteri
         for j, i in enumerate(todo):
             if progress:
                 progress(j, len(todo))
-            mean[i], lo[i], hi[i] = refitter.predict(int(i), seed + int(i))
+            mean[i], lo[i], hi[i], samples[:, i], pit[i] = refitter.predict(
+                int(i), seed + int(i), n_samples)
             refit.append(int(i))
     refit.sort()
     naive = np.array([np.delete(full.y, i).mean() for i in range(n)])
-    return {"method": "psis", "calnet": metrics(full.y, mean, lo, hi),
+    return {"method": "psis",
+            "calnet": metrics(full.y, mean, lo, hi, samples=samples, pit=pit),
             "training_mean": metrics(full.y, naive),
             "mean": mean.tolist(), "lower95": lo.tolist(), "upper95": hi.tolist(),
-            "elpd_loo": float(loo.elpd_loo), "elpd_se": float(loo.se),
+            "pit": pit.tolist(), "elpd_loo": float(loo.elpd_loo), "elpd_se": float(loo.se),
             "p_loo": float(loo.p_loo), "pareto_k": khat.tolist(), "k_max": k_max,
             "n_unreliable": int(len(bad)) - len(refit), "refit": refit, "n_draws": S}
 
@@ -148,7 +156,8 @@ class _Refitter:
                     self.fixed[k] = float(np.mean(draws[:, j]))
         self.scales = {full.name: data_scale(network, full)}
 
-    def predict(self, i: int, seed: int) -> tuple[float, float, float]:
+    def predict(self, i: int, seed: int, n_samples: int = 4000):
+        """Mean, 95 % bounds, ``n_samples`` predictive samples and the PIT of point i."""
         full, network = self.full, self.network
         data_i = full.subset(np.arange(len(full.y)) != i)
         ld = build_koh(network, self.surrogates, free=self.own, datasets={full.name: data_i},
@@ -159,8 +168,11 @@ class _Refitter:
         stage = StageResult((self.model,), (full.name,), idata, ld)
         post_i = with_stage(self.posterior, stage, {full.name: data_i})
         pred = predict(network, self.surrogates, post_i, full.name, full.x[i:i + 1],
-                       n_draws=100, seed=seed, noise_var=_noise_var(network, full, i))
-        return float(pred.mean[0]), float(pred.lower[0]), float(pred.upper[0])
+                       n_draws=100, n_samples=-(-n_samples // 100), seed=seed,
+                       noise_var=_noise_var(network, full, i))
+        draws = np.resize(pred.samples[:, 0], n_samples)
+        return (float(pred.mean[0]), float(pred.lower[0]), float(pred.upper[0]), draws,
+                float(pred.pit(full.y[i:i + 1])[0]))
 
 
 def leave_one_out(network: Network, surrogates: Surrogates, posterior: NetworkPosterior,
@@ -173,7 +185,7 @@ def leave_one_out(network: Network, surrogates: Surrogates, posterior: NetworkPo
     for i in range(len(full.y)):
         if progress:
             progress(i, len(full.y))
-        mean[i], lo[i], hi[i] = refitter.predict(i, seed + i)
+        mean[i], lo[i], hi[i] = refitter.predict(i, seed + i)[:3]
     result = metrics(full.y, mean, lo, hi)
     naive = np.array([np.delete(full.y, i).mean() for i in range(len(full.y))])
     return {"method": "refit", "calnet": result, "training_mean": metrics(full.y, naive),

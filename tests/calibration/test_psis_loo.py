@@ -82,6 +82,11 @@ def test_psis_loo_matches_the_exact_leave_one_out(tmp_path_factory):
     # exact iid draws is ~0.02
     assert abs(got["elpd_loo"] - ll.sum()) < 0.2 and got["elpd_se"] > 0
     assert got["calnet"]["n"] == len(X3) and 0.5 < got["p_loo"] < 4  # two parameters
+    # LOO-PIT and CRPS against the exact Gaussian LOO predictive
+    z = (Y3 - mean) / sd
+    np.testing.assert_allclose(got["pit"], stats.norm.cdf(z), atol=0.02)
+    crps = sd * (z * (2 * stats.norm.cdf(z) - 1) + 2 * stats.norm.pdf(z) - 1 / np.sqrt(np.pi))
+    assert abs(got["calnet"]["crps"] / crps.mean() - 1) < 0.03
 
 
 @pytest.mark.slow
