@@ -187,6 +187,13 @@ class _Context:
             entry["variance_shares"] = self.predictions[name].shares()
             out[name] = entry
         self.metrics["validation"] = out
+        if self.network.settings.compare:
+            from calnet.validation import compare_variants
+
+            self.metrics["comparison"] = compare_variants(
+                self.network, self.sur, self.post, self.network.settings.compare,
+                sampler=self.sampler, seed=self.seed,
+                progress=lambda v: note(f"calibrating variant {v}"))
 
     def sensitivity(self, note) -> None:
         from calnet.report.build import sensitivity_and_maps

@@ -107,3 +107,28 @@ def test_psis_loo_with_discrepancy_agrees_with_exact_refits(tmp_path_factory):
                                  0.05 * width)
     np.testing.assert_allclose(np.asarray(psis["upper95"]) - psis["lower95"], width,
                                rtol=0.15)
+
+
+@pytest.mark.slow
+def test_compare_says_whether_the_discrepancy_is_needed(tmp_path_factory):
+    """A simulator that misses a wave: the discrepancy model predicts the left-out points
+    far better than the same model without it (an ELPD difference of more than two
+    standard errors, nearly all the stacking weight);
+    a correct simulator: the two are within a few standard errors."""
+    from calnet.validation import compare_variants
+
+    x = np.linspace(0.0, 1.0, 20)
+    noise = SD * np.random.default_rng(8).standard_normal(20)
+    fast = SamplerSettings(chains=2, warmup=300, draws=1000)
+    results = {}
+    for wave in (0.4, 0.0):
+        y = true_pq(x, 0.8, 1.2) + wave * np.sin(2 * np.pi * x) + noise
+        network, sur, post = _case(tmp_path_factory, "default", x, y)
+        results[wave] = compare_variants(network, sur, post, ("no_discrepancy",),
+                                         sampler=fast, seed=2)["obs"]
+    wave = results[0.4]
+    assert wave["spec"]["elpd_diff"] == 0.0 and wave["spec"]["weight"] > 0.9
+    assert wave["no_discrepancy"]["elpd_diff"] > 2 * wave["no_discrepancy"]["dse"]
+    flat = results[0.0]
+    worse = max(flat["spec"]["elpd_diff"], flat["no_discrepancy"]["elpd_diff"])
+    assert worse < 3 * max(flat["spec"]["dse"], flat["no_discrepancy"]["dse"], 0.5)

@@ -363,6 +363,9 @@ class Settings(Frozen):
 
     ``criteria`` maps a data set name to the range its output should meet; the report's
     process map shows the probability of meeting it over the process inputs.
+    ``compare`` lists variants of the spec's discrepancy calibrated beside it and
+    compared with it by PSIS leave-one-out (``no_discrepancy``, ``non_orthogonal``,
+    ``reference``; :func:`calnet.validation.compare_variants`).
     """
 
     seed: int = Field(0, ge=0)
@@ -372,6 +375,8 @@ class Settings(Frozen):
     sampler: SamplerSettings = Field(default_factory=SamplerSettings)
     calibration: CalibrationSettings = Field(default_factory=CalibrationSettings)
     criteria: dict[str, Criterion] = Field(default_factory=dict)
+    compare: tuple[Literal["no_discrepancy", "non_orthogonal", "reference"], ...] = Field(
+        (), description="model variants calibrated beside the spec and compared by PSIS-LOO")
 
 
 def named_mapping_to_list(value: Any) -> Any:
