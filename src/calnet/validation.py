@@ -144,9 +144,38 @@ def psis_loo(network: Network, surrogates: Surrogates, posterior: NetworkPosteri
             "calnet": metrics(full.y, mean, lo, hi, samples=samples, pit=pit),
             "training_mean": metrics(full.y, naive),
             "mean": mean.tolist(), "lower95": lo.tolist(), "upper95": hi.tolist(),
-            "pit": pit.tolist(), "elpd_loo": float(loo.elpd_loo), "elpd_se": float(loo.se),
+            "pit": pit.tolist(), "pit_check": pit_check(dataset, pit), "elpd_loo": float(loo.elpd_loo), "elpd_se": float(loo.se),
             "p_loo": float(loo.p_loo), "pareto_k": khat.tolist(), "k_max": k_max,
             "n_unreliable": int(len(bad)) - len(refit), "refit": refit, "n_draws": S}
+
+
+PIT_P_MIN = 0.01  # a Kolmogorov-Smirnov p-value of the PIT below this flags the model
+
+
+def pit_check(name: str, pit) -> dict:
+    """Whether the predictive is calibrated for data set ``name``, from its PIT values:
+    a Kolmogorov-Smirnov test against the uniform distribution (bias, too wide), and a
+    binomial test of the number of points outside the central 95 % band (too narrow;
+    the KS test is weak against PIT values piled at both ends). Returns
+    ``dict(ks_pvalue, outside95, outside_pvalue, flagged, message)``."""
+    from scipy import stats
+
+    pit = np.asarray(pit, float)
+    n = len(pit)
+    outside = int(np.sum((pit < 0.025) | (pit > 0.975)))
+    p_ks = float(stats.kstest(pit, "uniform").pvalue) if n >= 3 else float("nan")
+    p_out = float(stats.binom.sf(outside - 1, n, 0.05)) if n else float("nan")
+    flagged = bool(p_ks < PIT_P_MIN or p_out < PIT_P_MIN)
+    message = ""
+    if flagged:
+        shape = ("too narrow: the data fall in its tails" if p_out < PIT_P_MIN else
+                 "too wide" if np.mean(np.abs(pit - 0.5) < 0.25) > 0.75 else
+                 "biased" if abs(float(np.mean(pit)) - 0.5) > 0.15 else "miscalibrated")
+        message = (f"{name}: the leave-one-out predictive is {shape} ({outside} of {n} "
+                   f"points outside its 95 % band, PIT uniformity p = {p_ks:.2g}); the "
+                   "model, its discrepancy or its noise does not describe these data")
+    return {"ks_pvalue": p_ks, "outside95": outside, "outside_pvalue": p_out,
+            "flagged": flagged, "message": message}
 
 
 VARIANTS = ("no_discrepancy", "non_orthogonal", "reference")

@@ -132,3 +132,30 @@ def test_compare_says_whether_the_discrepancy_is_needed(tmp_path_factory):
     flat = results[0.0]
     worse = max(flat["spec"]["elpd_diff"], flat["no_discrepancy"]["elpd_diff"])
     assert worse < 3 * max(flat["spec"]["dse"], flat["no_discrepancy"]["dse"], 0.5)
+
+
+@pytest.mark.slow
+def test_pit_check_flags_a_known_wrong_model(tmp_path_factory):
+    """No discrepancy and a simulator that misses a wave five noise sds high: the LOO
+    predictive is far too narrow and the PIT check says so; the correct model of the
+    first test passes it."""
+    x = np.linspace(0.0, 1.0, 20)
+    y = (true_pq(x, 0.8, 1.2) + 0.5 * np.sin(2 * np.pi * x)
+         + SD * np.random.default_rng(9).standard_normal(20))
+    network, sur, post = _case(tmp_path_factory, None, x, y)
+    wrong = psis_loo(network, sur, post, "obs", seed=3)["pit_check"]
+    assert wrong["flagged"] and "too narrow" in wrong["message"], wrong
+    network, sur, post = _case(tmp_path_factory, None)
+    right = psis_loo(network, sur, post, "obs", seed=3)["pit_check"]
+    assert not right["flagged"] and right["ks_pvalue"] > 0.05, right
+
+
+def test_pit_check_on_known_pit_values():
+    from calnet.validation import pit_check
+
+    rng = np.random.default_rng(0)
+    assert not pit_check("d", rng.uniform(size=200))["flagged"]
+    narrow = pit_check("d", np.concatenate([rng.uniform(0, 0.01, 30), rng.uniform(0.99, 1, 30)]))
+    assert narrow["flagged"] and "too narrow" in narrow["message"]
+    wide = pit_check("d", rng.uniform(0.4, 0.6, 60))
+    assert wide["flagged"] and "too wide" in wide["message"]
