@@ -179,3 +179,46 @@ def test_data_grid_legend_is_off_the_axes(tmp_path, drawn):
     legend = ax.get_legend().get_window_extent(renderer)
     assert not _overlap(legend, ax.get_window_extent(renderer))
     assert legend.x1 <= fig.bbox.x1 + 1  # and inside the figure
+
+
+def _three_models():
+    models = [dict(name="thermal", inputs=["P", "v"], outputs=["W", "G"], measurable=["W"]),
+              dict(name="micro", inputs=["G", "S"], outputs=["lam"], measurable=["lam"]),
+              dict(name="hardness", inputs=["lam"], outputs=["H"], measurable=True)]
+    links = [("thermal", "micro", "G->G"), ("thermal", "micro", "v->S"),
+             ("micro", "hardness", "lam->lam")]
+    return models, links
+
+
+def test_three_model_network_diagram_is_readable(tmp_path, drawn):
+    """Every text is at least 9 pt at its displayed size (the PNG fits the report's
+    1000 px column, so it is not scaled down), lies inside its model's box, and no two
+    texts overlap; arrow labels overlap no box."""
+    from matplotlib.patches import FancyBboxPatch
+
+    models, links = _three_models()
+    path = F.network_diagram(models, links, tmp_path / "net.png")
+    fig = drawn[-1]
+    width_px = fig.get_figwidth() * 110
+    assert width_px <= 1000, "wider than the report's column: the browser shrinks it"
+    renderer = _renderer(fig)
+    ax = fig.axes[0]
+    boxes = {p.get_gid(): p.get_window_extent(renderer) for p in ax.patches
+             if isinstance(p, FancyBboxPatch)}
+    assert set(boxes) == {f"box {m['name']}" for m in models}
+    texts = [t for t in ax.texts if t.get_text()]
+    for t in texts:
+        assert t.get_fontsize() >= 9, t.get_text()
+    extents = [(t, t.get_window_extent(renderer)) for t in texts]
+    for t, ext in extents:
+        if t.get_gid() in boxes:
+            box = boxes[t.get_gid()]
+            assert box.x0 < ext.x0 and ext.x1 < box.x1 and box.y0 < ext.y0 and ext.y1 < box.y1, (
+                t.get_text())
+        else:
+            frame = t.get_bbox_patch().get_window_extent(renderer)
+            assert not any(_overlap(frame, b) for b in boxes.values()), t.get_text()
+    for i, (a, ea) in enumerate(extents):
+        for b, eb in extents[i + 1:]:
+            assert not _overlap(ea, eb), (a.get_text(), b.get_text())
+    assert _is_png(path)
