@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from calnet.report.figures import with_unit
+from calnet.report.headline import headline
 from calnet.report.html import Section, Table, fmt, write_report
 from calnet.report.metrics import write_metrics
 from calnet.report.reference import reference_rows
@@ -230,8 +231,15 @@ def write_outputs(ctx) -> None:
             d.y, p.mean, p.lower, p.upper, d.is_test, out / "figures" / f"predictive_{name}.png",
             d.observes, unit)
     write_metrics(out / "metrics.json", ctx.metrics)
-    write_report(out, title=f"calnet report: {net.name}", sections=_sections(ctx, summary),
-                 subtitle=net.description or None)
+    sections = _sections(ctx, summary)
+    titles = [s.title for s in sections]
+    units = {k: net.model(d.observes.split(".")[0]).output(d.observes.split(".")[1]).unit
+             for k, d in ctx.data.items()}
+    box = headline(ctx.metrics, summary, units=units,
+                   warnings_section=titles.index("Warnings") + 1 if "Warnings" in titles
+                   else None)
+    write_report(out, title=f"calnet report: {net.name}", sections=sections,
+                 subtitle=net.description or None, headline=box)
 
 
 def _sections(ctx, summary) -> list[Section]:
