@@ -8,6 +8,7 @@ from calnet.report.figures import with_unit
 from calnet.report.headline import BASELINES, headline
 from calnet.report.html import Section, Table, fmt, write_report
 from calnet.report.metrics import write_metrics
+from calnet.report.posterior_csv import write_posterior_csv
 from calnet.report.reference import reference_rows
 
 GRID = 30
@@ -231,6 +232,7 @@ def write_outputs(ctx) -> None:
             d.y, p.mean, p.lower, p.upper, d.is_test, out / "figures" / f"predictive_{name}.png",
             d.observes, unit)
     write_metrics(out / "metrics.json", ctx.metrics)
+    write_posterior_csv(out / "posterior", ctx.post.theta, summary)
     sections = _sections(ctx, summary)
     titles = [s.title for s in sections]
     units = {k: net.model(d.observes.split(".")[0]).output(d.observes.split(".")[1]).unit
