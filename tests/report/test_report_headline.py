@@ -31,6 +31,9 @@ def test_prediction_error_against_the_baselines_on_the_same_points():
     assert rows["hard"] == ("hard", "leave-one-out, 8 points", "HV", "2.06 (0.762 %)",
                             "23.6 (10.4 %)", "\u2013")
     assert rows["tiny"][1:4] == ("3 training points (no test)", "", "0.1 (1 %)")
+    m = _metrics()
+    m["validation"]["width"]["test"]["mape"] = None  # not meaningful: RMSE alone
+    assert headline(m, _summary()).tables[1].rows[0][3] == "12.9"
 
 
 def test_warnings_that_matter_come_first_and_convergence_reads_once():

@@ -93,12 +93,14 @@ def _parameter_table(summary: Mapping[str, Any]) -> Table:
 
 
 def _cell(m: Mapping[str, Any] | None) -> str:
-    """``"12.9 (12.3 %)"``: RMSE and MAPE of one predictor."""
+    """``"12.9 (12.3 %)"``: RMSE and MAPE of one predictor (RMSE alone where the metrics
+    hold no MAPE, e.g. for outputs near zero)."""
     if not m:
         return fmt(None)
     if "error" in m:
         return "failed"
-    return f"{fmt(m['rmse'], 3)} ({fmt(m['mape'], 3)} %)"
+    rmse = fmt(m.get("rmse"), 3)
+    return rmse if m.get("mape") is None else f"{rmse} ({fmt(m['mape'], 3)} %)"
 
 
 def _error_table(validation: Mapping[str, Any], units: Mapping[str, str]) -> Table:
