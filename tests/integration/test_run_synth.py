@@ -25,11 +25,13 @@ def test_quick_run_on_three_model_network(tmp_path, monkeypatch):
     result = CliRunner().invoke(app, ["run", str(work), "--out", str(out), "--quick"])
     assert result.exit_code == 0, result.output
     for rel in ("report.html", "metrics.json", "figures/network.png", "figures/data.png",
-                "posterior/thermal.nc", "posterior/micro.nc", "posterior/hardness.nc"):
+                "posterior/thermal.nc", "posterior/micro.nc", "posterior/hardness.nc",
+                "posterior/posterior_draws.csv", "posterior/posterior_summary.csv"):
         assert (out / rel).is_file(), rel
     html = (out / "report.html").read_text()
     assert "data:image/png;base64," in html and "https://" not in html
     assert "reference study" not in html  # not the case study: no comparison with it
+    _check_report(out)
     m = json.loads((out / "metrics.json").read_text())
     for key in ("campaigns", "surrogates", "calibration", "validation", "sensitivity",
                 "predictions", "timings_s"):
@@ -44,6 +46,32 @@ def test_quick_run_on_three_model_network(tmp_path, monkeypatch):
         row = m["calibration"]["models"][model]["parameters"][name]
         assert row["q2.5"] <= true <= row["q97.5"], (model, row)
     _check_predict(work, out, tmp_path)
+
+
+def _check_report(out: Path) -> None:
+    """The headline box, captions in words, one meaning of "runs" per column, the posterior
+    CSVs, and (with Chromium) a clean render."""
+    import csv
+    import re
+    import shutil
+
+    from calnet.report.screenshot import CHROMIUM, check_page
+
+    html = (out / "report.html").read_text()
+    assert html.index('id="headline"') < html.index("<nav>")
+    for text in ("Calibrated parameters", "Prediction error: RMSE (MAPE)", "thermal.a",
+                 "finished runs", "runs not ok (left out)", "training runs"):
+        assert text in html, text
+    captions = re.findall(r"<figcaption>(.*?)</figcaption>", html)
+    assert captions and all(len(c.split()) > 5 for c in captions), captions
+    with open(out / "posterior" / "posterior_draws.csv", newline="") as fh:
+        header = next(csv.reader(fh))
+    assert header == ["draw", "thermal.a", "micro.b", "hardness.c"]
+    exe = CHROMIUM if Path(CHROMIUM).exists() else shutil.which("chromium")
+    if exe:
+        page = check_page(out / "report.html", chromium=exe, ids=["headline"])
+        assert page is not None and page.ok, page
+        assert page.images >= 10 and page.tops["headline"] < 300
 
 
 def _check_predict(work: Path, out: Path, tmp_path: Path) -> None:

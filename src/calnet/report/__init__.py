@@ -4,8 +4,8 @@ Figures live in :mod:`calnet.report.figures` (matplotlib imported lazily); this 
 exports only the HTML and metrics writers.
 """
 
-from calnet.report.html import Section, Table, fmt, render_report, write_report
+from calnet.report.html import Headline, Section, Table, fmt, render_report, write_report
 from calnet.report.metrics import to_jsonable, write_metrics
 
-__all__ = ["Section", "Table", "fmt", "render_report", "write_report", "to_jsonable",
+__all__ = ["Headline", "Section", "Table", "fmt", "render_report", "write_report", "to_jsonable",
            "write_metrics"]

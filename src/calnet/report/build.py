@@ -5,8 +5,10 @@ from __future__ import annotations
 import numpy as np
 
 from calnet.report.figures import with_unit
+from calnet.report.headline import BASELINES, headline
 from calnet.report.html import Section, Table, fmt, write_report
 from calnet.report.metrics import write_metrics
+from calnet.report.posterior_csv import write_posterior_csv
 from calnet.report.reference import reference_rows
 
 GRID = 30
@@ -230,29 +232,81 @@ def write_outputs(ctx) -> None:
             d.y, p.mean, p.lower, p.upper, d.is_test, out / "figures" / f"predictive_{name}.png",
             d.observes, unit)
     write_metrics(out / "metrics.json", ctx.metrics)
-    write_report(out, title=f"calnet report: {net.name}", sections=_sections(ctx, summary),
-                 subtitle=net.description or None)
+    write_posterior_csv(out / "posterior", ctx.post.theta, summary)
+    sections = _sections(ctx, summary)
+    titles = [s.title for s in sections]
+    units = {k: net.model(d.observes.split(".")[0]).output(d.observes.split(".")[1]).unit
+             for k, d in ctx.data.items()}
+    box = headline(ctx.metrics, summary, units=units,
+                   warnings_section=titles.index("Warnings") + 1 if "Warnings" in titles
+                   else None)
+    write_report(out, title=f"calnet report: {net.name}", sections=sections,
+                 subtitle=net.description or None, headline=box)
+
+
+def _caption(ctx, key: str) -> str:
+    """What a figure shows, in a sentence (figures are keyed ``"kind name"``)."""
+    kind, _, name = key.partition(" ")
+    d = ctx.data.get(name)
+    observes = d.observes if d is not None else name
+    if kind == "network":
+        return ("The model network: one box per model with its inputs and outputs (measured "
+                "outputs in red); an arrow carries an upstream quantity into a downstream "
+                "input.")
+    if kind == "data":
+        return ("Experimental settings of the data sets: filled markers are the points the "
+                "calibration used, hollow markers the held-out test points.")
+    if kind == "cv":
+        return (f"Surrogate of {name}: k-fold cross-validated GP predictions against the "
+                "simulator's values, with 95 % intervals.")
+    if kind == "posterior":
+        return (f"{name}: posterior of each parameter (histogram and density estimate, "
+                "reflected at the bounds) against its prior over the calibration range; the "
+                "red line is the posterior mode.")
+    if kind == "predictive":
+        return (f"{name}: posterior predictive mean of {observes} with 95 % intervals against "
+                "the measurements; filled markers are training points, hollow markers "
+                "held-out test points.")
+    if kind == "sobol":
+        return (f"{name}: Sobol indices of the predicted {observes} over the data's range of "
+                "process inputs: first-order (S1) and total effect (ST), with 95 % bootstrap "
+                "intervals.")
+    if kind == "map":
+        return (f"{name}: predicted {observes} (posterior predictive mean) over the process "
+                "inputs, with the experimental settings as white markers.")
+    if kind == "process":
+        crit = ctx.network.settings.criteria.get(name)
+        spec = (f"{crit.lower} <= {observes} <= {crit.upper}" if crit else observes)
+        return (f"{name}: probability that {spec} over the process inputs; the black line "
+                "is the 50 % contour.")
+    return key
 
 
 def _sections(ctx, summary) -> list[Section]:
     m, fig = ctx.metrics, ctx.figures
     net = ctx.network
-    pick = lambda prefix: [(p, k) for k, p in fig.items() if k.startswith(prefix)]  # noqa: E731
+    pick = lambda prefix: [(p, _caption(ctx, k)) for k, p in fig.items()  # noqa: E731
+                           if k.startswith(prefix)]
     overview = Section("Network and data", paragraphs=[
         f"Models in topological order: {' -> '.join(net.order)}. Calibration: "
         f"{ctx.post.mode}" + (f", upstream plugged in by {ctx.post.plug}"
                               if ctx.post.mode == "segmented" else "") +
         f". Total wall time {m['timings_s']['total']:.1f} s." +
         (" Quick run: fewer draws, restarts and folds." if ctx.quick else "")],
-        tables=[Table("Data sets", ["data set", "observes", "points", "train", "test"],
+        tables=[Table("Data sets (measured points)",
+                      ["data set", "observes", "points", "training points", "test points"],
                       [[k, d.observes, len(d.y), int((~d.is_test).sum()), int(d.is_test.sum())]
                        for k, d in ctx.data.items()]),
-                Table("Campaigns", ["model", "runs", "excluded", "status"],
-                      [[k, v["n_total"], v["n_excluded"], _statuses(v["status_counts"])]
-                       for k, v in m["campaigns"].items()])],
+                Table("Simulation campaigns (simulator runs per model)",
+                      ["model", "finished runs", "ok runs", "runs not ok (left out)",
+                       "outcomes of the finished runs"],
+                      [[k, v["n_total"], v["n_total"] - v["n_excluded"], v["n_excluded"],
+                        _statuses(v["status_counts"])] for k, v in m["campaigns"].items()])],
         figures=pick("network") + pick("data"))
     sur = Section("Surrogates (k-fold cross-validation)", tables=[Table(
-        "GP surrogates", ["output", "runs", "excluded", "k", "MAPE %", "RMSE", "95% coverage"],
+        "GP surrogates (simulator runs per output)",
+        ["output", "training runs", "runs left out (not ok or non-finite)", "CV folds k",
+         "CV MAPE %", "CV RMSE", "CV 95% coverage"],
         [[k, s["n_runs"], s["n_excluded"], s.get("cv", {}).get("k"),
           fmt(s.get("cv", {}).get("mape")),
           fmt(s.get("cv", {}).get("rmse")), fmt(s.get("cv", {}).get("coverage95"))]
@@ -285,8 +339,8 @@ def _sections(ctx, summary) -> list[Section]:
                 vrows.append([name, f"calnet ({split})", fmt(v[split]["mape"]),
                               fmt(v[split]["se_pred"]), fmt(v[split].get("coverage95"))])
         for base, r in v.get("baselines_test", {}).items():
-            vrows.append([name, f"{base} (test)", fmt(r.get("mape")), fmt(r.get("se_pred")),
-                          fmt(r.get("coverage95"))])
+            vrows.append([name, f"{BASELINES.get(base, base)} (test)", fmt(r.get("mape")),
+                          fmt(r.get("se_pred")), fmt(r.get("coverage95"))])
         loo = v.get("loo", {})
         if "calnet" in loo:
             vrows.append([name, "calnet (leave-one-out)", fmt(loo["calnet"]["mape"]),
@@ -297,8 +351,8 @@ def _sections(ctx, summary) -> list[Section]:
     brows = [[name, src, fmt(share)] for name, v in m["validation"].items()
              for src, share in v["variance_shares"].items()]
     val = Section("Prediction and validation", tables=[
-        Table("Predictive accuracy", ["data set", "predictor", "MAPE %", "SE_pred", "95% coverage"],
-              vrows),
+        Table("Predictive accuracy",
+              ["data set", "predictor", "MAPE %", "RMSE (SE_pred)", "95% coverage"], vrows),
         Table("Uncertainty budget (share of predictive variance, averaged over points)",
               ["data set", "source", "share"], brows)], figures=pick("predictive "))
     srows = []

@@ -28,7 +28,7 @@ import numpy as np
 from calnet.report.network_diagram import network_diagram
 
 __all__ = ["data_grid", "prior_posterior", "prior_posterior_grid", "predictive_vs_observed",
-           "predictive_map", "process_map", "sobol_bars", "network_diagram"]
+           "predictive_map", "process_map", "reflected_kde", "sobol_bars", "network_diagram"]
 
 DPI = 110
 P_LABEL = "laser power P (W)"
@@ -76,7 +76,7 @@ def data_grid(P: Any, v: Any, labels_by_dataset: Mapping[str, Sequence[Any]],
     -------
     Path
     """
-    fig = _figure(6.0, 4.5)
+    fig = _figure(7.2, 4.5)
     ax = fig.add_subplot()
     if P is not None and v is not None:
         ax.scatter(np.asarray(P), np.asarray(v), s=6, c="0.75", label="simulation design",
@@ -93,8 +93,51 @@ def data_grid(P: Any, v: Any, labels_by_dataset: Mapping[str, Sequence[Any]],
                        edgecolors=color, linewidths=1.6, label=f"{name} (test)", zorder=4)
     ax.set(xlabel=p_label, ylabel=v_label, title=title)
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8, loc="best")
+    # beside the axes, never on the points
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0)
     return _save(fig, path)
+
+
+def reflected_kde(samples: Any, lower: float, upper: float, x: Any) -> np.ndarray:
+    """Gaussian KDE of draws confined to ``[lower, upper]``, corrected at the bounds by
+    reflection.
+
+    A plain KDE spreads the mass of draws near a bound beyond it and so drops to about
+    half the true density at the bound. Adding the kernels of the draws mirrored at each
+    bound (Schuster 1985) puts that mass back: ``f(x) = k(x) + k(2 lower - x) +
+    k(2 upper - x)`` with ``k`` the Gaussian KDE of the draws (Scott's bandwidth). Zero
+    outside the bounds; infinite bounds are not reflected.
+
+    Parameters
+    ----------
+    samples : array, shape (n,)
+        Draws inside ``[lower, upper]``.
+    lower, upper : float
+        The bounds (parameter units).
+    x : array, shape (k,)
+        Where to evaluate the density.
+
+    Returns
+    -------
+    ndarray, shape (k,)
+        Density per parameter unit; integrates to 1 over ``[lower, upper]`` up to the
+        mass farther than one bound width beyond a bound.
+
+    Examples
+    --------
+    >>> draws = np.random.default_rng(0).uniform(0.0, 1.0, 5000)
+    >>> bool(abs(reflected_kde(draws, 0.0, 1.0, [0.0])[0] - 1.0) < 0.15)
+    True
+    """
+    from scipy.stats import gaussian_kde
+
+    x = np.asarray(x, float)
+    kde = gaussian_kde(np.asarray(samples, float).ravel())
+    density = kde(x)
+    for bound in (lower, upper):
+        if np.isfinite(bound):
+            density = density + kde(2.0 * bound - x)
+    return np.where((x >= lower) & (x <= upper), density, 0.0)
 
 
 def _draw_prior_posterior(ax: Any, p: Mapping[str, Any], *, legend: bool = True) -> None:
@@ -106,10 +149,9 @@ def _draw_prior_posterior(ax: Any, p: Mapping[str, Any], *, legend: bool = True)
     ax.hist(inside, bins=np.linspace(lower, upper, 31), density=True, color="#9ecae1",
             edgecolor="white", label="posterior")
     if inside.size > 1 and np.ptp(inside) > 0:
-        from scipy.stats import gaussian_kde
-
         xs = np.linspace(lower, upper, 200)
-        ax.plot(xs, gaussian_kde(inside)(xs), color="#08519c", lw=1.5, label="posterior KDE")
+        ax.plot(xs, reflected_kde(inside, lower, upper, xs), color="#08519c", lw=1.5,
+                label="posterior KDE")
     ax.plot(np.asarray(p["prior_pdf_x"], float), np.asarray(p["prior_pdf_y"], float),
             color="0.3", ls="--", lw=1.2, label="prior")
     notes = []
@@ -270,7 +312,9 @@ def _draw_points(ax: Any, points: Any) -> None:
         pts = np.asarray(pts, float).reshape(-1, 2)
         ax.scatter(pts[:, 0], pts[:, 1], s=25, marker=DATASET_MARKERS[k % 9], color="white",
                    edgecolors="k", linewidths=0.8, label=name, zorder=3)
-    ax.legend(fontsize=7, loc="upper right")
+    # under the figure, off the map
+    ax.figure.legend(*ax.get_legend_handles_labels(), fontsize=8, loc="outside lower center",
+                     ncols=4)
 
 
 def predictive_map(P_grid: Any, v_grid: Any, mean_2d: Any, path: str | Path, label: str,

@@ -1,6 +1,7 @@
 """A self-contained HTML report: inline CSS, figures embedded as base64 PNG, no requests.
 
-The report is a title and a list of :class:`Section` objects, each holding paragraphs,
+The report is a title, an optional :class:`Headline` (a box at the top: what a reader
+needs in a minute) and a list of :class:`Section` objects, each holding paragraphs,
 :class:`Table` objects and figures (PNG paths with captions). All text is HTML-escaped,
 so user-provided names (model, parameter and data-set names) are shown verbatim and can
 never inject markup. Numbers in tables are formatted by :func:`fmt`.
@@ -27,6 +28,8 @@ from typing import Any
 
 import numpy as np
 
+from calnet.files import replacing
+
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 CSS = """
@@ -49,6 +52,16 @@ figure { margin: 1.2em 0; }
 figure img { max-width: 100%; height: auto; border: 1px solid #eaeef2; }
 figcaption { color: #57606a; font-size: 0.9em; }
 .missing { color: #b42318; font-style: italic; }
+.headline { border: 2px solid #0b57a4; border-radius: 6px; background: #f5f9fe;
+            padding: 0.2em 1.2em 0.6em; margin: 1em 0 1.5em; line-height: 1.35; }
+.headline h2 { margin: 0.4em 0 0.2em; border-bottom: none; }
+.headline .tables { display: flex; flex-wrap: wrap; column-gap: 2em; align-items: flex-start; }
+.headline table { margin: 0.4em 0; font-size: 0.85em; }
+.headline p { margin: 0.4em 0; }
+.headline ul { margin: 0.3em 0; padding-left: 1.5em; }
+.headline li.warn { color: #8a4b00; }
+.headline li.warn::marker { content: "\\26A0\\FE0E  "; }
+.headline .ok { color: #1a7f37; }
 footer { color: #8c959f; font-size: 0.8em; margin-top: 3em; }
 """
 
@@ -91,6 +104,35 @@ class Section:
         object.__setattr__(self, "paragraphs", tuple(self.paragraphs))
         object.__setattr__(self, "tables", tuple(self.tables))
         object.__setattr__(self, "figures", tuple((Path(p), str(c)) for p, c in self.figures))
+
+
+@dataclass(frozen=True)
+class Headline:
+    """The box at the top of the report.
+
+    Attributes
+    ----------
+    tables : sequence of Table
+        Shown side by side where the page is wide enough.
+    lines : sequence of str
+        Plain-text lines under the tables (e.g. the sampler's diagnostics).
+    warnings : sequence of str
+        The warnings that matter, one bullet each; none gives a line "No warnings".
+    more : str, optional
+        A closing line (e.g. where the rest of the warnings are).
+    title : str
+        The box's heading.
+    """
+
+    tables: Sequence[Table] = field(default_factory=tuple)
+    lines: Sequence[str] = field(default_factory=tuple)
+    warnings: Sequence[str] = field(default_factory=tuple)
+    more: str | None = None
+    title: str = "At a glance"
+
+    def __post_init__(self) -> None:
+        for name in ("tables", "lines", "warnings"):
+            object.__setattr__(self, name, tuple(getattr(self, name)))
 
 
 def fmt(x: Any, digits: int = 4) -> str:
@@ -166,23 +208,41 @@ def _section_html(index: int, section: Section) -> str:
     return "\n".join(parts)
 
 
+def _headline_html(box: Headline) -> str:
+    parts = ['<section class="headline" id="headline">', f"<h2>{escape(box.title)}</h2>"]
+    if box.tables:
+        parts += ['<div class="tables">'] + [_table_html(t) for t in box.tables] + ["</div>"]
+    parts += [f"<p>{escape(line)}</p>" for line in box.lines]
+    if box.warnings:
+        parts += ["<ul>"] + [f'<li class="warn">{escape(w)}</li>' for w in box.warnings]
+        parts.append("</ul>")
+    else:
+        parts.append('<p class="ok">No warnings.</p>')
+    if box.more:
+        parts.append(f"<p>{escape(box.more)}</p>")
+    parts.append("</section>")
+    return "\n".join(parts)
+
+
 def render_report(*, title: str, sections: Sequence[Section], subtitle: str | None = None,
-                  footer: str | None = None) -> str:
+                  footer: str | None = None, headline: Headline | None = None) -> str:
     """The report as one HTML string (see :func:`write_report`)."""
     toc = "\n".join(f'<li><a href="#s{i}">{escape(s.title)}</a></li>'
                     for i, s in enumerate(sections, start=1))
     body = "\n".join(_section_html(i, s) for i, s in enumerate(sections, start=1))
     sub = f'<p class="subtitle">{escape(subtitle)}</p>' if subtitle else ""
     foot = f"<footer>{escape(footer)}</footer>" if footer else ""
+    head = _headline_html(headline) if headline is not None else ""
     return (f'<!DOCTYPE html>\n<html lang="en">\n<head>\n<meta charset="utf-8">\n'
             f'<meta name="viewport" content="width=device-width, initial-scale=1">\n'
             f"<title>{escape(title)}</title>\n<style>{CSS}</style>\n</head>\n<body>\n<main>\n"
-            f"<h1>{escape(title)}</h1>\n{sub}\n<nav><ol>\n{toc}\n</ol></nav>\n{body}\n{foot}\n"
+            f"<h1>{escape(title)}</h1>\n{sub}\n{head}\n<nav><ol>\n{toc}\n</ol></nav>\n{body}\n{foot}\n"
             f"</main>\n</body>\n</html>\n")
 
 
 def write_report(out_dir: str | Path, *, title: str, sections: Sequence[Section],
-                 subtitle: str | None = None, footer: str | None = None) -> Path:
+                 subtitle: str | None = None, footer: str | None = None,
+                 headline: Headline | None = None) -> Path:
     """Write ``out_dir/report.html``, a single self-contained file.
 
     Parameters
@@ -195,6 +255,8 @@ def write_report(out_dir: str | Path, *, title: str, sections: Sequence[Section]
         The sections, in order; a numbered table of contents links to them.
     subtitle, footer : str, optional
         A line under the title (e.g. the network and data) and a footer (e.g. versions).
+    headline : Headline, optional
+        A box between the title and the table of contents.
 
     Returns
     -------
@@ -205,6 +267,8 @@ def write_report(out_dir: str | Path, *, title: str, sections: Sequence[Section]
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     path = out / "report.html"
-    path.write_text(render_report(title=title, sections=sections, subtitle=subtitle,
-                                  footer=footer), encoding="utf-8")
+    text = render_report(title=title, sections=sections, subtitle=subtitle, footer=footer,
+                         headline=headline)
+    with replacing(path) as tmp:
+        tmp.write_text(text, encoding="utf-8")
     return path

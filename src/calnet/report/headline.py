@@ -1,0 +1,187 @@
+"""The box at the top of the report: estimates, prediction error and warnings, one screen.
+
+Built from what the stages computed (the posterior summary and ``metrics.json``'s
+``calibration``, ``validation`` and ``warnings`` entries); nothing is recomputed here.
+
+Examples
+--------
+>>> summary = {"M": {"parameters": {"k": {"unit": "W", "mean": 2.0, "q2.5": 1.5,
+...                                       "q97.5": 2.5}},
+...                  "max_rhat": 1.002, "min_ess_bulk": 900.0, "divergences": 0,
+...                  "stage": "M"}}
+>>> box = headline({"calibration": {"mode": "joint"}, "validation": {}, "warnings": []},
+...                summary)
+>>> box.tables[0].rows
+(('M.k', 2.0, '[1.5, 2.5]', 'W'),)
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Mapping
+from typing import Any
+
+from calnet.calibration.diagnostics import ESS_MIN, RHAT_MAX
+from calnet.report.html import Headline, Table, fmt
+
+#: bullets in the box; the rest are counted and left to the Warnings section
+MAX_WARNINGS = 6
+#: the sampler's convergence warnings (diagnostics.convergence_problems), shown here as
+#: one line per stage instead
+_CONVERGENCE = re.compile(r"R-hat [\d.]+ > |bulk ESS \d+ < |\d+ divergent transitions")
+BASELINES = {"training_mean": "training mean", "power_law": "power law",
+             "direct_gp": "direct GP"}
+
+
+def headline(metrics: Mapping[str, Any], summary: Mapping[str, Any], *,
+             units: Mapping[str, str] | None = None,
+             warnings_section: int | None = None) -> Headline:
+    """The report's headline box.
+
+    Parameters
+    ----------
+    metrics : dict
+        The run's metrics: ``calibration`` (mode, notes, surrogate checks),
+        ``validation`` (per data set: test, leave-one-out and baseline errors) and
+        ``warnings`` (every warning of the run).
+    summary : dict
+        :func:`calnet.report.build.posterior_summary`.
+    units : dict, optional
+        ``{data set: unit of its observed output}``, for the RMSE column.
+    warnings_section : int, optional
+        Number of the report's Warnings section, named in the closing line.
+
+    Returns
+    -------
+    Headline
+    """
+    tables = [_parameter_table(summary),
+              _error_table(metrics.get("validation", {}), units or {})]
+    warnings = _warnings(metrics, summary)
+    shown = warnings[:MAX_WARNINGS]
+    more = None
+    if warnings_section is not None and metrics.get("warnings"):
+        hidden = len(warnings) - len(shown)
+        more = ((f"{hidden} more not shown here. " if hidden else "")
+                + f"The run's {len(metrics['warnings'])} warning(s) in full: section "
+                f"{warnings_section}.")
+    return Headline(tables=[t for t in tables if t.rows],
+                    lines=_lines(metrics, summary), warnings=shown, more=more)
+
+
+def _unit(unit: str | None) -> str:
+    return "" if unit in (None, "", "1") else str(unit)
+
+
+def _parameter_table(summary: Mapping[str, Any]) -> Table:
+    """One row per calibrated parameter: posterior mean and central 95 % interval."""
+    rows, seen = [], set()
+    for model, s in summary.items():
+        for name, r in s.get("parameters", {}).items():
+            label = name if r.get("shared") else f"{model}.{name}"
+            if label in seen:
+                continue
+            seen.add(label)
+            if r.get("shared"):
+                label += " (shared)"
+            if r.get("plugged"):
+                label += " (plugged in)"
+            rows.append([label, r["mean"], f"[{fmt(r['q2.5'])}, {fmt(r['q97.5'])}]",
+                         _unit(r.get("unit"))])
+    return Table("Calibrated parameters", ["parameter", "posterior mean", "95 % interval",
+                                           "unit"], rows)
+
+
+def _cell(m: Mapping[str, Any] | None) -> str:
+    """``"12.9 (12.3 %)"``: RMSE and MAPE of one predictor (RMSE alone where the metrics
+    hold no MAPE, e.g. for outputs near zero)."""
+    if not m:
+        return fmt(None)
+    if "error" in m:
+        return "failed"
+    rmse = fmt(m.get("rmse"), 3)
+    return rmse if m.get("mape") is None else f"{rmse} ({fmt(m['mape'], 3)} %)"
+
+
+def _error_table(validation: Mapping[str, Any], units: Mapping[str, str]) -> Table:
+    """Per data set, calnet's prediction error beside the baselines' on the same points:
+    held-out test points where the data set has them, else leave-one-out."""
+    used = [b for b in BASELINES if any(b in v.get("baselines_test", {}) or
+                                        b in v.get("loo", {}) for v in validation.values())]
+    rows = []
+    for name, v in validation.items():
+        loo = v.get("loo", {})
+        if "test" in v:
+            where, calnet, base = (f"{v['test']['n']} held-out points", v["test"],
+                                   v.get("baselines_test", {}))
+        elif "calnet" in loo:
+            where, calnet = f"leave-one-out, {loo['calnet']['n']} points", loo["calnet"]
+            base = {b: loo[b] for b in used if b in loo}
+        else:
+            where, calnet, base = f"{v['train']['n']} training points (no test)", v["train"], {}
+        rows.append([name, where, _unit(units.get(name)), _cell(calnet)]
+                    + [_cell(base.get(b)) for b in used])
+    return Table("Prediction error: RMSE (MAPE)",
+                 ["data set", "evaluated on", "unit", "calnet"] + [BASELINES[b] for b in used],
+                 rows)
+
+
+def _stages(summary: Mapping[str, Any]) -> dict[str, Mapping[str, Any]]:
+    """One entry per sampling stage (models sampled together share their diagnostics)."""
+    return {s["stage"]: s for s in summary.values() if not s.get("prior_only")}
+
+
+def _lines(metrics: Mapping[str, Any], summary: Mapping[str, Any]) -> list[str]:
+    cal = metrics.get("calibration", {})
+    calibrated = [m for m, s in summary.items() if not s.get("prior_only")]
+    prior = [m for m, s in summary.items() if s.get("prior_only")]
+    lines = [f"Calibration: {cal.get('mode', '?')}, {len(calibrated)} model(s) with data"
+             + (f"; at their prior (no data): {', '.join(prior)}" if prior else "")
+             + "." + (" Quick run: fewer draws, restarts and folds." if metrics.get("quick")
+                      else "")]
+    stages = _stages(summary)
+    if stages:
+        rhat = max(s["max_rhat"] for s in stages.values())
+        ess = min(s["min_ess_bulk"] for s in stages.values())
+        div = sum(s["divergences"] for s in stages.values())
+        ok = rhat <= RHAT_MAX and ess >= ESS_MIN and div == 0
+        lines.append(f"Sampler: max R-hat {rhat:.3f} (limit {RHAT_MAX}), min bulk ESS "
+                     f"{ess:.0f} (limit {ESS_MIN}), {div} divergent transitions: "
+                     + ("within the limits." if ok else "see the warnings."))
+    return lines
+
+
+def _surrogate_warning(name: str, check: Mapping[str, Any]) -> str:
+    worst = max(check["surrogate_sd"], key=check["surrogate_sd"].get)
+    model = worst.split(".")[0]
+    return (f"{name}: the surrogate, not the data, sets the answer (surrogate sd "
+            f"{check['ratio']:.2g} x the data's noise and discrepancy sd, mostly {worst}); "
+            f"about {check['runs_needed'][worst]} runs of '{model}' (now "
+            f"{check['runs'][worst]}) would fix that.")
+
+
+def _sampler_warning(stage: str, s: Mapping[str, Any]) -> str | None:
+    problems = []
+    if s["max_rhat"] > RHAT_MAX:
+        problems.append(f"max R-hat {s['max_rhat']:.3f} > {RHAT_MAX}")
+    if s["min_ess_bulk"] < ESS_MIN:
+        problems.append(f"min bulk ESS {s['min_ess_bulk']:.0f} < {ESS_MIN}")
+    if s["divergences"]:
+        problems.append(f"{s['divergences']} divergent transitions")
+    if not problems:
+        return None
+    return f"{stage}: the sampler has not converged ({', '.join(problems)}); run more draws."
+
+
+def _warnings(metrics: Mapping[str, Any], summary: Mapping[str, Any]) -> list[str]:
+    """Surrogate checks, then sampler problems, calibration notes and the other warnings."""
+    cal = metrics.get("calibration", {})
+    checks = {k: c for k, c in cal.get("surrogate_check", {}).items() if c.get("warning")}
+    notes = list(cal.get("notes", []))
+    out = [_surrogate_warning(k, c) for k, c in checks.items()]
+    out += [w for w in (_sampler_warning(k, s) for k, s in _stages(summary).items()) if w]
+    out += notes
+    known = {c["warning"] for c in checks.values()} | set(notes)
+    out += [w for w in metrics.get("warnings", [])
+            if w not in known and not _CONVERGENCE.search(w)]
+    return out

@@ -1,0 +1,76 @@
+"""The headline box: estimates, prediction error against the baselines, the warnings
+that matter."""
+
+from report_inputs import BOUND, ESS, RHAT
+from report_inputs import metrics as _metrics
+from report_inputs import summary as _summary
+
+from calnet.report import Headline, Section, write_report
+from calnet.report.headline import MAX_WARNINGS, headline
+
+
+def test_parameters_show_mean_and_interval_with_units():
+    box = headline(_metrics(), _summary())
+    params = box.tables[0]
+    assert params.header == ("parameter", "posterior mean", "95 % interval", "unit")
+    assert params.rows == (("thermal.a", 1.2, "[1.1, 1.3]", "W"),
+                           ("s (shared)", 5.0, "[4, 6]", ""),  # once; no unit "1"
+                           ("micro.b", 0.8, "[0.7, 0.9]", "um"))
+    assert "at their prior (no data): extra" in box.lines[0]
+
+
+def test_prediction_error_against_the_baselines_on_the_same_points():
+    box = headline(_metrics(), _summary(), units={"width": "um", "hard": "HV"})
+    err = box.tables[1]
+    assert err.header == ("data set", "evaluated on", "unit", "calnet", "training mean",
+                          "direct GP")  # only the baselines the run has
+    rows = {r[0]: r for r in err.rows}
+    assert rows["width"] == ("width", "10 held-out points", "um", "12.9 (12.3 %)",
+                             "44.1 (38.8 %)", "failed")
+    # no test split: leave-one-out, against the training mean left out the same way
+    assert rows["hard"] == ("hard", "leave-one-out, 8 points", "HV", "2.06 (0.762 %)",
+                            "23.6 (10.4 %)", "\u2013")
+    assert rows["tiny"][1:4] == ("3 training points (no test)", "", "0.1 (1 %)")
+    m = _metrics()
+    m["validation"]["width"]["test"]["mape"] = None  # not meaningful: RMSE alone
+    assert headline(m, _summary()).tables[1].rows[0][3] == "12.9"
+
+
+def test_warnings_that_matter_come_first_and_convergence_reads_once():
+    box = headline(_metrics([RHAT, ESS, BOUND]), _summary(rhat=1.018, ess=178.0,
+                                                          divergences=3),
+                   warnings_section=7)
+    assert box.warnings[0].startswith("pdas: the surrogate, not the data, sets the answer")
+    assert "mostly micro.lam" in box.warnings[0] and "552 runs of 'micro' (now 30)" in (
+        box.warnings[0])
+    assert box.warnings[1] == ("micro: the sampler has not converged (max R-hat 1.018 > "
+                               "1.01, min bulk ESS 178 < 400, 3 divergent transitions); "
+                               "run more draws.")
+    assert box.warnings[2:] == (BOUND,)  # the sampler's own messages are not repeated
+    assert "see the warnings" in box.lines[1] and "3 divergent" in box.lines[1]
+    assert box.more == "The run's 4 warning(s) in full: section 7."
+
+
+def test_clean_run_says_so_and_long_lists_are_cut():
+    box = headline({**_metrics(), "warnings": [],
+                    "calibration": {"mode": "joint", "surrogate_check": {}, "notes": []}},
+                   _summary())
+    assert box.warnings == () and box.more is None
+    assert box.lines[1].endswith("within the limits.")
+    many = [f"other warning {i}" for i in range(10)]
+    box = headline(_metrics(many), _summary(), warnings_section=5)
+    assert len(box.warnings) == MAX_WARNINGS
+    assert box.more.startswith(f"{11 - MAX_WARNINGS} more not shown here.")
+
+
+def test_headline_box_is_rendered_first(tmp_path):
+    box = headline(_metrics([BOUND, "<b>x</b>"]), _summary(), warnings_section=2)
+    html = write_report(tmp_path, title="t", headline=box,
+                        sections=[Section("A"), Section("Warnings")]).read_text()
+    assert html.index('id="headline"') < html.index("<nav>") < html.index('id="s1"')
+    assert "Calibrated parameters" in html and "Prediction error: RMSE (MAPE)" in html
+    assert '<li class="warn">&lt;b&gt;x&lt;/b&gt;</li>' in html
+    clean = write_report(tmp_path / "c", title="t", sections=[], headline=Headline())
+    assert '<p class="ok">No warnings.</p>' in clean.read_text()
+    assert 'id="headline"' not in write_report(tmp_path / "n", title="t",
+                                               sections=[]).read_text()
