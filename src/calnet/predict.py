@@ -351,7 +351,7 @@ def metrics(y: np.ndarray, mean: np.ndarray, lower: np.ndarray | None = None,
     rmse = float(np.sqrt(np.mean((y - mean) ** 2)))
     spread = float(np.ptp(y)) if len(y) > 1 else 0.0
     out: dict[str, float | None] = {
-        "n": int(len(y)), "rmse": rmse, "se_pred": rmse,
+        "n": int(len(y)), "rmse": rmse,
         "nrmse": rmse / spread if spread > 0 else None,
         "mape": (float(np.mean(np.abs(y - mean) / np.abs(y)) * 100)
                  if mape_meaningful(y) else None)}

@@ -46,9 +46,12 @@ def test_quick_run_on_the_case_study(tmp_path):
     for ds, n_test in (("width", 10), ("pdas", 3)):
         v = m["validation"][ds]
         assert v["test"]["n"] == n_test
-        assert {"mape", "se_pred", "rmse", "coverage95"} <= set(v["test"])
+        assert {"mape", "rmse", "nrmse", "crps", "coverage95"} <= set(v["test"])
         assert {"training_mean", "direct_gp"} <= set(v["baselines_test"])
-    assert "calnet" in m["validation"]["pdas"]["loo"]
+    for ds in ("width", "pdas"):  # PSIS-LOO for every data set, with its checks
+        loo = m["validation"][ds]["loo"]
+        assert loo["method"] == "psis" and len(loo["pareto_k"]) == loo["calnet"]["n"]
+        assert {"elpd_loo", "elpd_se", "pit", "pit_check"} <= set(loo)
     assert set(m["sensitivity"]["pdas"]["indices"]["names"]) == {"P", "v"}
     res = CliRunner().invoke(app, ["predict", str(work), "--run", str(out), "--at",
                                    "P=200,v=0.5", "--json"])

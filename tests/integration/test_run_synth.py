@@ -38,7 +38,7 @@ def test_quick_run_on_three_model_network(tmp_path, monkeypatch):
         assert key in m, key
     assert set(m["surrogates"]) == {"thermal.W", "thermal.G", "micro.lam", "hardness.H"}
     for ds in ("width", "pdas"):
-        assert {"mape", "se_pred", "coverage95"} <= set(m["validation"][ds]["test"])
+        assert {"mape", "rmse", "nrmse", "crps", "coverage95"} <= set(m["validation"][ds]["test"])
         assert "training_mean" in m["validation"][ds]["baselines_test"]
     assert "calnet" in m["validation"]["hard"]["loo"]
     # the true parameters (a 1.2, b 0.8, c 2.0) lie in the 95 % intervals

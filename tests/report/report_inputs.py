@@ -28,7 +28,7 @@ def summary(rhat=1.002, ess=900.0, divergences=0):
 
 
 def metrics(warnings=()):
-    err = lambda rmse, mape, n: {"rmse": rmse, "se_pred": rmse, "mape": mape, "n": n}  # noqa: E731
+    err = lambda rmse, mape, n: {"rmse": rmse, "mape": mape, "n": n}  # noqa: E731
     return {
         "quick": False,
         "calibration": {"mode": "segmented", "notes": [],

@@ -231,6 +231,11 @@ def write_outputs(ctx) -> None:
         fig[f"predictive {name}"] = figures.predictive_vs_observed(
             d.y, p.mean, p.lower, p.upper, d.is_test, out / "figures" / f"predictive_{name}.png",
             d.observes, unit)
+        v = ctx.metrics.get("validation", {}).get(name, {})
+        if "pit" in v:
+            fig[f"pit {name}"] = figures.pit_histogram(
+                v.get("loo", {}).get("pit", []), v["pit"], out / "figures" / f"pit_{name}.png",
+                f"Predictive check: {d.observes}")
     write_metrics(out / "metrics.json", ctx.metrics)
     write_posterior_csv(out / "posterior", ctx.post.theta, summary)
     sections = _sections(ctx, summary)
@@ -267,6 +272,11 @@ def _caption(ctx, key: str) -> str:
         return (f"{name}: posterior predictive mean of {observes} with 95 % intervals against "
                 "the measurements; filled markers are training points, hollow markers "
                 "held-out test points.")
+    if kind == "pit":
+        return (f"{name}: where each measurement of {observes} falls in its predictive "
+                "distribution (PIT), left out (leave-one-out) and in-sample; a calibrated "
+                "model gives a flat histogram, a U shape means intervals too narrow, a hump "
+                "too wide, a slope a bias.")
     if kind == "sobol":
         return (f"{name}: Sobol indices of the predicted {observes} over the data's range of "
                 "process inputs: first-order (S1) and total effect (ST), with 95 % bootstrap "
@@ -332,29 +342,60 @@ def _sections(ctx, summary) -> list[Section]:
         Table("Sampler diagnostics (all sampled variables)",
               ["model", "divergences", "max R-hat", "min bulk ESS"], diag)],
         figures=pick("posterior "))
-    vrows = []
+    vrows, lrows = [], []
+
+    def row(name, predictor, r):
+        return [name, predictor, fmt(r.get("rmse")), fmt(r.get("nrmse")), fmt(r.get("mape")),
+                fmt(r.get("crps")), fmt(r.get("coverage95"))]
+
     for name, v in m["validation"].items():
         for split in ("train", "test"):
             if split in v:
-                vrows.append([name, f"calnet ({split})", fmt(v[split]["mape"]),
-                              fmt(v[split]["se_pred"]), fmt(v[split].get("coverage95"))])
+                vrows.append(row(name, f"calnet ({split})", v[split]))
         for base, r in v.get("baselines_test", {}).items():
-            vrows.append([name, f"{BASELINES.get(base, base)} (test)", fmt(r.get("mape")),
-                          fmt(r.get("se_pred")), fmt(r.get("coverage95"))])
+            vrows.append(row(name, f"{BASELINES.get(base, base)} (test)", r))
         loo = v.get("loo", {})
         if "calnet" in loo:
-            vrows.append([name, "calnet (leave-one-out)", fmt(loo["calnet"]["mape"]),
-                          fmt(loo["calnet"]["se_pred"]), fmt(loo["calnet"].get("coverage95"))])
-            vrows.append([name, "training mean (leave-one-out)",
-                          fmt(loo["training_mean"]["mape"]),
-                          fmt(loo["training_mean"]["se_pred"]), ""])
+            vrows.append(row(name, "calnet (leave-one-out)", loo["calnet"]))
+            vrows.append(row(name, "training mean (leave-one-out)", loo["training_mean"]))
+        if "elpd_loo" in loo:
+            k = np.asarray(loo["pareto_k"])
+            check = loo["pit_check"]
+            c = loo["calnet"]
+            lrows.append([
+                name, len(k), f"{fmt(loo['elpd_loo'])} ± {fmt(loo['elpd_se'])}",
+                fmt(loo["p_loo"]), fmt(float(k.max())),
+                f"{int(np.sum(k > loo['k_max']))} / {len(loo['refit'])} / "
+                f"{loo['n_unreliable']}",
+                " / ".join(fmt(c.get(f"pit_coverage{q}")) for q in (50, 80, 95)),
+                ("flagged" if check["flagged"] else "ok")
+                + f" (p = {fmt(min(check['ks_pvalue'], check['outside_pvalue']))})"])
     brows = [[name, src, fmt(share)] for name, v in m["validation"].items()
              for src, share in v["variance_shares"].items()]
-    val = Section("Prediction and validation", tables=[
-        Table("Predictive accuracy",
-              ["data set", "predictor", "MAPE %", "RMSE (SE_pred)", "95% coverage"], vrows),
-        Table("Uncertainty budget (share of predictive variance, averaged over points)",
-              ["data set", "source", "share"], brows)], figures=pick("predictive "))
+    tables = [
+        Table("Predictive accuracy (NRMSE = RMSE / range of the measurements; MAPE only "
+              "where the measurements stay away from zero; CRPS in the output's unit)",
+              ["data set", "predictor", "RMSE", "NRMSE", "MAPE %", "CRPS", "95% coverage"],
+              vrows)]
+    if lrows:
+        tables.append(Table(
+            "Leave-one-out by Pareto-smoothed importance sampling: ELPD on the modelled "
+            "scale; points with Pareto k > 0.7 are re-calibrated without the point",
+            ["data set", "points", "ELPD ± se", "p_loo", "max k", "k > 0.7 / refitted / "
+             "unreliable", "LOO coverage 50 / 80 / 95 %", "calibration (PIT)"], lrows))
+    for name, cmp in m.get("comparison", {}).items():
+        tables.append(Table(
+            f"{name}: the spec's discrepancy against variants, by leave-one-out (ELPD "
+            "difference to the best, its standard error, stacking weight)",
+            ["model", "ELPD", "difference", "se of difference", "weight", "max k"],
+            [[variant, fmt(r["elpd_loo"]), fmt(r["elpd_diff"]), fmt(r["dse"]),
+              fmt(r["weight"]), fmt(r["max_pareto_k"])] for variant, r in cmp.items()]))
+    tables.append(Table(
+        "Uncertainty budget (share of predictive variance, averaged over points; the "
+        "discrepancy's share is what the model itself does not explain)",
+        ["data set", "source", "share"], brows))
+    val = Section("Prediction and validation", tables=tables,
+                  figures=pick("predictive ") + pick("pit "))
     srows = []
     for name, s in m["sensitivity"].items():
         ind, sp = s["indices"], s["over_draws"]

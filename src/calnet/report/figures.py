@@ -424,3 +424,37 @@ def sobol_bars(names: Sequence[str], S1: Any, S1_conf: Any, ST: Any, ST_conf: An
     ax.grid(axis="y", alpha=0.3)
     ax.legend(fontsize=8)
     return _save(fig, path)
+
+
+def pit_histogram(pit_loo: Any, pit_post: Any, path: str | Path, title: str,
+                  bins: int = 10) -> Path:
+    """Posterior predictive check: histograms of the leave-one-out and the in-sample PIT
+    values, with the uniform density a calibrated predictive gives.
+
+    Parameters
+    ----------
+    pit_loo, pit_post : array, shape (n,) and (m,)
+        PIT values in [0, 1] (``pit_loo`` may be empty).
+    path : str or Path
+        Destination PNG.
+    title : str
+
+    Returns
+    -------
+    Path
+    """
+    fig = _figure(4.6, 3.2)
+    ax = fig.add_subplot()
+    edges = np.linspace(0.0, 1.0, bins + 1)
+    for values, label, color, alpha in ((pit_post, "posterior predictive", "#9ecae1", 0.9),
+                                        (pit_loo, "leave-one-out", "#08519c", 0.6)):
+        values = np.asarray(values, float)
+        if len(values):
+            ax.hist(values, bins=edges, density=True, color=color, alpha=alpha,
+                    edgecolor="k", lw=0.5, label=f"{label} ({len(values)} points)")
+    ax.axhline(1.0, color="k", ls="--", lw=1, label="calibrated (uniform)")
+    ax.set(xlim=(0, 1), xlabel="PIT: predictive probability below the measurement",
+           ylabel="density", title=title)
+    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.22), ncol=2,
+              frameon=False)
+    return _save(fig, path)

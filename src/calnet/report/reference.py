@@ -22,7 +22,7 @@ def reference_rows(ctx, summary) -> list[list[str]]:
     v = ctx.metrics.get("validation", {}).get("pdas", {})
     if "test" in v:
         rows.append(["PDAS test MAPE %", fmt(PDAS_TEST_MAPE), fmt(v["test"]["mape"])])
-        rows.append(["PDAS test SE_pred (um)", fmt(PDAS_TEST_SE), fmt(v["test"]["se_pred"])])
+        rows.append(["PDAS test SE_pred = RMSE (um)", fmt(PDAS_TEST_SE), fmt(v["test"]["rmse"])])
         base = v.get("baselines_test", {}).get("training_mean", {})
         if base:
             rows.append(["PDAS test MAPE %, training-mean baseline", "6.9", fmt(base["mape"])])
