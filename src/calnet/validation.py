@@ -85,9 +85,11 @@ def psis_loo(network: Network, surrogates: Surrogates, posterior: NetworkPosteri
     ``elpd_loo``, ``elpd_se``, ``p_loo`` (modelled scale), ``pareto_k`` per point,
     ``refit`` (indices refitted exactly) and ``method``.
     """
-    import arviz as az
     from scipy.special import logsumexp
 
+    from calnet.calibration.diagnostics import import_arviz
+
+    az = import_arviz()
     full = posterior.data[dataset]
     cond = loo_conditionals(network, surrogates, posterior, dataset)
     S, n = cond.loglik.shape

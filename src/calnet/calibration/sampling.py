@@ -42,6 +42,7 @@ import numpy as np  # noqa: E402
 from blackjax.adaptation.base import get_filter_adapt_info_fn  # noqa: E402
 from blackjax.mcmc import nuts  # noqa: E402
 
+from calnet.calibration.diagnostics import import_arviz  # noqa: E402
 from calnet.calibration.koh import check_initial  # noqa: E402
 from calnet.errors import CalibrationError  # noqa: E402
 
@@ -310,7 +311,7 @@ def sample_nuts(
     CalibrationError
         Bad settings, or a non-finite log-density or gradient at the initial points.
     """
-    import arviz as az
+    az = import_arviz()
 
     _check_settings(num_chains, num_warmup, num_draws, thin, target_accept, max_tree_depth)
     method, groups = _resolve_method(chain_method, num_chains)
