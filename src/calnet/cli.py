@@ -11,8 +11,10 @@ import inspect
 import json
 import os
 import sys
+import time
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
@@ -147,6 +149,24 @@ def user_errors(func: Callable[..., Any]) -> Callable[..., Any]:
     return wrapper
 
 
+@contextmanager
+def _working(what: str) -> Iterator[Callable[[str], None]]:
+    """Yields ``note(text)``: a spinner showing the latest note on a terminal; elsewhere
+    (a pipe, a log file) plain lines on stderr: the start, each note, ``done in N s``."""
+    if console.is_terminal:
+        with console.status(what) as status:
+            yield lambda text: status.update(f"{what}: {text}")
+        return
+
+    def say(text: str) -> None:
+        err_console.print(text, markup=False, highlight=False, soft_wrap=True)
+
+    t0 = time.perf_counter()
+    say(f"{what} ...")
+    yield lambda text: say(f"{what}: {text}")
+    say(f"{what}: done in {time.perf_counter() - t0:.1f} s")
+
+
 def _show_warnings(caught: list[warnings.WarningMessage]) -> None:
     seen = set()
     for w in caught:
@@ -275,9 +295,8 @@ def surrogates(
 
     network = load_spec(spec)
     out.mkdir(parents=True, exist_ok=True)  # a bad --out fails now, not after the fits
-    with console.status("fitting surrogates") as status:
-        sur = fit_surrogates(network, cv=not no_cv,
-                             progress=lambda m: status.update(f"fitting {m}"))
+    with _working("fitting surrogates") as note:
+        sur = fit_surrogates(network, cv=not no_cv, progress=note)
     sur.save(out)
     table = Table("output", "runs", "excluded", "k", "MAPE %", "RMSE", "95% coverage")
     for key, s in sur.items.items():
@@ -323,9 +342,8 @@ def calibrate(
     network = load_spec(spec)
     sur = Surrogates.load(surrogates_dir)
     out.mkdir(parents=True, exist_ok=True)  # a bad --out fails now, not after sampling
-    with console.status("sampling") as status:
-        post = run_calibration(network, sur, mode=mode, plug=plug,
-                               progress=lambda m: status.update(m))
+    with _working("calibrating") as note:
+        post = run_calibration(network, sur, mode=mode, plug=plug, progress=note)
     save_posterior(post, out)
     summary = posterior_summary(network, post)
     doc = {**summary, "surrogate_check": {c.dataset: c.to_dict() for c in post.checks}}
@@ -519,9 +537,9 @@ def verify(
     post = load_posterior(run_dir / "posterior", network)
     sur = Surrogates.load(sur_dir)
     seed = network.settings.seed if seed is None else seed
-    with console.status("running the simulators") as status:
+    with _working("running the simulators") as note:
         result = run_verify(network, sur, post, k=k, seed=seed, workdir=run_dir / "verify",
-                            progress=lambda m: status.update(m))
+                            progress=note)
     doc = json.dumps(result.to_dict(), indent=1, default=_json_default)
     (run_dir / "verify.json").write_text(doc)
     if as_json:

@@ -8,11 +8,13 @@ from __future__ import annotations
 
 import time
 import warnings
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 from rich.console import Console
-from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.progress import BarColumn, Progress, TaskID, TextColumn, TimeElapsedColumn
 
 from calnet.errors import CalibrationWarning, CalnetError
 from calnet.spec import Network, load_spec, read_all
@@ -37,6 +39,11 @@ def run_pipeline(spec: str | Path, *, out: Path, fresh: bool = False, quick: boo
         Re-simulate into ``out/campaigns`` instead of using the stores beside the spec.
     quick : bool
         Fewer draws, restarts and folds: a fast look (used by the tests).
+    console : rich.console.Console, optional
+        Where the progress bar and the closing line go. When it is not a terminal,
+        progress goes to stderr as plain lines instead: each stage's start, its notes
+        (the model or data set at work, sampling every 10 s, leave-one-out refits...)
+        and its end with the seconds it took.
     loo_max : int, optional
         Most points per data set whose leave-one-out is re-calibrated exactly where PSIS
         is unreliable (Pareto k > 0.7; default 15, 12 with ``quick``).
@@ -55,29 +62,71 @@ def run_pipeline(spec: str | Path, *, out: Path, fresh: bool = False, quick: boo
     timings: dict[str, float] = {}
     ctx = _Context(network, out, quick, fresh, loo_max if loo_max is not None
                    else (12 if quick else 15))
-    columns = (TextColumn("[bold]{task.description}"), BarColumn(),
-               TextColumn("{task.fields[note]}"), TimeElapsedColumn())
-    with Progress(*columns, console=console, transient=False) as bar:
-        task = bar.add_task("calnet run", total=len(STAGES), note="")
-        for stage in STAGES:
-            bar.update(task, description=f"{stage}", note="")
+    ctx.metrics["timings_s"] = timings
+    with _display(console) as show:
+        for i, stage in enumerate(STAGES):
+            show.start(stage, i)
             t0 = time.perf_counter()
             with warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("always", CalibrationWarning)
-                getattr(ctx, stage)(lambda note: bar.update(task, note=note))
+                getattr(ctx, stage)(show.note)
             ctx.warnings += [str(w.message) for w in caught]
             for w in caught:
                 warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
             timings[stage] = round(time.perf_counter() - t0, 2)
-            bar.advance(task)
-    timings["total"] = round(time.perf_counter() - t_start, 2)
-    ctx.metrics["timings_s"] = timings
-    from calnet.report.build import write_outputs
-
-    write_outputs(ctx)
+            timings["total"] = round(time.perf_counter() - t_start, 2)  # so far
+            show.done(stage, timings[stage])
     console.print(f"report: {out / 'report.html'}  metrics: {out / 'metrics.json'}  "
-                  f"total wall time {timings['total']:.1f} s")
+                  f"total wall time {timings['total']:.1f} s", soft_wrap=True)
     return ctx.metrics
+
+
+@contextmanager
+def _display(console: Console) -> Iterator[_Bar | _Lines]:
+    """A Rich bar over the stages on a terminal, plain lines on stderr anywhere else."""
+    if not console.is_terminal:
+        yield _Lines(Console(stderr=True))
+        return
+    columns = (TextColumn("[bold]{task.description}"), BarColumn(),
+               TextColumn("{task.fields[note]}"), TimeElapsedColumn())
+    with Progress(*columns, console=console, transient=False) as bar:
+        yield _Bar(bar, bar.add_task("calnet run", total=len(STAGES), note=""))
+
+
+class _Bar:
+    """Stage progress on one Rich bar; a stage's notes replace each other beside it."""
+
+    def __init__(self, bar: Progress, task: TaskID):
+        self.bar, self.task = bar, task
+
+    def start(self, stage: str, index: int) -> None:
+        self.bar.update(self.task, description=stage, note="")
+
+    def note(self, text: str) -> None:
+        self.bar.update(self.task, note=text)
+
+    def done(self, stage: str, seconds: float) -> None:
+        self.bar.advance(self.task)
+
+
+class _Lines:
+    """Stage progress as plain lines (a pipe, a log file): start, notes, end."""
+
+    def __init__(self, console: Console):
+        self.console, self.stage = console, ""
+
+    def _print(self, text: str) -> None:
+        self.console.print(text, markup=False, highlight=False, soft_wrap=True)
+
+    def start(self, stage: str, index: int) -> None:
+        self.stage = stage
+        self._print(f"{stage} ({index + 1}/{len(STAGES)}) ...")
+
+    def note(self, text: str) -> None:
+        self._print(f"{self.stage}: {text}")
+
+    def done(self, stage: str, seconds: float) -> None:
+        self._print(f"{stage}: done in {seconds:.1f} s")
 
 
 class _Context:
@@ -105,10 +154,10 @@ class _Context:
                 continue
             store = (self.out / "campaigns" / f"{name}.sqlite" if self.fresh
                      else default_store(self.network, name))
-            note(f"campaign {name}")
+            note(name)
             Path(store).parent.mkdir(parents=True, exist_ok=True)
             # resumes: finished runs are skipped, so a complete shipped store costs nothing
-            run_campaign(self.network, name, store=store, progress=True)
+            run_campaign(self.network, name, store=store, progress=note)
             runs = load_runs(self.network, name, store=store)
             self.stores[name] = Path(store)
             summary[name] = {"store": str(store), "n_total": runs.n_total,
@@ -189,7 +238,10 @@ class _Context:
         sensitivity_and_maps(self, note)
 
     def report(self, note) -> None:
-        note("figures")
+        from calnet.report.build import write_outputs
+
+        note("figures, report.html, metrics.json")
+        write_outputs(self)
 
 
 def require(condition: bool, message: str) -> None:
