@@ -10,6 +10,7 @@ import time
 import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
+from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
@@ -31,7 +32,12 @@ def _quick_sampler(s: SamplerSettings) -> SamplerSettings:
 
 def run_pipeline(spec: str | Path, *, out: Path, fresh: bool = False, quick: bool = False,
                  console: Console | None = None, loo_max: int | None = None) -> dict:
-    """Run every stage on ``spec`` and write ``out/report.html`` and ``out/metrics.json``.
+    """Run every stage on ``spec`` and write ``out/report.html``, ``out/metrics.json`` and
+    ``out/run_info.json``.
+
+    ``metrics.json`` holds the results only, so that two runs with the same seed write
+    the same bytes; ``run_info.json`` holds how this run went (stage timings, compile
+    and sampling times, paths, host, versions).
 
     Parameters
     ----------
@@ -55,6 +61,7 @@ def run_pipeline(spec: str | Path, *, out: Path, fresh: bool = False, quick: boo
     """
     console = console or Console()
     t_start = time.perf_counter()
+    started = datetime.now(UTC)
     network = load_spec(spec)
     out = Path(out)
     for sub in ("figures", "posterior", "surrogates"):
@@ -62,6 +69,7 @@ def run_pipeline(spec: str | Path, *, out: Path, fresh: bool = False, quick: boo
     timings: dict[str, float] = {}
     ctx = _Context(network, out, quick, fresh, loo_max if loo_max is not None
                    else (12 if quick else 15))
+    ctx.run_info["timings_s"] = timings
     ctx.metrics["timings_s"] = timings
     with _display(console) as show:
         for i, stage in enumerate(STAGES):
@@ -76,9 +84,27 @@ def run_pipeline(spec: str | Path, *, out: Path, fresh: bool = False, quick: boo
             timings[stage] = round(time.perf_counter() - t0, 2)
             timings["total"] = round(time.perf_counter() - t_start, 2)  # so far
             show.done(stage, timings[stage])
+    _write_run_info(ctx, spec, started)
     console.print(f"report: {out / 'report.html'}  metrics: {out / 'metrics.json'}  "
                   f"total wall time {timings['total']:.1f} s", soft_wrap=True)
     return ctx.metrics
+
+
+def _write_run_info(ctx: _Context, spec: str | Path, started: datetime) -> None:
+    """``out/run_info.json``: what changes from run to run, kept out of metrics.json."""
+    from calnet.calibration.sampling import cache_info
+    from calnet.report.metrics import run_environment, write_run_info
+
+    stages = {"+".join(s.models): {"compile_s": s.idata.posterior.attrs.get("compile_time"),
+                                   "sampling_s": s.idata.posterior.attrs.get("sampling_time")}
+              for s in ctx.post.stages}
+    info = {"spec": str(Path(spec).resolve()), "out": str(ctx.out.resolve()),
+            "started": started.isoformat(timespec="seconds"),
+            "finished": datetime.now(UTC).isoformat(timespec="seconds"),
+            **ctx.run_info, "calibration_stages": stages,
+            "campaign_stores": {k: str(v.resolve()) for k, v in ctx.stores.items()},
+            "compiled_sampler_cache": cache_info(), **run_environment()}
+    write_run_info(ctx.out / "run_info.json", info)
 
 
 @contextmanager
@@ -137,6 +163,7 @@ class _Context:
             network, out, quick, fresh, loo_max)
         self.seed = network.settings.seed
         self.metrics: dict = {"network": network.name, "quick": quick}
+        self.run_info: dict = {}  # what varies between runs with the same seed
         self.warnings: list[str] = []
         self.data = read_all(network)
         self.stores: dict[str, Path] = {}
@@ -160,7 +187,7 @@ class _Context:
             run_campaign(self.network, name, store=store, progress=note)
             runs = load_runs(self.network, name, store=store)
             self.stores[name] = Path(store)
-            summary[name] = {"store": str(store), "n_total": runs.n_total,
+            summary[name] = {"n_total": runs.n_total,
                              "n_excluded": runs.n_excluded,
                              "status_counts": dict(runs.status_counts)}
         self.metrics["campaigns"] = summary

@@ -11,6 +11,7 @@ import pytest
 from typer.testing import CliRunner
 
 from calnet.cli import app
+from calnet.pipeline import STAGES
 
 SYNTH = Path(__file__).parent / "synth"
 
@@ -34,6 +35,9 @@ def test_quick_run_on_three_model_network(tmp_path, monkeypatch):
     for key in ("campaigns", "surrogates", "calibration", "validation", "sensitivity",
                 "predictions", "timings_s"):
         assert key in m, key
+    info = json.loads((out / "run_info.json").read_text())
+    assert set(info["timings_s"]) == {*STAGES, "total"}
+    assert set(info["calibration_stages"]) == {"thermal", "micro", "hardness"}
     assert set(m["surrogates"]) == {"thermal.W", "thermal.G", "micro.lam", "hardness.H"}
     for ds in ("width", "pdas"):
         assert {"mape", "se_pred", "coverage95"} <= set(m["validation"][ds]["test"])
