@@ -233,11 +233,13 @@ def test_segmented_plugs_prior_draws_of_an_upstream_model_without_data(indep, pl
     assert np.all((post.theta["up"] >= 0.5) & (post.theta["up"] <= 1.5))
 
 
-def test_stage_timings_reach_the_posterior_and_its_summary(both, indep):
+def test_stage_timings_reach_the_posterior_not_its_summary(both, indep):
+    """Timings are in the posterior (and run_info.json), not in the summary that goes to
+    metrics.json, which is the same for the same seed."""
     from calnet.report.build import posterior_summary
 
     seg = both[0]
     assert set(seg.timings) == {"stage_up", "stage_down"}
     assert all(t > 0 for t in seg.timings.values()), seg.timings
     summary = posterior_summary(indep[0], seg)
-    assert all(summary[m]["sampling_time_s"] > 0 for m in ("up", "down")), summary
+    assert not any("time" in key for m in ("up", "down") for key in summary[m]), summary
