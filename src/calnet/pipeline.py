@@ -70,7 +70,6 @@ def run_pipeline(spec: str | Path, *, out: Path, fresh: bool = False, quick: boo
     ctx = _Context(network, out, quick, fresh, loo_max if loo_max is not None
                    else (12 if quick else 15))
     ctx.run_info["timings_s"] = timings
-    ctx.metrics["timings_s"] = timings
     with _display(console) as show:
         for i, stage in enumerate(STAGES):
             show.start(stage, i)
