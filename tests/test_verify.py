@@ -209,7 +209,7 @@ def test_verify_command_writes_verify_json(calibrated):
     assert "agrees" in res.output and "verify.json" in res.output
     res = CliRunner().invoke(app, ["verify", str(root), "--run", str(run), "-k", "2", "--json"])
     assert res.exit_code == 0, res.output
-    assert json.loads(res.output)["k"] == 2
+    assert json.loads(res.stdout)["k"] == 2  # progress lines go to stderr
 
 
 def test_verify_command_without_a_run_folder_says_so_in_one_line(calibrated, tmp_path):

@@ -7,29 +7,102 @@ traceback; spec errors exit with code 2, other errors with code 1.
 from __future__ import annotations
 
 import functools
+import inspect
 import json
 import os
 import sys
+import time
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import typer
 from rich.console import Console
+from typer.core import TyperCommand, TyperGroup
 
+from calnet import __version__
 from calnet.calibration.devices import configure_host_devices, enable_compilation_cache
 from calnet.errors import CalnetError, SpecError
 
 configure_host_devices(4)  # before jax is imported: chains run in parallel (pmap)
 enable_compilation_cache()  # compiled samplers and predictors reused across runs
 
-app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
-                  help="Bayesian calibration of networks of coupled simulation models.")
+
+def _reflow(text: str | None) -> str | None:
+    """Docstring paragraphs as single lines, so that help wraps them to the terminal."""
+    if not text:
+        return text
+    paragraphs = inspect.cleandoc(text).split("\n\n")
+    return "\n\n".join(" ".join(p.split()) for p in paragraphs)
+
+
+class _ReadableHelp:
+    """Help that reads well at 80 columns, on a terminal or in a pipe: a flag shows its
+    names only (``--json``, not ``--json <bool>``), and docstring paragraphs wrap to the
+    width instead of keeping the source's line breaks."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.help = _reflow(self.help)
+        for param in self.params:
+            _hide_flag_type(param)
+
+    def get_help_option(self, ctx: Any) -> Any:
+        option = super().get_help_option(ctx)
+        if option is not None:
+            _hide_flag_type(option)
+        return option
+
+
+def _hide_flag_type(param: Any) -> None:
+    if getattr(param, "is_flag", False) and param.metavar is None:
+        param.metavar = ""
+
+
+class _Command(_ReadableHelp, TyperCommand):
+    pass
+
+
+class _Group(_ReadableHelp, TyperGroup):
+    pass
+
+
+class App(typer.Typer):
+    """A Typer app whose commands have calnet's help layout (see :class:`_ReadableHelp`)."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        kwargs.setdefault("cls", _Group)
+        super().__init__(add_completion=False, pretty_exceptions_enable=False, **kwargs)
+
+    def command(self, *args: Any, **kwargs: Any) -> Any:
+        kwargs.setdefault("cls", _Command)
+        return super().command(*args, **kwargs)
+
+
+app = App(no_args_is_help=True,
+          help="Bayesian calibration of networks of coupled simulation models.")
 console = Console(stderr=False, highlight=False)
 err_console = Console(stderr=True, highlight=False)
 
-SpecArg = Annotated[Path, typer.Argument(help="network YAML, or a folder holding network.yaml")]
+SpecArg = Annotated[Path, typer.Argument(
+    metavar="SPEC", show_default=False, help="network YAML, or a folder with network.yaml")]
+
+
+def _print_version(value: bool) -> None:
+    if value:
+        print(f"calnet {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _main(
+    version: Annotated[bool, typer.Option(
+        "--version", "-V", is_eager=True, callback=_print_version,
+        help="print the version and exit")] = False,
+) -> None:
+    """Bayesian calibration of networks of coupled simulation models."""
 
 
 def user_errors(func: Callable[..., Any]) -> Callable[..., Any]:
@@ -74,6 +147,24 @@ def user_errors(func: Callable[..., Any]) -> Callable[..., Any]:
         return result
 
     return wrapper
+
+
+@contextmanager
+def _working(what: str) -> Iterator[Callable[[str], None]]:
+    """Yields ``note(text)``: a spinner showing the latest note on a terminal; elsewhere
+    (a pipe, a log file) plain lines on stderr: the start, each note, ``done in N s``."""
+    if console.is_terminal:
+        with console.status(what) as status:
+            yield lambda text: status.update(f"{what}: {text}")
+        return
+
+    def say(text: str) -> None:
+        err_console.print(text, markup=False, highlight=False, soft_wrap=True)
+
+    t0 = time.perf_counter()
+    say(f"{what} ...")
+    yield lambda text: say(f"{what}: {text}")
+    say(f"{what}: done in {time.perf_counter() - t0:.1f} s")
 
 
 def _show_warnings(caught: list[warnings.WarningMessage]) -> None:
@@ -135,9 +226,12 @@ def _parse_options(values: list[str]) -> dict[str, Any]:
 @app.command()
 @user_errors
 def simulate(
-    name: Annotated[str, typer.Argument(help="built-in simulator: melt_pool or solidification")],
-    set_: Annotated[list[str], typer.Option("--set", help="NAME=VALUE input or parameter")] = [],  # noqa: B006
-    option: Annotated[list[str], typer.Option(help="NAME=VALUE simulator option")] = [],  # noqa: B006
+    name: Annotated[str, typer.Argument(
+        metavar="NAME", help="built-in simulator: melt_pool or solidification")],
+    set_: Annotated[list[str], typer.Option(
+        "--set", metavar="NAME=VALUE", help="an input or parameter (repeatable)")] = [],  # noqa: B006
+    option: Annotated[list[str], typer.Option(
+        metavar="NAME=VALUE", help="a simulator option (repeatable)")] = [],  # noqa: B006
 ) -> None:
     """Run one built-in simulation and print its outputs as JSON.
 
@@ -188,11 +282,11 @@ _register_campaign()
 @user_errors
 def surrogates(
     spec: SpecArg,
-    out: Annotated[Path, typer.Option(help="folder for the GPs and parity plots")] = Path(
-        "out/surrogates"),
+    out: Annotated[Path, typer.Option(
+        metavar="DIR", help="folder for the GPs and parity plots")] = Path("out/surrogates"),
     no_cv: Annotated[bool, typer.Option("--no-cv", help="skip cross-validation")] = False,
 ) -> None:
-    """Fit a GP surrogate for every output the network needs; print the CV table."""
+    """Fit a GP surrogate per output needed; print the CV table."""
     from rich.table import Table
 
     from calnet.spec import load_spec
@@ -201,9 +295,8 @@ def surrogates(
 
     network = load_spec(spec)
     out.mkdir(parents=True, exist_ok=True)  # a bad --out fails now, not after the fits
-    with console.status("fitting surrogates") as status:
-        sur = fit_surrogates(network, cv=not no_cv,
-                             progress=lambda m: status.update(f"fitting {m}"))
+    with _working("fitting surrogates") as note:
+        sur = fit_surrogates(network, cv=not no_cv, progress=note)
     sur.save(out)
     table = Table("output", "runs", "excluded", "k", "MAPE %", "RMSE", "95% coverage")
     for key, s in sur.items.items():
@@ -223,16 +316,20 @@ def surrogates(
 def calibrate(
     spec: SpecArg,
     mode: Annotated[Literal["segmented", "joint"] | None, typer.Option(
-        help="segmented or joint")] = None,
+        metavar="MODE", help="segmented or joint (default: the spec's)")] = None,
     plug: Annotated[Literal["mode", "posterior"] | None, typer.Option(
-        help="mode or posterior (segmented)")] = None,
-    surrogates_dir: Annotated[Path, typer.Option("--surrogates", help="from calnet surrogates")
-                              ] = Path("out/surrogates"),
-    out: Annotated[Path, typer.Option(help="folder for posteriors and plots")] = Path(
-        "out/posterior"),
+        metavar="PLUG", help="segmented: mode or posterior (default: the spec's)")] = None,
+    surrogates_dir: Annotated[Path, typer.Option(
+        "--surrogates", metavar="DIR", help="written by calnet surrogates")
+    ] = Path("out/surrogates"),
+    out: Annotated[Path, typer.Option(
+        metavar="DIR", help="folder for posteriors and plots")] = Path("out/posterior"),
 ) -> None:
-    """Calibrate the network (KOH per model, NUTS): posteriors (ArviZ netCDF), a summary
-    table with diagnostics, and prior-vs-posterior plots per model."""
+    """Calibrate the network (KOH per model, NUTS).
+
+    Writes the posteriors (ArviZ netCDF), a summary table with diagnostics, and
+    prior-vs-posterior plots per model.
+    """
     from rich.table import Table
 
     from calnet.calibration.network import calibrate as run_calibration
@@ -245,9 +342,8 @@ def calibrate(
     network = load_spec(spec)
     sur = Surrogates.load(surrogates_dir)
     out.mkdir(parents=True, exist_ok=True)  # a bad --out fails now, not after sampling
-    with console.status("sampling") as status:
-        post = run_calibration(network, sur, mode=mode, plug=plug,
-                               progress=lambda m: status.update(m))
+    with _working("calibrating") as note:
+        post = run_calibration(network, sur, mode=mode, plug=plug, progress=note)
     save_posterior(post, out)
     summary = posterior_summary(network, post)
     doc = {**summary, "surrogate_check": {c.dataset: c.to_dict() for c in post.checks}}
@@ -291,25 +387,28 @@ def _takes(network, dataset: str, name: str) -> bool:
 def predict(
     spec: SpecArg,
     at: Annotated[list[str], typer.Option(
-        "--at", help="process settings NAME=VALUE[,NAME=VALUE...]; repeat for more points")
+        "--at", metavar="NAME=VALUE,...", help="one point, e.g. P=200,v=0.5 (repeatable)")
     ] = [],  # noqa: B006
-    csv: Annotated[Path | None, typer.Option(help="CSV of points, one column per input")
-                   ] = None,
+    csv: Annotated[Path | None, typer.Option(
+        metavar="FILE", help="CSV of points, one column per input")] = None,
     dataset: Annotated[list[str], typer.Option(
-        "--dataset", "-d", help="data set whose output to predict (default: every one)")
+        "--dataset", "-d", metavar="NAME", help="data set to predict (default: every one)")
     ] = [],  # noqa: B006
     run_dir: Annotated[Path, typer.Option(
-        "--run", help="folder written by calnet run / calibrate (surrogates/, posterior/)")
+        "--run", metavar="DIR", help="folder written by calnet run")
     ] = Path("out"),
-    draws: Annotated[int, typer.Option(min=1, help="posterior draws used")] = 200,
-    seed: Annotated[int | None, typer.Option(help="seed (default: the spec's)")] = None,
-    as_json: Annotated[bool, typer.Option("--json", help="print JSON instead of a table")
-                       ] = False,
-    output: Annotated[Path | None, typer.Option(help="also write the predictions as CSV")
-                      ] = None,
+    draws: Annotated[int, typer.Option(metavar="N", min=1, help="posterior draws used")] = 200,
+    seed: Annotated[int | None, typer.Option(
+        metavar="SEED", help="default: the spec's")] = None,
+    as_json: Annotated[bool, typer.Option("--json", help="print JSON, not a table")] = False,
+    output: Annotated[Path | None, typer.Option(
+        metavar="FILE", help="also write the predictions as CSV")] = None,
 ) -> None:
-    """Predict measurable outputs at new process settings, with 95 % bands and the
-    uncertainty budget (upstream parameters, each emulator, discrepancy, noise)."""
+    """Predict measurable outputs at new settings, with 95 % bands.
+
+    Each point comes with its uncertainty budget: the shares of the upstream parameters,
+    each emulator, the discrepancy and the noise.
+    """
     from calnet.calibration.persist import load_posterior
     from calnet.predict import predict as run_predict
     from calnet.predict import settings_matrix
@@ -409,17 +508,19 @@ def _write_predictions(path: Path, results: list[dict]) -> None:
 def verify(
     spec: SpecArg,
     run_dir: Annotated[Path, typer.Option(
-        "--run", help="folder written by calnet run / calibrate (surrogates/, posterior/)")
+        "--run", metavar="DIR", help="folder written by calnet run")
     ] = Path("out"),
-    k: Annotated[int, typer.Option("-k", "--points", min=1, help="posterior points to run")
-                 ] = 8,
-    seed: Annotated[int | None, typer.Option(help="seed (default: the spec's)")] = None,
-    as_json: Annotated[bool, typer.Option("--json", help="print JSON instead of tables")
-                       ] = False,
+    k: Annotated[int, typer.Option(
+        "-k", "--points", metavar="K", min=1, help="posterior points to run")] = 8,
+    seed: Annotated[int | None, typer.Option(
+        metavar="SEED", help="default: the spec's")] = None,
+    as_json: Annotated[bool, typer.Option("--json", help="print JSON, not tables")] = False,
 ) -> None:
-    """Run the real simulators where the posterior puts its mass and compare each
-    surrogate there (z = (simulator - mean) / sd on the modelled scale); writes
-    RUN/verify.json. Disagreements are reported, not errors."""
+    """Run the simulators at posterior points; check the surrogates.
+
+    z = (simulator - mean) / sd on the modelled scale; writes RUN/verify.json.
+    Disagreements are reported, not errors.
+    """
     from rich.table import Table
 
     from calnet.calibration.persist import load_posterior
@@ -436,9 +537,9 @@ def verify(
     post = load_posterior(run_dir / "posterior", network)
     sur = Surrogates.load(sur_dir)
     seed = network.settings.seed if seed is None else seed
-    with console.status("running the simulators") as status:
+    with _working("running the simulators") as note:
         result = run_verify(network, sur, post, k=k, seed=seed, workdir=run_dir / "verify",
-                            progress=lambda m: status.update(m))
+                            progress=note)
     doc = json.dumps(result.to_dict(), indent=1, default=_json_default)
     (run_dir / "verify.json").write_text(doc)
     if as_json:
@@ -474,9 +575,11 @@ def verify(
 @user_errors
 def run(
     spec: SpecArg,
-    out: Annotated[Path, typer.Option(help="output folder for the report")] = Path("out"),
-    fresh: Annotated[bool, typer.Option(help="re-simulate instead of using shipped runs")] = False,
-    quick: Annotated[bool, typer.Option(help="fewer draws, for a fast look")] = False,
+    out: Annotated[Path, typer.Option(metavar="DIR", help="output folder")] = Path("out"),
+    fresh: Annotated[bool, typer.Option(
+        "--fresh", help="re-simulate instead of using the shipped runs")] = False,
+    quick: Annotated[bool, typer.Option("--quick", help="fewer draws, for a fast look")
+                     ] = False,
 ) -> None:
     """Run every stage on SPEC and write the report to OUT."""
     from calnet.pipeline import run_pipeline

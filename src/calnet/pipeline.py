@@ -8,11 +8,14 @@ from __future__ import annotations
 
 import time
 import warnings
+from collections.abc import Iterator
+from contextlib import contextmanager
+from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
 from rich.console import Console
-from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.progress import BarColumn, Progress, TaskID, TextColumn, TimeElapsedColumn
 
 from calnet.errors import CalibrationWarning, CalnetError
 from calnet.spec import Network, load_spec, read_all
@@ -29,7 +32,12 @@ def _quick_sampler(s: SamplerSettings) -> SamplerSettings:
 
 def run_pipeline(spec: str | Path, *, out: Path, fresh: bool = False, quick: bool = False,
                  console: Console | None = None, loo_max: int | None = None) -> dict:
-    """Run every stage on ``spec`` and write ``out/report.html`` and ``out/metrics.json``.
+    """Run every stage on ``spec`` and write ``out/report.html``, ``out/metrics.json`` and
+    ``out/run_info.json``.
+
+    ``metrics.json`` holds the results only, so that two runs with the same seed write
+    the same bytes; ``run_info.json`` holds how this run went (stage timings, compile
+    and sampling times, paths, host, versions).
 
     Parameters
     ----------
@@ -37,6 +45,11 @@ def run_pipeline(spec: str | Path, *, out: Path, fresh: bool = False, quick: boo
         Re-simulate into ``out/campaigns`` instead of using the stores beside the spec.
     quick : bool
         Fewer draws, restarts and folds: a fast look (used by the tests).
+    console : rich.console.Console, optional
+        Where the progress bar and the closing line go. When it is not a terminal,
+        progress goes to stderr as plain lines instead: each stage's start, its notes
+        (the model or data set at work, sampling every 10 s, leave-one-out refits...)
+        and its end with the seconds it took.
     loo_max : int, optional
         Most points per data set whose leave-one-out is re-calibrated exactly where PSIS
         is unreliable (Pareto k > 0.7; default 15, 12 with ``quick``).
@@ -48,6 +61,7 @@ def run_pipeline(spec: str | Path, *, out: Path, fresh: bool = False, quick: boo
     """
     console = console or Console()
     t_start = time.perf_counter()
+    started = datetime.now(UTC)
     network = load_spec(spec)
     out = Path(out)
     for sub in ("figures", "posterior", "surrogates"):
@@ -55,29 +69,89 @@ def run_pipeline(spec: str | Path, *, out: Path, fresh: bool = False, quick: boo
     timings: dict[str, float] = {}
     ctx = _Context(network, out, quick, fresh, loo_max if loo_max is not None
                    else (12 if quick else 15))
-    columns = (TextColumn("[bold]{task.description}"), BarColumn(),
-               TextColumn("{task.fields[note]}"), TimeElapsedColumn())
-    with Progress(*columns, console=console, transient=False) as bar:
-        task = bar.add_task("calnet run", total=len(STAGES), note="")
-        for stage in STAGES:
-            bar.update(task, description=f"{stage}", note="")
+    ctx.run_info["timings_s"] = timings
+    with _display(console) as show:
+        for i, stage in enumerate(STAGES):
+            show.start(stage, i)
             t0 = time.perf_counter()
             with warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("always", CalibrationWarning)
-                getattr(ctx, stage)(lambda note: bar.update(task, note=note))
+                getattr(ctx, stage)(show.note)
             ctx.warnings += [str(w.message) for w in caught]
             for w in caught:
                 warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
             timings[stage] = round(time.perf_counter() - t0, 2)
-            bar.advance(task)
-    timings["total"] = round(time.perf_counter() - t_start, 2)
-    ctx.metrics["timings_s"] = timings
-    from calnet.report.build import write_outputs
-
-    write_outputs(ctx)
+            timings["total"] = round(time.perf_counter() - t_start, 2)  # so far
+            show.done(stage, timings[stage])
+    _write_run_info(ctx, spec, started)
     console.print(f"report: {out / 'report.html'}  metrics: {out / 'metrics.json'}  "
-                  f"total wall time {timings['total']:.1f} s")
+                  f"total wall time {timings['total']:.1f} s", soft_wrap=True)
     return ctx.metrics
+
+
+def _write_run_info(ctx: _Context, spec: str | Path, started: datetime) -> None:
+    """``out/run_info.json``: what changes from run to run, kept out of metrics.json."""
+    from calnet.calibration.sampling import cache_info
+    from calnet.report.metrics import run_environment, write_run_info
+
+    stages = {"+".join(s.models): {"compile_s": s.idata.posterior.attrs.get("compile_time"),
+                                   "sampling_s": s.idata.posterior.attrs.get("sampling_time")}
+              for s in ctx.post.stages}
+    info = {"spec": str(Path(spec).resolve()), "out": str(ctx.out.resolve()),
+            "started": started.isoformat(timespec="seconds"),
+            "finished": datetime.now(UTC).isoformat(timespec="seconds"),
+            **ctx.run_info, "calibration_stages": stages,
+            "campaign_stores": {k: str(v.resolve()) for k, v in ctx.stores.items()},
+            "compiled_sampler_cache": cache_info(), **run_environment()}
+    write_run_info(ctx.out / "run_info.json", info)
+
+
+@contextmanager
+def _display(console: Console) -> Iterator[_Bar | _Lines]:
+    """A Rich bar over the stages on a terminal, plain lines on stderr anywhere else."""
+    if not console.is_terminal:
+        yield _Lines(Console(stderr=True))
+        return
+    columns = (TextColumn("[bold]{task.description}"), BarColumn(),
+               TextColumn("{task.fields[note]}"), TimeElapsedColumn())
+    with Progress(*columns, console=console, transient=False) as bar:
+        yield _Bar(bar, bar.add_task("calnet run", total=len(STAGES), note=""))
+
+
+class _Bar:
+    """Stage progress on one Rich bar; a stage's notes replace each other beside it."""
+
+    def __init__(self, bar: Progress, task: TaskID):
+        self.bar, self.task = bar, task
+
+    def start(self, stage: str, index: int) -> None:
+        self.bar.update(self.task, description=stage, note="")
+
+    def note(self, text: str) -> None:
+        self.bar.update(self.task, note=text)
+
+    def done(self, stage: str, seconds: float) -> None:
+        self.bar.advance(self.task)
+
+
+class _Lines:
+    """Stage progress as plain lines (a pipe, a log file): start, notes, end."""
+
+    def __init__(self, console: Console):
+        self.console, self.stage = console, ""
+
+    def _print(self, text: str) -> None:
+        self.console.print(text, markup=False, highlight=False, soft_wrap=True)
+
+    def start(self, stage: str, index: int) -> None:
+        self.stage = stage
+        self._print(f"{stage} ({index + 1}/{len(STAGES)}) ...")
+
+    def note(self, text: str) -> None:
+        self._print(f"{self.stage}: {text}")
+
+    def done(self, stage: str, seconds: float) -> None:
+        self._print(f"{stage}: done in {seconds:.1f} s")
 
 
 class _Context:
@@ -88,6 +162,7 @@ class _Context:
             network, out, quick, fresh, loo_max)
         self.seed = network.settings.seed
         self.metrics: dict = {"network": network.name, "quick": quick}
+        self.run_info: dict = {}  # what varies between runs with the same seed
         self.warnings: list[str] = []
         self.data = read_all(network)
         self.stores: dict[str, Path] = {}
@@ -105,13 +180,13 @@ class _Context:
                 continue
             store = (self.out / "campaigns" / f"{name}.sqlite" if self.fresh
                      else default_store(self.network, name))
-            note(f"campaign {name}")
+            note(name)
             Path(store).parent.mkdir(parents=True, exist_ok=True)
             # resumes: finished runs are skipped, so a complete shipped store costs nothing
-            run_campaign(self.network, name, store=store, progress=True)
+            run_campaign(self.network, name, store=store, progress=note)
             runs = load_runs(self.network, name, store=store)
             self.stores[name] = Path(store)
-            summary[name] = {"store": str(store), "n_total": runs.n_total,
+            summary[name] = {"n_total": runs.n_total,
                              "n_excluded": runs.n_excluded,
                              "status_counts": dict(runs.status_counts)}
         self.metrics["campaigns"] = summary
@@ -204,7 +279,10 @@ class _Context:
         sensitivity_and_maps(self, note)
 
     def report(self, note) -> None:
-        note("figures")
+        from calnet.report.build import write_outputs
+
+        note("figures, report.html, metrics.json")
+        write_outputs(self)
 
 
 def require(condition: bool, message: str) -> None:

@@ -96,10 +96,12 @@ def psis_loo(network: Network, surrogates: Surrogates, posterior: NetworkPosteri
     ``elpd_loo``, ``elpd_se``, ``p_loo`` (modelled scale), ``pareto_k`` per point,
     ``refit`` (indices refitted exactly) and ``method``.
     """
-    import arviz as az
     from scipy import stats
     from scipy.special import logsumexp
 
+    from calnet.calibration.diagnostics import import_arviz
+
+    az = import_arviz()
     full = posterior.data[dataset]
     cond = loo_conditionals(network, surrogates, posterior, dataset)
     S, n = cond.loglik.shape
@@ -211,11 +213,11 @@ def compare_variants(network: Network, surrogates: Surrogates, posterior: Networ
     Returns ``{data set: {model name: {elpd_loo, p_loo, elpd_diff, dse, weight,
     max_pareto_k}}}`` where the spec's own model is named ``spec``.
     """
-    import arviz as az
-
+    from calnet.calibration.diagnostics import import_arviz
     from calnet.calibration.network import calibrate
     from calnet.predict import loo_conditionals
 
+    az = import_arviz()
     posts = {"spec": (network, posterior)}
     for name in variants:
         if progress:

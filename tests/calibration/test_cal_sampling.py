@@ -11,6 +11,7 @@ import pytest
 from calnet.calibration.diagnostics import summarize
 from calnet.calibration.sampling import cache_info, sample_nuts
 from calnet.errors import CalibrationError, CalibrationWarning
+from calnet.progress import Lines
 
 jax.config.update("jax_enable_x64", True)
 
@@ -186,6 +187,34 @@ def test_progress_callback_and_thinning():
     assert idata.posterior["theta"].shape == (2, 10, 3)
     assert {c for c, _, _ in calls} == {0, 1}
     assert max(it for _, it, _ in calls) == 60 and calls[0][2] == 60
+
+
+def test_progress_without_a_terminal_is_plain_lines(capfd):
+    """stderr is not a terminal here (captured): lines at every 10 % of the iterations,
+    no carriage-return bar."""
+    ld, _, _ = _build(0)
+    sample_nuts(ld, seed=0, num_chains=2, num_warmup=20, num_draws=40, progress=True)
+    err = capfd.readouterr().err
+    assert "\r" not in err
+    lines = err.splitlines()
+    assert lines[0].startswith("linear: ") and "warm-up, 20 iterations x 2 chains" in lines[0]
+    assert lines[-1].startswith("linear: 100 % of the iterations (")
+    assert 3 <= len(lines) <= 12, lines
+
+
+def test_progress_through_lines_runs_the_program_without_progress():
+    """Lines (calnet run's progress) compile no callbacks in, so the program is the one
+    without progress (JAX keeps it on disk) and the draws are the same."""
+    ld, _, _ = _build(0)
+    plain = sample_nuts(ld, seed=0, num_chains=2, num_warmup=20, num_draws=40)
+    hits = cache_info()["hits"]
+    out = []
+    shown = sample_nuts(ld, seed=0, num_chains=2, num_warmup=20, num_draws=40,
+                        progress=Lines("stage", out.append))
+    assert cache_info()["hits"] == hits + 1
+    np.testing.assert_array_equal(plain.posterior["theta"], shown.posterior["theta"])
+    assert out[0].startswith("stage: sampling 2 chains x (20 warm-up + 40) iterations (0 s)")
+    assert out[-1].startswith("stage: sampled (")
 
 
 def test_non_finite_start_raises_before_sampling():

@@ -216,3 +216,18 @@ def test_a_module_beside_the_spec_has_its_version_stored(tmp_path, monkeypatch):
     with RunStore(path, readonly=True) as db:
         assert db.meta()["simulator_version"] == "2.5"
         assert db.versions() == {"2.5": 3}
+
+
+def test_progress_lines_through_a_callable(tmp_path):
+    out = []
+    run_campaign(toy_network(tmp_path, runs=20), "toy", progress=out.append,
+                 executor="in-process")
+    assert out[0].startswith("toy: 20 runs to go of 20")
+    assert out[-1].startswith("toy: 20/20 runs, 0 failed")
+    assert 3 <= len(out) <= 12 and not any("\r" in line for line in out)
+
+
+def test_progress_without_a_terminal_is_lines_on_stderr(tmp_path, capfd):
+    run_campaign(toy_network(tmp_path, runs=10), "toy", progress=True, executor="in-process")
+    err = capfd.readouterr().err
+    assert "toy: 10/10 runs, 0 failed" in err and "\r" not in err

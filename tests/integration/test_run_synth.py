@@ -4,13 +4,17 @@ unmeasurable intermediate; the true parameters are known (synth/synth_sims.py)."
 from __future__ import annotations
 
 import json
+import os
 import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
 from typer.testing import CliRunner
 
 from calnet.cli import app
+from calnet.pipeline import STAGES
 
 SYNTH = Path(__file__).parent / "synth"
 
@@ -34,8 +38,11 @@ def test_quick_run_on_three_model_network(tmp_path, monkeypatch):
     _check_report(out)
     m = json.loads((out / "metrics.json").read_text())
     for key in ("campaigns", "surrogates", "calibration", "validation", "sensitivity",
-                "predictions", "timings_s"):
+                "predictions"):
         assert key in m, key
+    info = json.loads((out / "run_info.json").read_text())
+    assert set(info["timings_s"]) == {*STAGES, "total"}
+    assert set(info["calibration_stages"]) == {"thermal", "micro", "hardness"}
     assert set(m["surrogates"]) == {"thermal.W", "thermal.G", "micro.lam", "hardness.H"}
     for ds in ("width", "pdas"):
         assert {"mape", "rmse", "nrmse", "crps", "coverage95"} <= set(m["validation"][ds]["test"])
@@ -102,6 +109,45 @@ def _check_predict(work: Path, out: Path, tmp_path: Path) -> None:
     res = runner.invoke(app, ["predict", str(work), "--run", str(tmp_path / "none"),
                               "--at", "P=200,v=1"])
     assert res.exit_code == 1 and "no fitted surrogates" in res.output
+
+
+BANNER = "undergoing a major refactor"  # ArviZ's once-a-day notice (tests/test_cli.py)
+
+
+@pytest.mark.integration
+def test_same_seed_writes_the_same_metrics_bytes(tmp_path):
+    """Two runs in two processes, from two copies of the spec into two folders: the same
+    metrics.json, byte for byte; timings, paths and the host in run_info.json. Piped
+    output: plain progress lines, no ArviZ notice (due: a fresh cache folder each run)."""
+    src = Path(__file__).resolve().parents[2] / "src"
+    jax_cache = os.environ.get("CALNET_JAX_CACHE") or str(Path.home() / ".cache/calnet/jax")
+    outs = []
+    for k in (1, 2):
+        work = tmp_path / f"spec{k}" / "synth"
+        shutil.copytree(SYNTH, work, ignore=shutil.ignore_patterns("__pycache__"))
+        env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(work), str(src)]),
+               "XDG_CACHE_HOME": str(tmp_path / f"cache{k}"), "CALNET_JAX_CACHE": jax_cache}
+        env.pop("COLUMNS", None)
+        out = tmp_path / f"out{k}"
+        run = subprocess.run([sys.executable, "-m", "calnet", "run", str(work), "--out",
+                              str(out), "--quick"], env=env, capture_output=True, text=True,
+                             timeout=900)
+        assert run.returncode == 0, run.stdout + run.stderr
+        text = run.stdout + run.stderr
+        assert BANNER not in text and "\r" not in text
+        for stage in STAGES:
+            assert f"{stage}: done in " in run.stderr, stage
+        assert "calibration: thermal: sampled (" in run.stderr
+        outs.append(out)
+    first, second = ((o / "metrics.json").read_bytes() for o in outs)
+    assert first == second
+    assert BANNER.encode() not in first and str(tmp_path).encode() not in first
+    info = json.loads((outs[1] / "run_info.json").read_text())
+    assert set(info["timings_s"]) == {*STAGES, "total"} and info["timings_s"]["total"] > 0
+    assert all(v["compile_s"] >= 0 and v["sampling_s"] > 0
+               for v in info["calibration_stages"].values())
+    assert info["out"] == str(outs[1].resolve()) and info["versions"]["calnet"]
+    assert BANNER not in (outs[1] / "report.html").read_text()
 
 
 def test_shipped_synth_campaigns_match_the_spec():

@@ -52,3 +52,15 @@ def test_jax_arrays_convert():
 def test_unknown_type_is_named():
     with pytest.raises(TypeError, match="object"):
         to_jsonable({"x": object()})
+
+
+def test_run_info_holds_what_varies_between_runs(tmp_path):
+    from calnet.report import write_run_info
+    from calnet.report.metrics import run_environment
+
+    env = run_environment()
+    assert env["versions"]["calnet"] and env["versions"]["jax"] and env["host"]
+    path = write_run_info(tmp_path / "run_info.json", {"timings_s": {"total": 1.5}, **env})
+    loaded = json.loads(path.read_text())
+    assert loaded["timings_s"] == {"total": 1.5} and list(loaded) == sorted(loaded)
+    assert [p.name for p in tmp_path.iterdir()] == ["run_info.json"]  # no temporary left

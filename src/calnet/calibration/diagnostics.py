@@ -18,11 +18,25 @@ from scipy.stats import gaussian_kde
 
 from calnet.errors import CalibrationWarning
 
-__all__ = ["ParameterSummary", "PosteriorSummary", "summarize", "kde_mode",
+__all__ = ["ParameterSummary", "PosteriorSummary", "summarize", "kde_mode", "import_arviz",
            "RHAT_MAX", "ESS_MIN"]
 
 RHAT_MAX = 1.01  # Vehtari et al. (2021)
 ESS_MIN = 400  # bulk ESS, 100 per chain for 4 chains (Vehtari et al. 2021)
+
+
+# ArviZ >= 0.22 warns once a day, at import, that it "is undergoing a major refactor":
+# a FutureWarning about ArviZ itself, nothing about the user's run
+_ARVIZ_BANNER = r"\s*ArviZ is undergoing a major refactor"
+
+
+def import_arviz():
+    """``arviz``, imported without its once-a-day refactor notice (and only that)."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=_ARVIZ_BANNER, category=FutureWarning)
+        import arviz
+
+    return arviz
 
 
 def kde_mode(draws, grid_size: int = 512) -> float:
@@ -135,8 +149,7 @@ def summarize(idata, *, hdi_probs: tuple[float, ...] = (0.94, 0.95), warn: bool 
     -------
     PosteriorSummary
     """
-    import arviz as az
-
+    az = import_arviz()
     post = idata.posterior
     rhat, ess_b = az.rhat(post), az.ess(post, method="bulk")
     ess_t, mcse = az.ess(post, method="tail"), az.mcse(post, method="mean")

@@ -36,6 +36,7 @@ from calnet.calibration.koh import KOHDensity, KOHModel, Term, standardise
 from calnet.calibration.priors import InverseGamma, LogNormal, parameter_prior, scale_prior
 from calnet.chain import ChainPlan
 from calnet.errors import CalibrationError, CalibrationWarning
+from calnet.progress import Lines
 from calnet.spec import ExperimentalData, Network, read_all
 from calnet.spec.models import SamplerSettings
 from calnet.spec.variables import HalfNormalPrior
@@ -282,13 +283,15 @@ def key_draws(stage: StageResult) -> dict[str, np.ndarray]:
 
 
 # ----------------------------------------------------------------------------- sampling
-def _sample(ld: KOHDensity, sampler: SamplerSettings, seed: int, progress=None):
+def _sample(ld: KOHDensity, sampler: SamplerSettings, seed: int,
+            progress: Callable[[str], None] | None = None):
+    """NUTS on ``ld``; ``progress`` gets plain progress lines (:class:`Lines`)."""
     from calnet.calibration.sampling import sample_nuts
 
     return sample_nuts(ld, seed=seed, num_chains=sampler.chains, num_warmup=sampler.warmup,
                        num_draws=sampler.draws, thin=sampler.thin,
                        target_accept=sampler.target_accept, chain_method=sampler.chain_method,
-                       progress=progress or False)
+                       progress=Lines(ld.name, progress) if progress else False)
 
 
 def calibrate(network: Network, surrogates: Surrogates, *, data=None, mode: str | None = None,
@@ -312,7 +315,8 @@ def calibrate(network: Network, surrogates: Surrogates, *, data=None, mode: str 
     emulator_variance : bool, optional
         Add the surrogates' predictive variance to the likelihood.
     progress : callable, optional
-        Called with a message before each stage.
+        Called with a message before each stage, and with sampling progress lines (its
+        start, one every 10 s, its end).
 
     Returns
     -------
@@ -365,7 +369,7 @@ def _joint(network, surrogates, data, plan, seed, sampler, emu, progress) -> Net
         progress("joint: " + ", ".join(models))
     ld = build_koh(network, surrogates, free=free, datasets=data, emulator_variance=emu,
                    name="joint", plan=plan)
-    idata = _sample(ld, sampler, seed)
+    idata = _sample(ld, sampler, seed, progress)
     summarize(idata, warn=True, stacklevel=4)  # R-hat, ESS and divergence warnings
     stage = StageResult(models, tuple(data), idata, ld)
     return _posterior(network, "joint", "-", (stage,), key_draws(stage), data, (), {}, ())
@@ -411,7 +415,7 @@ def _segmented(network, surrogates, data, plan, seed, sampler, emu, plug, progre
             progress(f"segmented: {name}")
         ld = build_koh(network, surrogates, free=free, datasets=own, emulator_variance=emu,
                        fixed={k: plug_at[k] for k in fixed_keys}, name=name, plan=plan)
-        idata = _sample(ld, sampler, seed + i)
+        idata = _sample(ld, sampler, seed + i, progress)
         summarize(idata, warn=True, stacklevel=4)
         moved = [k for k in fixed_keys if np.ptp(draws[k]) > 0]
         if plug == "posterior" and moved and ld.dim:

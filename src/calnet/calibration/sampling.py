@@ -26,7 +26,8 @@ import sys
 import threading
 import time
 from collections import OrderedDict
-from collections.abc import Callable, Hashable
+from collections.abc import Callable, Hashable, Iterator
+from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass
 from functools import partial
 from typing import Any
@@ -42,8 +43,10 @@ import numpy as np  # noqa: E402
 from blackjax.adaptation.base import get_filter_adapt_info_fn  # noqa: E402
 from blackjax.mcmc import nuts  # noqa: E402
 
+from calnet.calibration.diagnostics import import_arviz  # noqa: E402
 from calnet.calibration.koh import check_initial  # noqa: E402
 from calnet.errors import CalibrationError  # noqa: E402
+from calnet.progress import Lines  # noqa: E402
 
 __all__ = ["sample_nuts", "clear_cache", "cache_info", "CHAIN_METHODS"]
 
@@ -81,7 +84,7 @@ def _emit(chain, iteration, total):
 
 
 class _TextProgress:
-    """A one-line text progress report on stderr (no dependency)."""
+    """A one-line progress bar on stderr, redrawn in place (a terminal only)."""
 
     def __init__(self, name: str, num_chains: int, total: int):
         self.name, self.total = name, total
@@ -97,6 +100,63 @@ class _TextProgress:
         if frac >= 1.0:
             sys.stderr.write("\n")
         sys.stderr.flush()
+
+
+class _ChainLines:
+    """Progress of all chains as plain :class:`~calnet.progress.Lines`: a line at every
+    10 % of the iterations (warm-up included), and ``warm-up`` lines while the warm-up,
+    which reports no iterations, runs."""
+
+    def __init__(self, lines: Lines, num_chains: int, num_warmup: int, total: int):
+        self.lines, self.total = lines, total
+        self.done = [0] * num_chains
+        self.warmup = f"warm-up, {num_warmup} iterations x {num_chains} chains"
+
+    def __call__(self, chain: int, iteration: int, total: int) -> None:
+        self.done[chain] = iteration
+        frac = sum(self.done) / (self.total * len(self.done))
+        self.lines.update(frac, f"{100 * frac:.0f} % of the iterations")
+
+    def status(self) -> str:
+        if not any(self.done):
+            return self.warmup
+        return f"{100 * sum(self.done) / (self.total * len(self.done)):.0f} % of the iterations"
+
+
+@contextmanager
+def _timed_lines(lines: Lines, what: str, t_compile: float) -> Iterator[None]:
+    """Lines without iteration counts: the start, one every 10 s, the end."""
+    lines.restart()
+    lines.note((f"compiled in {t_compile:.1f} s; " if t_compile else "") + what)
+    with lines.heartbeat(lambda: "sampling"):
+        yield
+    lines.note("sampled")
+
+
+def _counts_iterations(progress) -> bool:
+    """Whether ``progress`` needs iteration callbacks compiled into the sampler. A program
+    with host callbacks is not kept in JAX's on-disk compilation cache, so
+    :class:`~calnet.progress.Lines` (what ``calnet run`` passes) go without them."""
+    return bool(progress) and not isinstance(progress, Lines)
+
+
+def _reporter(progress, name: str, num_chains: int, num_warmup: int, num_draws: int,
+              t_compile: float):
+    """``(fn(chain, iteration, total) or None, context to run the chains in)``."""
+    total = num_warmup + num_draws
+    if not progress:
+        return None, nullcontext()
+    if isinstance(progress, Lines):
+        return None, _timed_lines(progress, f"sampling {num_chains} chains x ({num_warmup} "
+                                  f"warm-up + {num_draws}) iterations", t_compile)
+    if callable(progress):
+        return progress, nullcontext()
+    if sys.stderr.isatty():
+        return _TextProgress(name, num_chains, total), nullcontext()
+    lines = Lines(name)
+    fn = _ChainLines(lines, num_chains, num_warmup, total)
+    lines.note((f"compiled in {t_compile:.1f} s; " if t_compile else "") + fn.warmup)
+    return fn, lines.heartbeat(fn.status)
 
 
 def _maybe_report(cfg: _Config, chain, i, total):
@@ -292,9 +352,13 @@ def sample_nuts(
         ``auto``: ``parallel`` (pmap over XLA host devices) when at least two devices can
         share the chains, else ``sequential``. BLAS is held to one thread while the
         chains run (see :func:`_one_blas_thread`).
-    progress : bool or callable
-        ``True`` for a text progress line on stderr, or ``fn(chain, iteration, total)``
-        (reported during the sampling iterations).
+    progress : bool, Lines or callable
+        ``True``: a bar on stderr when it is a terminal, else plain lines (a line at
+        every 10 % of the iterations, and one every 10 s during the warm-up);
+        ``fn(chain, iteration, total)``, called during the sampling iterations. Both
+        compile callbacks into the sampler, which JAX then keeps out of its on-disk
+        cache. A :class:`~calnet.progress.Lines` gets lines without iteration counts
+        (the start, one every 10 s, the end) from the program that ``False`` runs.
 
     Returns
     -------
@@ -310,12 +374,12 @@ def sample_nuts(
     CalibrationError
         Bad settings, or a non-finite log-density or gradient at the initial points.
     """
-    import arviz as az
+    az = import_arviz()
 
     _check_settings(num_chains, num_warmup, num_draws, thin, target_accept, max_tree_depth)
     method, groups = _resolve_method(chain_method, num_chains)
     total = num_warmup + num_draws
-    every = max(1, total // 50) if progress else 0
+    every = max(1, total // 50) if _counts_iterations(progress) else 0
     cfg = _Config(ld.spec, ld.dim, num_warmup, num_draws, thin, float(target_accept),
                   max_tree_depth, bool(dense_mass), method, groups, every)
     u0 = jnp.asarray(ld.init(seed, num_chains) if init is None else init, dtype=float)
@@ -330,11 +394,11 @@ def sample_nuts(
                          for a in (keys, u0, ids))
     args = (keys, u0, ids, ld.data)
     exe, t_compile = _compiled(cfg, args)
-    _PROGRESS["fn"] = (progress if callable(progress)
-                       else _TextProgress(ld.name, num_chains, total) if progress else None)
+    _PROGRESS["fn"], running = _reporter(progress, ld.name, num_chains, num_warmup,
+                                         num_draws, t_compile)
     try:
         t0 = time.perf_counter()
-        with _one_blas_thread():  # XLA's LAPACK calls go to OpenBLAS: see below
+        with running, _one_blas_thread():  # XLA's LAPACK calls go to OpenBLAS: see below
             out = jax.block_until_ready(exe(*args))
         t_sample = time.perf_counter() - t0
     finally:

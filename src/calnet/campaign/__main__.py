@@ -4,12 +4,10 @@ The same command as ``calnet campaign`` (useful for batch jobs and for tests tha
 a campaign in a separate process).
 """
 
-import typer
-
 from calnet.campaign.command import campaign
-from calnet.cli import user_errors
+from calnet.cli import App, user_errors
 
-app = typer.Typer(add_completion=False, pretty_exceptions_enable=False)
+app = App()
 app.command()(user_errors(campaign))
 
 if __name__ == "__main__":

@@ -16,7 +16,7 @@ import math
 import sqlite3
 import time
 import warnings
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -53,6 +53,7 @@ from calnet.campaign.store import (
 )
 from calnet.errors import CampaignError, CampaignWarning
 from calnet.files import why
+from calnet.progress import Lines, to_stderr
 from calnet.spec.models import Model
 from calnet.spec.network import Network
 
@@ -114,7 +115,8 @@ def default_store(network: Network, model_name: str) -> Path:
 def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
                  workers: int | None = None, scheduler: str | None = None,
                  store: str | Path | None = None, executor: str = "auto",
-                 seed: int | None = None, progress: bool = True, fresh: bool = False,
+                 seed: int | None = None, progress: bool | Callable[[str], None] = True,
+                 fresh: bool = False,
                  retry_failed: bool = False) -> CampaignSummary:
     """Run (or resume) the simulation campaign of one model.
 
@@ -135,8 +137,10 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
         ``dask`` without ``scheduler`` starts a ``LocalCluster`` of ``workers`` workers.
     seed : int, optional
         Design seed; default ``network.settings.seed``. Seed 0 is a seed.
-    progress : bool
-        Show a Rich progress bar (done / failed / rate / ETA).
+    progress : bool or callable
+        Show progress: a Rich bar (done / failed / rate / ETA) on a terminal, plain lines
+        on stderr otherwise (a line at every 10 % of the runs, and every 10 s); a
+        callable gets those lines instead.
     fresh : bool
         Delete the store first and simulate everything again.
     retry_failed : bool
@@ -187,7 +191,7 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
         isolate = isinstance(sim, CallableRunner) and timeout is None
         with make_executor(executor, workers=workers, scheduler=scheduler,
                            isolate=isolate) as ex, \
-                _progress_bar(progress, model_name, len(design), skipped, db) as advance:
+                _progress(progress, model_name, len(design), skipped, db) as advance:
             for task, result in ex.run(execute_run, tasks,
                                        on_submit=lambda t: db.mark_started([t[1]])):
                 rec = result if isinstance(result, RunRecord) else _worker_died(task[1], result)
@@ -336,12 +340,19 @@ def _worker_died(index: int, err: Any) -> RunRecord:
 
 
 @contextmanager
-def _progress_bar(enabled: bool, name: str, total: int, done: int,
-                  db: RunStore) -> Iterator[Any]:
-    """A Rich bar (done / failed / rate / ETA); yields ``advance(status)``."""
+def _progress(progress: bool | Callable[[str], None], name: str, total: int, done: int,
+              db: RunStore) -> Iterator[Any]:
+    """Yields ``advance(status)``: a Rich bar (done / failed / rate / ETA) on a terminal,
+    plain lines elsewhere or through ``progress`` when it is a callable."""
     failed = sum(n for k, n in db.status_counts().items() if k not in ("ok", "unfinished"))
-    if not enabled:
+    if not progress:
         yield lambda status: None
+        return
+    from rich.console import Console
+
+    if callable(progress) or not Console().is_terminal:
+        yield _lines(Lines(name, progress if callable(progress) else to_stderr), total, done,
+                     failed)
         return
     from rich.progress import (
         BarColumn,
@@ -369,3 +380,17 @@ def _progress_bar(enabled: bool, name: str, total: int, done: int,
                        rate=f"{rate * 60:.1f} runs/min" if rate < 1 else f"{rate:.1f} runs/s")
 
         yield advance
+
+
+def _lines(lines: Lines, total: int, done: int, failed: int) -> Callable[[str], None]:
+    """``advance(status)`` writing a line at every 10 % of the runs (and every 10 s)."""
+    counts = {"done": done, "failed": failed}
+    lines.note(f"{total - done} runs to go of {total}")
+
+    def advance(status: str) -> None:
+        counts["done"] += 1
+        counts["failed"] += status != "ok"
+        lines.update(counts["done"] / total, f"{counts['done']}/{total} runs, "
+                                             f"{counts['failed']} failed")
+
+    return advance

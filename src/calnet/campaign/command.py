@@ -13,36 +13,41 @@ import typer
 
 
 def campaign(
-    spec: Annotated[Path, typer.Argument(help="network YAML, or a folder holding network.yaml")],
+    spec: Annotated[Path, typer.Argument(
+        metavar="SPEC", show_default=False, help="network YAML, or a folder with network.yaml")],
     model: Annotated[str | None, typer.Option(
-        "--model", "-m", help="model to simulate (default: every model, parents first)")] = None,
+        "--model", "-m", metavar="NAME", help="model to simulate (default: every model, "
+        "parents first)")] = None,
     runs: Annotated[int | None, typer.Option(
-        help="runs in the design (default: the spec's campaign.runs); more than the store "
-             "plans augments it", min=1)] = None,
+        metavar="N", min=1, help="runs in the design (default: the spec's); more than the "
+        "store has augments it")] = None,
     workers: Annotated[int | None, typer.Option(
-        help="parallel runs on this machine (local processes, or a Dask LocalCluster with "
-             "--executor dask)", min=1)] = None,
+        metavar="K", min=1, help="parallel runs on this machine")] = None,
     scheduler: Annotated[str | None, typer.Option(
-        help="address of a running Dask scheduler, e.g. tcp://host:8786")] = None,
+        metavar="ADDR", help="a running Dask scheduler, e.g. tcp://host:8786")] = None,
     store: Annotated[Path | None, typer.Option(
-        help="SQLite store (default: <spec folder>/campaigns/<model>.sqlite)")] = None,
+        metavar="FILE", help="SQLite store (default: campaigns/MODEL.sqlite beside the "
+        "spec)")] = None,
     executor: Annotated[Literal["auto", "in-process", "processes", "dask"], typer.Option(
-        help="where the runs execute")] = "auto",
+        metavar="KIND", help="where runs execute: auto, in-process, processes or dask")
+    ] = "auto",
     seed: Annotated[int | None, typer.Option(
-        help="design seed (default: the spec's settings.seed)", min=0)] = None,
+        metavar="SEED", min=0, help="design seed (default: the spec's)")] = None,
     fresh: Annotated[bool, typer.Option(
         "--fresh", help="delete the store and simulate everything again")] = False,
     retry_failed: Annotated[bool, typer.Option(
         "--retry-failed", help="run again the runs that did not finish ok")] = False,
     export: Annotated[Path | None, typer.Option(
-        help="also write the runs to this .csv or .parquet file (with a .meta.json)")] = None,
-    progress: Annotated[bool, typer.Option(
-        "--progress/--no-progress", help="show a progress bar")] = True,
+        metavar="FILE", help="also write the runs to a .csv or .parquet file")] = None,
+    no_progress: Annotated[bool, typer.Option(
+        "--no-progress", help="no progress bar (or lines, when not a terminal)")] = False,
 ) -> None:
-    """Simulate a model's design and store every run; run again to resume.
+    """Simulate each model's design into a store; run again to resume.
 
     Finished runs are kept, runs that were in flight when a campaign stopped are run again,
-    so an interrupted campaign (Ctrl-C, a killed job) resumes where it stopped.
+    so an interrupted campaign (Ctrl-C, a killed job) resumes where it stopped. With
+    --workers K, K local processes (or a Dask LocalCluster with --executor dask) share
+    the runs.
     """
     from rich.console import Console
 
@@ -61,7 +66,7 @@ def campaign(
     useless = []
     for name in names:
         summary = run_campaign(network, name, runs=runs, workers=workers, scheduler=scheduler,
-                               store=store, executor=executor, seed=seed, progress=progress,
+                               store=store, executor=executor, seed=seed, progress=not no_progress,
                                fresh=fresh, retry_failed=retry_failed)
         print_summary(summary, console)
         if export:

@@ -165,13 +165,10 @@ def posterior_summary(network, post) -> dict:
                        for v in s.idata.posterior.data_vars)
         all_ess = min(float(diag(s)["ess_bulk"][v].min()) for s in stages
                       for v in s.idata.posterior.data_vars)
-        attrs = stages[0].idata.posterior.attrs  # sample_nuts puts the timings there
         out[model] = {"parameters": rows, "divergences": div, "max_rhat": all_rhat,
                       "min_ess_bulk": all_ess,
                       "stage": " ; ".join("+".join(s.models) for s in stages),
-                      "datasets": sorted({d for s in stages for d in s.datasets}),
-                      "sampling_time_s": float(attrs.get("sampling_time", 0)),
-                      "compile_time_s": float(attrs.get("compile_time", 0))}
+                      "datasets": sorted({d for s in stages for d in s.datasets})}
     return out
 
 
@@ -301,7 +298,7 @@ def _sections(ctx, summary) -> list[Section]:
         f"Models in topological order: {' -> '.join(net.order)}. Calibration: "
         f"{ctx.post.mode}" + (f", upstream plugged in by {ctx.post.plug}"
                               if ctx.post.mode == "segmented" else "") +
-        f". Total wall time {m['timings_s']['total']:.1f} s." +
+        f". Total wall time {ctx.run_info['timings_s']['total']:.1f} s." +
         (" Quick run: fewer draws, restarts and folds." if ctx.quick else "")],
         tables=[Table("Data sets (measured points)",
                       ["data set", "observes", "points", "training points", "test points"],

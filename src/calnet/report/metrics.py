@@ -1,11 +1,16 @@
-"""``metrics.json``: strict JSON from nested results (NumPy/JAX arrays, dataclasses).
+"""``metrics.json`` and ``run_info.json``: strict JSON from nested results (NumPy/JAX
+arrays, dataclasses).
 
 NaN and infinities become ``null`` (strict JSON has no NaN); keys are sorted and the file
-is indented by two spaces, so that metrics files diff cleanly between runs.
+is indented by two spaces, so that metrics files diff cleanly between runs. Two runs with
+the same spec and seed write the same ``metrics.json``, byte for byte; what differs
+between them (timings, paths, host, versions) goes to ``run_info.json`` beside it.
 
 Examples
 --------
 >>> import numpy as np
+
+from calnet.files import make_folder, replacing
 >>> to_jsonable({"a": np.float32(1.5), "b": np.array([1.0, np.nan])})
 {'a': 1.5, 'b': [1.0, None]}
 """
@@ -16,11 +21,16 @@ import dataclasses
 import json
 import math
 import os
+import platform
+import socket
 from collections.abc import Mapping
+from importlib import metadata
 from pathlib import Path, PurePath
 from typing import Any
 
 import numpy as np
+
+from calnet.files import make_folder, replacing
 
 
 def to_jsonable(obj: Any) -> Any:
@@ -86,9 +96,33 @@ def write_metrics(path: str | Path, metrics: Mapping[str, Any]) -> Path:
     Path
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    make_folder(path.parent)
     text = json.dumps(to_jsonable(metrics), sort_keys=True, indent=2, allow_nan=False)
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(text + "\n", encoding="utf-8")
-    os.replace(tmp, path)
+    with replacing(path) as tmp:
+        tmp.write_text(text + "\n", encoding="utf-8")
     return path
+
+
+def write_run_info(path: str | Path, info: Mapping[str, Any]) -> Path:
+    """Write ``info`` (timings, paths, host, versions: what differs between two runs with
+    the same seed) like :func:`write_metrics`, usually to ``<out>/run_info.json``."""
+    return write_metrics(path, info)
+
+
+def run_environment() -> dict[str, Any]:
+    """Where and with what this process runs: versions of calnet, Python and the
+    numerical libraries, the platform, the host, the XLA devices."""
+    import jax
+
+    import calnet
+
+    versions = {"calnet": calnet.__version__, "python": platform.python_version()}
+    for name in ("jax", "jaxlib", "numpy", "scipy", "blackjax", "arviz", "SALib"):
+        try:
+            versions[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            versions[name] = None
+    return {"versions": versions, "platform": platform.platform(),
+            "host": socket.gethostname(), "cpu_count": os.cpu_count(),
+            "xla_devices": jax.local_device_count(),
+            "jax_compilation_cache": os.environ.get("JAX_COMPILATION_CACHE_DIR")}
