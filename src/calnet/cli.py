@@ -20,6 +20,7 @@ from typing import Annotated, Any, Literal
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 from typer.core import TyperCommand, TyperGroup
 
 from calnet import __version__
@@ -117,6 +118,9 @@ def user_errors(func: Callable[..., Any]) -> Callable[..., Any]:
             except SpecError as err:
                 _show_warnings(caught)
                 err_console.print(f"[bold red]error:[/] {err}", soft_wrap=True)
+                for line in err.more:  # the spec's other problems, one line each
+                    err_console.print(f"[bold red]error:[/] {escape(f'{err.file}: {line}')}",
+                                      soft_wrap=True)
                 raise typer.Exit(2) from None
             except CalnetError as err:
                 _show_warnings(caught)

@@ -22,12 +22,16 @@ class SpecError(CalnetError):
         The spec or data file concerned.
     field : str, optional
         Dotted path of the offending field (``models.melt_pool.parameters.K_S.lower``).
+    more : list of str, optional
+        Further problems of the same spec, one line each (``field: message``).
     """
 
-    def __init__(self, message: str, *, file: str | None = None, field: str | None = None):
+    def __init__(self, message: str, *, file: str | None = None, field: str | None = None,
+                 more: list[str] | None = None):
         self.file = file
         self.field = field
         self.reason = message
+        self.more = list(more or [])
         where = ": ".join(p for p in (file, field) if p)
         super().__init__(f"{where}: {message}" if where else message)
 

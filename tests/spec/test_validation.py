@@ -280,3 +280,33 @@ def test_one_output_linked_into_two_inputs_of_one_model(base_spec, write_spec):
     err = _error(write_spec(base_spec))
     assert "'heat.G' feeds both 'micro.G' and 'micro.S'" in str(err)
     assert "links[0]" in str(err)
+
+
+def test_every_problem_is_listed_one_line_each(base_spec, write_spec):
+    """Three independent problems: the error names the first, ``more`` the other two; a
+    list that fails only because an item failed is not a problem of its own."""
+    base_spec["models"]["heat"]["inputs"]["P"]["upper"] = True
+    base_spec["models"]["heat"]["parameters"]["k"]["lower"] = "low"
+    base_spec["models"]["micro"]["parameters"]["s"]["prior"] = {
+        "dist": "normal", "mu": float("nan"), "sigma": 1.0}
+    err = _error(write_spec(base_spec))
+    assert len(err.more) == 2 and all("\n" not in line for line in err.more)
+    text = " ".join([str(err), *err.more])
+    for part in ("models.heat.inputs.P", "models.heat.parameters.k",
+                 "models.micro.parameters.s.prior"):
+        assert part in text, text
+    assert "more problem" not in text
+
+
+def test_cli_lists_every_problem(base_spec, write_spec):
+    from typer.testing import CliRunner
+
+    from calnet.cli import app
+
+    base_spec["models"]["heat"]["inputs"]["P"]["upper"] = True
+    base_spec["models"]["micro"]["parameters"]["s"]["lower"] = 5  # above its upper
+    result = CliRunner().invoke(app, ["check", str(write_spec(base_spec))],
+                                terminal_width=400)
+    lines = [line for line in result.output.splitlines() if line.strip()]
+    assert result.exit_code == 2 and len(lines) == 2, result.output
+    assert all(line.startswith("error: ") for line in lines)

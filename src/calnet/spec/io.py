@@ -112,8 +112,27 @@ def _read_yaml(path: Path) -> Any:
         raise SpecError(f"invalid YAML: {problem}", file=str(path), field=line) from None
 
 
+MAX_PROBLEMS = 20  # spec problems listed, one line each
+
+
 def _to_spec_error(err: ValidationError, raw: Any, source: str) -> SpecError:
-    first = err.errors()[0]
+    """A SpecError for the first problem of ``err``, with the others (up to
+    :data:`MAX_PROBLEMS`) as ``more``. A problem reported only because a part of it
+    failed (its location is a prefix of another problem's) is left out."""
+    errors = err.errors()
+    locs = [tuple(e["loc"]) for e in errors]
+    kept = [e for e, loc in zip(errors, locs, strict=True)
+            if not any(o != loc and o[:len(loc)] == loc for o in locs)] or errors[:1]
+    problems = [_problem(e, raw) for e in kept]
+    lines = [f"{field}: {msg}" if field else msg for field, msg in problems[1:MAX_PROBLEMS]]
+    if len(problems) > MAX_PROBLEMS:
+        lines.append(f"... and {len(problems) - MAX_PROBLEMS} more problems")
+    field, msg = problems[0]
+    return SpecError(msg, file=source, field=field or None, more=lines)
+
+
+def _problem(first: dict, raw: Any) -> tuple[str, str]:
+    """(dotted field, message) of one pydantic error."""
     loc = tuple(first["loc"])
     field, cls = _readable_loc(loc, raw)
     msg = first["msg"].removeprefix("Value error, ")
@@ -134,10 +153,7 @@ def _to_spec_error(err: ValidationError, raw: Any, source: str) -> SpecError:
         msg = f"'{what}' is empty; declare at least one entry"
     elif first["type"] in ("float_parsing", "float_type", "int_parsing", "int_type"):
         msg = f"expected a number, got {first.get('input')!r}"
-    more = len(err.errors()) - 1
-    if more:
-        msg += f" (and {more} more problem{'s' if more > 1 else ''})"
-    return SpecError(msg, file=source, field=field or None)
+    return field, msg
 
 
 def _readable_loc(loc: tuple, raw: Any) -> tuple[str, type[BaseModel] | None]:
