@@ -256,7 +256,7 @@ class _Context:
                 self.network, self.sur, self.post, name, sampler=loo_sampler,
                 seed=self.seed, refit_max=self.loo_max,
                 progress=lambda i, n, nm=name: note(f"LOO refit {nm} {i + 1}/{n}"))
-            if entry["loo"]["pit_check"]["flagged"]:
+            if entry["loo"].get("pit_check", {}).get("flagged"):
                 warnings.warn(entry["loo"]["pit_check"]["message"], CalibrationWarning,
                               stacklevel=1)
             entry["loo"]["sampler"] = {"chains": loo_sampler.chains,

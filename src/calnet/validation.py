@@ -103,6 +103,9 @@ def psis_loo(network: Network, surrogates: Surrogates, posterior: NetworkPosteri
 
     az = import_arviz()
     full = posterior.data[dataset]
+    if posterior.n_draws < 2 or len(full.y) < 2:
+        return {"method": "psis", "skipped": f"{posterior.n_draws} posterior draws and "
+                f"{len(full.y)} calibration points: nothing to leave out"}
     cond = loo_conditionals(network, surrogates, posterior, dataset)
     S, n = cond.loglik.shape
     idata = az.from_dict(log_likelihood={dataset: cond.loglik[None]})
@@ -122,9 +125,10 @@ def psis_loo(network: Network, surrogates: Surrogates, posterior: NetworkPosteri
         z = cond.mean[comp, i] + cond.sd[comp, i] * rng.standard_normal(n_samples)
         samples[:, i] = np.exp(z) if cond.log else z
         q = np.percentile(z, [2.5, 97.5])
-        if cond.log:
-            mean[i] = np.exp(logsumexp(np.log(w[i]) + cond.mean[:, i] + 0.5 * cond.sd[:, i] ** 2)
-                             - logsumexp(np.log(w[i])))
+        if cond.log:  # the mixture of log-normals' mean, from the log weights
+            lw = np.asarray(logw)[i]
+            mean[i] = np.exp(logsumexp(lw + cond.mean[:, i] + 0.5 * cond.sd[:, i] ** 2)
+                             - logsumexp(lw))
             lo[i], hi[i] = np.exp(q)
         else:
             mean[i] = np.sum(w[i] * cond.mean[:, i]) / w[i].sum()
@@ -141,7 +145,7 @@ def psis_loo(network: Network, surrogates: Surrogates, posterior: NetworkPosteri
                 int(i), seed + int(i), n_samples)
             refit.append(int(i))
     refit.sort()
-    naive = np.array([np.delete(full.y, i).mean() for i in range(n)])
+    naive = np.array([np.delete(full.y, i).mean() if n > 1 else np.nan for i in range(n)])
     return {"method": "psis",
             "calnet": metrics(full.y, mean, lo, hi, samples=samples, pit=pit),
             "training_mean": metrics(full.y, naive),
