@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import logging
 import multiprocessing
+import time
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
@@ -146,7 +147,12 @@ class ProcessExecutor:
         self._pool.shutdown(wait=False, cancel_futures=True)
         codes = []
         for proc in self._processes:
+            # the pool's own management thread may reap the process first; its status
+            # then reaches this Process object a moment later, so poll for it
+            end = time.monotonic() + 5
             proc.join(5)
+            while proc.exitcode is None and time.monotonic() < end:
+                proc.join(0.05)
             codes.append(proc.exitcode)
         self._pool = self._new_pool()
         self._processes = []
