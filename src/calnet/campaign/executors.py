@@ -95,8 +95,9 @@ class ProcessExecutor:
         pending: dict[Future, Task] = {}
         stream = iter(tasks)
         suspects: list[Task] = []  # in flight when a worker died: run again one at a time
+        unsent: list[Task] = []  # refused by a pool that had just broken: never started
         try:
-            while self._fill(fn, stream, suspects, pending, on_submit):
+            while self._fill(fn, stream, suspects, unsent, pending, on_submit):
                 alone = len(pending) == 1
                 done, _ = wait(pending, return_when=FIRST_COMPLETED)
                 if any(isinstance(fut.exception(), BrokenProcessPool) for fut in done):
@@ -124,21 +125,32 @@ class ProcessExecutor:
             for fut in pending:
                 fut.cancel()
 
-    def _fill(self, fn, stream, suspects, pending, on_submit) -> bool:
+    def _fill(self, fn, stream, suspects, unsent, pending, on_submit) -> bool:
         """Submit tasks up to the window (a suspect only into an empty pool); False when
-        nothing is left to run."""
+        nothing is left to run. A pool that broke since the last wait refuses a task:
+        it goes back to its queue, and the runs in flight report the break."""
         while len(pending) < (1 if suspects else 2 * self.workers):
             if suspects:
                 if pending:
                     break
-                task = suspects.pop(0)
+                queue, task = suspects, suspects.pop(0)
+            elif unsent:
+                queue, task = unsent, unsent.pop(0)
             else:
-                task = next(stream, None)
+                queue, task = unsent, next(stream, None)
                 if task is None:
                     break
             if on_submit:
                 on_submit(task)
-            pending[self._pool.submit(fn, *task)] = task
+            try:
+                future = self._pool.submit(fn, *task)
+            except BrokenProcessPool:
+                queue.insert(0, task)
+                if pending:
+                    break
+                self._restart()  # nothing in flight reports the break: start afresh
+                continue
+            pending[future] = task
             self._processes = list((getattr(self._pool, "_processes", None) or {}).values())
         return bool(pending)
 
