@@ -23,6 +23,36 @@ _FLAGS = ("--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no
           "--disable-background-networking", "--disable-component-update", "--disable-sync")
 
 
+def _installed(label: str, chromium: str | Path, why: str = "") -> Path | None:
+    """The Chromium executable, or ``None`` with a message on stderr naming ``label``."""
+    exe = Path(chromium)
+    if exe.exists():
+        return exe
+    print(f"{label}: {exe} not found; install Chromium (apt-get install chromium){why}",
+          file=sys.stderr)
+    return None
+
+
+def _run_chromium(label: str, exe: Path, args: Sequence[str], *,
+                  timeout_s: float) -> subprocess.CompletedProcess | None:
+    """Run headless Chromium with ``args`` and a throw-away profile; ``None`` (with a
+    message on stderr naming ``label``) when it times out."""
+    with tempfile.TemporaryDirectory(prefix="calnet-chromium-") as profile:
+        try:
+            return subprocess.run([str(exe), *_FLAGS, f"--user-data-dir={profile}", *args],
+                                  capture_output=True, text=True, timeout=timeout_s,
+                                  check=False)
+        except subprocess.TimeoutExpired:
+            print(f"{label}: Chromium timed out after {timeout_s} s", file=sys.stderr)
+            return None
+
+
+def _failed(label: str, proc: subprocess.CompletedProcess) -> None:
+    tail = (proc.stderr or "").strip().splitlines()[-3:]
+    print(f"{label}: Chromium failed (exit {proc.returncode}): {' | '.join(tail)}",
+          file=sys.stderr)
+
+
 def screenshot(html_path: str | Path, png_path: str | Path, width: int = 1280,
                height: int = 2400, *, chromium: str | Path = CHROMIUM,
                timeout_s: float = 120.0) -> Path | None:
@@ -46,27 +76,18 @@ def screenshot(html_path: str | Path, png_path: str | Path, width: int = 1280,
     Path or None
         The PNG, or ``None`` (with a message on stderr) when Chromium is absent or fails.
     """
-    exe = Path(chromium)
-    if not exe.exists():
-        print(f"screenshot: {exe} not found; install Chromium (apt-get install chromium) "
-              "to take screenshots", file=sys.stderr)
+    exe = _installed("screenshot", chromium, " to take screenshots")
+    if exe is None:
         return None
     html_path, png_path = Path(html_path).resolve(), Path(png_path).resolve()
     png_path.parent.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory(prefix="calnet-chromium-") as profile:
-        cmd = [str(exe), *_FLAGS, f"--user-data-dir={profile}", f"--screenshot={png_path}",
-               f"--window-size={int(width)},{int(height)}",
-               "--hide-scrollbars", html_path.as_uri()]
-        try:
-            proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s,
-                                  check=False)
-        except subprocess.TimeoutExpired:
-            print(f"screenshot: Chromium timed out after {timeout_s} s", file=sys.stderr)
-            return None
+    proc = _run_chromium("screenshot", exe, [
+        f"--screenshot={png_path}", f"--window-size={int(width)},{int(height)}",
+        "--hide-scrollbars", html_path.as_uri()], timeout_s=timeout_s)
+    if proc is None:
+        return None
     if proc.returncode != 0 or not png_path.exists():
-        tail = (proc.stderr or "").strip().splitlines()[-3:]
-        print(f"screenshot: Chromium failed (exit {proc.returncode}): {' | '.join(tail)}",
-              file=sys.stderr)
+        _failed("screenshot", proc)
         return None
     return png_path
 
@@ -159,33 +180,26 @@ def check_page(html_path: str | Path, *, ids: Sequence[str] = (), width: int = 1
     PageCheck or None
         ``None`` (with a message on stderr) when Chromium is absent or fails.
     """
-    exe = Path(chromium)
-    if not exe.exists():
-        print(f"check_page: {exe} not found; install Chromium (apt-get install chromium)",
-              file=sys.stderr)
+    exe = _installed("check_page", chromium)
+    if exe is None:
         return None
     page = Path(html_path).read_text(encoding="utf-8")
     page = re.sub(r"<head>", lambda m: m.group(0) + _WATCH, page, count=1)
     report = _REPORT % json.dumps(list(ids))
     page = (page.replace("</body>", report + "</body>", 1) if "</body>" in page
             else page + report)
-    with tempfile.TemporaryDirectory(prefix="calnet-chromium-") as tmp:
+    with tempfile.TemporaryDirectory(prefix="calnet-page-") as tmp:
         copy = Path(tmp) / "page.html"
         copy.write_text(page, encoding="utf-8")
-        cmd = [str(exe), *_FLAGS, f"--user-data-dir={Path(tmp) / 'profile'}",
-               "--enable-logging=stderr", "--v=0", "--virtual-time-budget=10000",
-               f"--window-size={int(width)},{int(height)}", "--dump-dom", copy.as_uri()]
-        try:
-            proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s,
-                                  check=False)
-        except subprocess.TimeoutExpired:
-            print(f"check_page: Chromium timed out after {timeout_s} s", file=sys.stderr)
-            return None
+        proc = _run_chromium("check_page", exe, [
+            "--enable-logging=stderr", "--v=0", "--virtual-time-budget=10000",
+            f"--window-size={int(width)},{int(height)}", "--dump-dom", copy.as_uri()],
+            timeout_s=timeout_s)
+    if proc is None:
+        return None
     found = _RESULT.search(proc.stdout or "")
     if proc.returncode != 0 or found is None:
-        tail = (proc.stderr or "").strip().splitlines()[-3:]
-        print(f"check_page: Chromium failed (exit {proc.returncode}): {' | '.join(tail)}",
-              file=sys.stderr)
+        _failed("check_page", proc)
         return None
     doc = json.loads(html.unescape(found.group(1)))
     console = list(doc["console"]) + _CONSOLE_LINE.findall(proc.stderr or "")
