@@ -87,8 +87,8 @@ def psis_loo(network: Network, surrogates: Surrogates, posterior: NetworkPosteri
     and the surrogates' correlation between points is accounted for. The LOO predictive
     of point i is the mixture over draws of those conditionals with the PSIS weights.
     Points whose Pareto k exceeds ``k_max`` are refitted exactly (the observing model's
-    stage re-sampled without the point, as :func:`leave_one_out`) when ``sampler`` is
-    given, the highest k first and at most ``refit_max`` of them; the others keep the
+    stage re-sampled without the point, :class:`_Refitter`) when ``sampler`` is given,
+    the highest k first and at most ``refit_max`` of them; the others keep the
     PSIS answer and are counted in ``n_unreliable``.
 
     Returns a dict: ``calnet`` (metrics of the LOO predictive), ``training_mean``
@@ -145,7 +145,7 @@ def psis_loo(network: Network, surrogates: Surrogates, posterior: NetworkPosteri
                 int(i), seed + int(i), n_samples)
             refit.append(int(i))
     refit.sort()
-    naive = np.array([np.delete(full.y, i).mean() if n > 1 else np.nan for i in range(n)])
+    naive = np.array([np.delete(full.y, i).mean() for i in range(n)])
     return {"method": "psis",
             "calnet": metrics(full.y, mean, lo, hi, samples=samples, pit=pit),
             "training_mean": metrics(full.y, naive),
@@ -283,23 +283,6 @@ class _Refitter:
         draws = np.resize(pred.samples[:, 0], n_samples)
         return (float(pred.mean[0]), float(pred.lower[0]), float(pred.upper[0]), draws,
                 float(pred.pit(full.y[i:i + 1])[0]))
-
-
-def leave_one_out(network: Network, surrogates: Surrogates, posterior: NetworkPosterior,
-                  full: ExperimentalData, *, sampler: SamplerSettings, seed: int = 0,
-                  progress=None) -> dict:
-    """Re-calibrate the observing model without each point in turn and predict it
-    (exact leave-one-out; see :class:`_Refitter`)."""
-    refitter = _Refitter(network, surrogates, posterior, full, sampler)
-    mean, lo, hi = np.empty(len(full.y)), np.empty(len(full.y)), np.empty(len(full.y))
-    for i in range(len(full.y)):
-        if progress:
-            progress(i, len(full.y))
-        mean[i], lo[i], hi[i] = refitter.predict(i, seed + i)[:3]
-    result = metrics(full.y, mean, lo, hi)
-    naive = np.array([np.delete(full.y, i).mean() for i in range(len(full.y))])
-    return {"method": "refit", "calnet": result, "training_mean": metrics(full.y, naive),
-            "mean": mean.tolist(), "lower95": lo.tolist(), "upper95": hi.tolist()}
 
 
 def _noise_var(network: Network, data: ExperimentalData, i: int):
