@@ -13,6 +13,7 @@ from calnet.sensitivity import (
     saltelli_design,
     sobol_indices,
     sobol_over_draws,
+    sobol_spread,
 )
 
 PI_BOX = [[-np.pi, np.pi]] * 3
@@ -105,6 +106,29 @@ def test_sobol_over_draws_spread():
     assert np.isclose(spread.ST_lo[1], np.percentile(spread.ST_draws[:, 1], 2.5))
     d = json.loads(json.dumps(spread.to_dict()))
     assert d["n_draws"] == 4 and len(d["ST_draws"]) == 4
+
+
+def test_sobol_spread_is_sobol_over_draws_in_one_call():
+    bounds = [[0.0, 1.0], [0.0, 2.0]]
+    draws = np.array([[1.0, 1.0], [1.0, 2.0], [3.0, 0.5]])
+    one_by_one = sobol_over_draws(lambda d: (lambda x: np.sin(x @ d)), draws, bounds,
+                                  names=["P", "v"], n_base=128, n_bootstrap=10, seed=3)
+    calls = []
+
+    def all_draws(x):
+        calls.append(x.shape)
+        return np.sin(draws @ x.T)
+
+    batched = sobol_spread(all_draws, bounds, names=["P", "v"], n_base=128, n_bootstrap=10,
+                           seed=3)
+    assert calls == [(128 * 4, 2)]
+    assert np.allclose(batched.S1_draws, one_by_one.S1_draws, rtol=0, atol=1e-12)
+    assert np.allclose(batched.ST_draws, one_by_one.ST_draws, rtol=0, atol=1e-12)
+    with pytest.raises(SensitivityError, match=r"one row per draw"):
+        sobol_spread(lambda x: x[:, 0], bounds, names=["P", "v"], n_base=64)
+    with pytest.raises(SensitivityError, match="non-finite"):
+        sobol_spread(lambda x: np.where(x.T > 0.5, np.inf, x.T), bounds, names=["P", "v"],
+                     n_base=64)
 
 
 def test_accepts_jitted_jax_function():

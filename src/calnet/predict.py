@@ -91,17 +91,23 @@ def _link_keys(plan: ChainPlan) -> tuple[str, ...]:
                                if src[0] == "output"))
 
 
-@partial(jax.jit, static_argnums=(0, 1))
-def _moments_over_draws(spec, eps_on, gps, tdata, xp_new, thetas, hyper, eps, noise_new):
-    """The KOH predictive of ``spec``'s one term for every posterior draw (vmap), with the
-    linked surrogates in ``eps_on`` perturbed by ``eps``; one compiled program per shape."""
+@partial(jax.jit, static_argnums=(0,))
+def _moments_over_draws(spec, on, gps, tdata, xp_new, thetas, hyper, eps, noise_new):
+    """The KOH predictive of ``spec``'s one term for every posterior draw (vmap), with each
+    linked surrogate ``k`` perturbed by ``on[k] * eps[k]`` (``on[k]`` 0 or 1). ``on`` is
+    traced, so one compiled program per shape serves every choice of perturbed links."""
     term = spec.terms[0]
     data = {"gps": gps}
 
     def one(th, hy, ep):
         return spec.term_predict(data, term, tdata, th, hy, xp_new,
-                                 {k: ep[k] for k in eps_on}, noise_new)
+                                 {k: on[k] * ep[k] for k in ep}, noise_new)
     return jax.vmap(one)(thetas, hyper, eps)
+
+
+def _switches(links: tuple[str, ...], on: tuple[str, ...] = ()) -> dict:
+    """``on`` argument of :func:`_moments_over_draws`: 1.0 for the links in ``on``."""
+    return {k: jnp.asarray(1.0 if k in on else 0.0) for k in links}
 
 
 @dataclass(frozen=True)
@@ -215,19 +221,23 @@ def _noise_at(st: _Setup, m: int, noise_var: np.ndarray | None) -> jnp.ndarray:
 
 
 def mean_function(network: Network, surrogates: Surrogates, posterior: NetworkPosterior,
-                  dataset: str, idx: np.ndarray):
+                  dataset: str, idx: np.ndarray, *, per_draw: bool = False):
     """``f(x) -> (m,)``: the posterior mean over draws ``idx`` of the KOH predictive mean
-    at process settings ``x`` (m, k), natural scale (the Sobol stage's function)."""
+    at process settings ``x`` (m, k), natural scale (the Sobol stage's function). With
+    ``per_draw``, ``f(x) -> (len(idx), m)``: each draw's predictive mean."""
     st = _setup(network, surrogates, posterior, dataset, np.asarray(idx))
-    eps = {}
+    links = _link_keys(st.spec.plan)
+    off = _switches(links)
 
     def f(x):
         x = np.atleast_2d(np.asarray(x, dtype=float))
         xp = {k: jnp.asarray(x[:, j]) for j, k in enumerate(st.keys)}
-        mean = _moments_over_draws(st.spec, (), st.gps, st.tdata, xp, st.thetas, st.hyper,
+        eps = {k: jnp.zeros((len(idx), len(x))) for k in links}
+        mean = _moments_over_draws(st.spec, off, st.gps, st.tdata, xp, st.thetas, st.hyper,
                                    eps, jnp.zeros(len(x)))[0]
         z = np.asarray(mean) * float(st.tdata["y_sd"]) + float(st.tdata["y_mean"])
-        return np.mean(np.exp(z) if st.log else z, axis=0)
+        z = np.exp(z) if st.log else z
+        return z if per_draw else np.mean(z, axis=0)
 
     return f
 
@@ -269,8 +279,8 @@ def predict(network: Network, surrogates: Surrogates, posterior: NetworkPosterio
     key = network.dataset(dataset).observes
 
     def run(eps_on):
-        return _moments_over_draws(st.spec, tuple(eps_on), st.gps, st.tdata, xp_new,
-                                   st.thetas, st.hyper, eps, noise_new)
+        return _moments_over_draws(st.spec, _switches(links, tuple(eps_on)), st.gps,
+                                   st.tdata, xp_new, st.thetas, st.hyper, eps, noise_new)
 
     mean0, var_delta, var_emu, noise = (np.asarray(a) for a in run(()))
     budget = {"parameters": mean0.var(axis=0)}

@@ -3,7 +3,9 @@
 The inputs are uniform over the box ``bounds`` (method.md section 6). The low level is
 :func:`saltelli_design` (the input sample) and :func:`analyze_outputs` (indices from the
 model outputs on that sample); :func:`sobol_indices` is the one-call driver and
-:func:`sobol_over_draws` repeats it for several posterior draws of a calibrated chain.
+:func:`sobol_spread` repeats the analysis for several posterior draws of a calibrated chain
+from one call of a model that returns a row per draw (:func:`sobol_over_draws` takes one
+model per draw).
 SALib does the sampling (scrambled Sobol' sequence, Saltelli cross-sampling) and the
 estimation (Saltelli 2010 first order, Jansen total effect, bootstrap confidence
 intervals). :func:`jansen_total` is an independent pure-NumPy Monte Carlo cross-check of
@@ -182,6 +184,12 @@ def _evaluate(func: VectorFunc, x: np.ndarray) -> np.ndarray:
     if y.shape != (n,):
         raise SensitivityError(f"func must map an ({n}, {x.shape[1]}) array to shape ({n},), "
                                f"got {y.shape}; return one scalar output per row")
+    return _checked(y, x)
+
+
+def _checked(y: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """``y`` (n,), the outputs at inputs ``x`` (n, d), if finite and not constant."""
+    n = x.shape[0]
     bad = ~np.isfinite(y)
     if bad.any():
         first = x[np.argmax(bad)].tolist()
@@ -384,13 +392,49 @@ def sobol_over_draws(func_of_draw: Callable[[Any], VectorFunc], draws: Iterable[
     SobolSpread
         Per-input mean and 2.5 / 97.5 percentiles of S1 and ST across draws.
     """
+    draws = list(draws)
+    if not draws:
+        raise SensitivityError("draws is empty; pass at least one posterior draw")
+    return sobol_spread(lambda x: np.stack([_evaluate(func_of_draw(d), x) for d in draws]),
+                        bounds, names=names, n_base=n_base, n_bootstrap=n_bootstrap,
+                        seed=seed, conf_level=conf_level)
+
+
+def sobol_spread(func_draws: Callable[[np.ndarray], Any], bounds: Any, *,
+                 names: Sequence[str], n_base: int = 1024, n_bootstrap: int = 100,
+                 seed: int = 0, conf_level: float = 0.95) -> SobolSpread:
+    """:func:`sobol_over_draws` for a model that evaluates every draw in one call.
+
+    Parameters
+    ----------
+    func_draws : callable
+        An ``(n, d)`` array of inputs (physical units) to ``(n_draws, n)`` outputs: one row
+        per posterior draw.
+    bounds, names, n_base, n_bootstrap, seed, conf_level
+        As in :func:`sobol_over_draws`.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> w = np.array([[1.0, 2.0], [2.0, 1.0]])  # two "draws" of a linear model
+    >>> res = sobol_spread(lambda x: w @ x.T, [[0, 1], [0, 1]], names=["a", "b"],
+    ...                    n_base=256, n_bootstrap=20)
+    >>> np.round(res.ST_draws, 1).tolist()
+    [[0.2, 0.8], [0.8, 0.2]]
+    """
     _check_bounds(bounds, names)
     x = saltelli_design(bounds, n_base=n_base, seed=seed)
-    results = [analyze_outputs(_evaluate(func_of_draw(draw), x), names=names, n_base=n_base,
+    y = np.asarray(func_draws(x), dtype=float)
+    if y.ndim != 2 or y.shape[1] != x.shape[0]:
+        raise SensitivityError(f"func_draws must map an {x.shape} array to shape "
+                               f"(n_draws, {x.shape[0]}), got {y.shape}; return one row per "
+                               "draw")
+    if not len(y):
+        raise SensitivityError("func_draws returned no draws; pass at least one posterior "
+                               "draw")
+    results = [analyze_outputs(_checked(row, x), names=names, n_base=n_base,
                                n_bootstrap=n_bootstrap, seed=seed, conf_level=conf_level)
-               for draw in draws]
-    if not results:
-        raise SensitivityError("draws is empty; pass at least one posterior draw")
+               for row in y]
     s1 = np.stack([r.S1 for r in results])
     st = np.stack([r.ST for r in results])
     s1_lo, s1_hi = np.percentile(s1, [2.5, 97.5], axis=0)

@@ -28,18 +28,19 @@ def _axis_labels(network, input_keys) -> list[str]:
             for model, name in (key.split(".", 1) for key in input_keys)]
 
 
-def _mean_fn(ctx, name, idx):
-    """Vectorised posterior predictive mean over draws ``idx`` (natural scale)."""
+def _mean_fn(ctx, name, idx, per_draw=False):
+    """Vectorised posterior predictive mean over draws ``idx`` (natural scale), or each
+    draw's with ``per_draw``."""
     from calnet.predict import mean_function
 
-    return mean_function(ctx.network, ctx.sur, ctx.post, name, idx)
+    return mean_function(ctx.network, ctx.sur, ctx.post, name, idx, per_draw=per_draw)
 
 
 def sensitivity_and_maps(ctx, note) -> None:
     """Sobol indices (with spread over posterior draws) and (P, v) maps per data set."""
     from calnet.predict import predict
     from calnet.report import figures
-    from calnet.sensitivity import sobol_indices, sobol_over_draws
+    from calnet.sensitivity import sobol_indices, sobol_spread
 
     n_base = 128 if ctx.quick else 512
     sens, maps = {}, {}
@@ -52,8 +53,8 @@ def sensitivity_and_maps(ctx, note) -> None:
         res = sobol_indices(_mean_fn(ctx, name, idx), box, names=names, n_base=n_base,
                             n_bootstrap=100, seed=ctx.seed)
         draws = np.linspace(0, total - 1, 3 if ctx.quick else 20).astype(int)
-        spread = sobol_over_draws(lambda i, nm=name: _mean_fn(ctx, nm, np.array([i])), draws,
-                                  box, names=names, n_base=n_base // 2, seed=ctx.seed)
+        spread = sobol_spread(_mean_fn(ctx, name, draws, per_draw=True), box, names=names,
+                              n_base=n_base // 2, seed=ctx.seed)
         sens[name] = {"indices": res.to_dict(), "over_draws": spread.to_dict(),
                       "box": box.tolist()}
         ctx.figures[f"sobol {name}"] = figures.sobol_bars(
