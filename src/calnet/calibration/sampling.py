@@ -27,6 +27,7 @@ import threading
 import time
 from collections import OrderedDict
 from collections.abc import Callable, Hashable, Iterator
+from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass
 from functools import partial
@@ -386,14 +387,18 @@ def sample_nuts(
     if u0.shape != (num_chains, ld.dim):
         raise CalibrationError(f"{ld.name}: init must have shape ({num_chains}, {ld.dim}), "
                                f"got {u0.shape}")
-    check_initial(ld, u0, ld.name)
     keys = jax.random.split(jax.random.fold_in(jax.random.PRNGKey(seed), 1), num_chains)
     ids = jnp.arange(num_chains)
+    u_start = u0
     if method == "parallel":  # (devices, chains per device, ...)
         keys, u0, ids = (a.reshape((groups, num_chains // groups) + a.shape[1:])
                          for a in (keys, u0, ids))
     args = (keys, u0, ids, ld.data)
-    exe, t_compile = _compiled(cfg, args)
+    # XLA compiles the sampler on one core: check the initial points on the other
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        compiling = pool.submit(_compiled, cfg, args)
+        check_initial(ld, u_start, ld.name)  # on an error, the pool waits for the compile
+        exe, t_compile = compiling.result()
     _PROGRESS["fn"], running = _reporter(progress, ld.name, num_chains, num_warmup,
                                          num_draws, t_compile)
     try:
