@@ -8,7 +8,9 @@ GP as ``ln x``.
 from __future__ import annotations
 
 import json
+import os
 from collections.abc import Callable, Mapping
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -150,7 +152,7 @@ def fit_surrogates(network: Network, *, stores: Mapping[str, Path] | None = None
     from calnet.campaign import load_runs
 
     seed = network.settings.seed if seed is None else seed
-    items = {}
+    jobs = []
     for name in network.order:
         model = network.model(name)
         needed = network.needed_outputs(name)
@@ -161,11 +163,8 @@ def fit_surrogates(network: Network, *, stores: Mapping[str, Path] | None = None
         x = gp_space(model, np.asarray(runs.X, dtype=float))
         lower, upper = gp_bounds(model)
         for out in needed:
-            if progress:
-                progress(f"{name}.{out.name}")
             y = np.asarray(runs.Y[out.name], dtype=float)
             ok = np.isfinite(y) & np.all(np.isfinite(x), axis=1)
-            n_excl = runs.n_excluded + int((~ok).sum())
             if ok.sum() == 0:
                 raise SurrogateError(f"{name}.{out.name}: all {runs.n_total} runs failed or "
                                      "gave non-finite values; fix the simulator, then run "
@@ -173,16 +172,24 @@ def fit_surrogates(network: Network, *, stores: Mapping[str, Path] | None = None
                                      "--retry-failed (or calnet run SPEC --fresh)")
             kw = dict(lower=lower, upper=upper, transform=out.transform,
                       n_restarts=min(restarts or settings.restarts, settings.restarts),
-                      seed=seed,
-                      name=f"{name}.{out.name}")
-            gp = fit_gp(x[ok], y[ok], **kw)
-            # folds re-optimise from the full-data optimum (one start each): k refits
-            # at the cost of about k / (restarts + 1) full fits
-            cvr = (cross_validate(x[ok], y[ok], k=min(cv_folds or settings.cv_folds,
-                                                      settings.cv_folds, int(ok.sum())),
-                                  **{**kw, "n_restarts": 0},
-                                  init=np.asarray(gp.log_params))
-                   if cv else None)
-            items[f"{name}.{out.name}"] = OutputSurrogate(name, out.name, gp, cvr,
-                                                          int(ok.sum()), n_excl)
+                      seed=seed, name=f"{name}.{out.name}")
+            folds = min(cv_folds or settings.cv_folds, settings.cv_folds, int(ok.sum()))
+            jobs.append((name, out.name, x[ok], y[ok], kw, folds if cv else 0,
+                         runs.n_excluded + int((~ok).sum())))
+
+    def fit(job) -> OutputSurrogate:
+        name, out, x, y, kw, folds, n_excl = job
+        if progress:
+            progress(f"{name}.{out}")
+        gp = fit_gp(x, y, **kw)
+        # folds re-optimise from the full-data optimum (one start each): k refits at the
+        # cost of about k / (restarts + 1) full fits
+        cvr = (cross_validate(x, y, k=folds, **{**kw, "n_restarts": 0},
+                              init=np.asarray(gp.log_params)) if folds else None)
+        return OutputSurrogate(name, out, gp, cvr, len(y), n_excl)
+
+    # XLA compiles and runs each fit mostly on one core: fit outputs side by side
+    with ThreadPoolExecutor(max_workers=max(1, min(len(jobs), os.cpu_count() or 1))) as pool:
+        fitted = list(pool.map(fit, jobs))
+    items = {s.key: s for s in fitted}
     return Surrogates(items)
