@@ -6,9 +6,11 @@ validation -> sensitivity -> process map -> report (HTML, metrics.json, posterio
 
 from __future__ import annotations
 
+import os
 import time
 import warnings
 from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from datetime import UTC, datetime
 from pathlib import Path
@@ -219,11 +221,15 @@ class _Context:
     def prediction(self, note) -> None:
         from calnet.predict import predict_data
 
-        self.predictions = {}
-        for name, d in self.data.items():
+        def one(name):
             note(name)
-            self.predictions[name] = predict_data(self.network, self.sur, self.post, d,
-                                                  seed=self.seed)
+            return predict_data(self.network, self.sur, self.post, self.data[name],
+                                seed=self.seed)
+
+        # side by side, one thread per core: XLA compiles each program on one core
+        order = list(self.data)
+        with ThreadPoolExecutor(max(1, min(len(order), os.cpu_count() or 1))) as pool:
+            self.predictions = dict(zip(order, pool.map(one, order), strict=True))
 
     def validation(self, note) -> None:
         from calnet.predict import metrics

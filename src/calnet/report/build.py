@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import os
+from concurrent.futures import ThreadPoolExecutor
+
 import numpy as np
 
 from calnet.report.figures import with_unit
@@ -36,39 +39,62 @@ def _mean_fn(ctx, name, idx, per_draw=False):
     return mean_function(ctx.network, ctx.sur, ctx.post, name, idx, per_draw=per_draw)
 
 
-def sensitivity_and_maps(ctx, note) -> None:
-    """Sobol indices (with spread over posterior draws) and (P, v) maps per data set."""
+def _sensitivity_of(ctx, name, note):
+    """Sobol indices, their spread over draws and (for two process inputs) the predictive
+    map of data set ``name``: ``(indices, spread, box, map)``, map ``(g0, g1, pred)`` or
+    None."""
     from calnet.predict import predict
-    from calnet.report import figures
     from calnet.sensitivity import sobol_indices, sobol_spread
 
     n_base = 128 if ctx.quick else 512
-    sens, maps = {}, {}
     total = ctx.post.n_draws
-    for name, d in ctx.data.items():
-        note(f"Sobol {name}")
-        box = _process_box(ctx, name)
-        names = [k.split(".")[1] for k in d.input_keys]
-        idx = np.linspace(0, total - 1, min(50, total)).astype(int)
-        res = sobol_indices(_mean_fn(ctx, name, idx), box, names=names, n_base=n_base,
-                            n_bootstrap=100, seed=ctx.seed)
-        draws = np.linspace(0, total - 1, 3 if ctx.quick else 20).astype(int)
-        spread = sobol_spread(_mean_fn(ctx, name, draws, per_draw=True), box, names=names,
-                              n_base=n_base // 2, seed=ctx.seed)
+    d = ctx.data[name]
+    note(f"Sobol {name}")
+    box = _process_box(ctx, name)
+    names = [k.split(".")[1] for k in d.input_keys]
+    idx = np.linspace(0, total - 1, min(50, total)).astype(int)
+    res = sobol_indices(_mean_fn(ctx, name, idx), box, names=names, n_base=n_base,
+                        n_bootstrap=100, seed=ctx.seed)
+    draws = np.linspace(0, total - 1, 3 if ctx.quick else 20).astype(int)
+    spread = sobol_spread(_mean_fn(ctx, name, draws, per_draw=True), box, names=names,
+                          n_base=n_base // 2, seed=ctx.seed)
+    if d.x.shape[1] != 2:
+        return res, spread, box, None
+    note(f"map {name}")
+    g0, g1 = (np.linspace(box[j, 0], box[j, 1], GRID) for j in range(2))
+    mesh = np.array(np.meshgrid(g0, g1)).reshape(2, -1).T
+    crit = ctx.network.settings.criteria.get(name)
+    within = (crit.lower, crit.upper) if crit else None
+    pred = predict(ctx.network, ctx.sur, ctx.post, name, mesh, n_draws=60, seed=ctx.seed,
+                   n_samples=10, within=within)
+    return res, spread, box, (g0, g1, pred)
+
+
+def sensitivity_and_maps(ctx, note) -> None:
+    """Sobol indices (with spread over posterior draws) and (P, v) maps per data set.
+
+    The data sets are computed side by side, one thread per core (XLA compiles each
+    program on one core); the figures are drawn afterwards, in order.
+    """
+    from calnet.report import figures
+
+    order = list(ctx.data)
+    workers = max(1, min(len(order), os.cpu_count() or 1))
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        computed = list(pool.map(lambda n: _sensitivity_of(ctx, n, note), order))
+    sens, maps = {}, {}
+    for name, (res, spread, box, grid) in zip(order, computed, strict=True):
+        d = ctx.data[name]
+        names = list(res.names)
         sens[name] = {"indices": res.to_dict(), "over_draws": spread.to_dict(),
                       "box": box.tolist()}
         ctx.figures[f"sobol {name}"] = figures.sobol_bars(
             names, res.S1, res.S1_conf, res.ST, res.ST_conf,
             ctx.out / "figures" / f"sobol_{name}.png", f"Sobol indices: {d.observes}")
-        if d.x.shape[1] != 2:
+        if grid is None:
             continue
-        note(f"map {name}")
-        g0, g1 = (np.linspace(box[j, 0], box[j, 1], GRID) for j in range(2))
-        mesh = np.array(np.meshgrid(g0, g1)).reshape(2, -1).T
+        g0, g1, pred = grid
         crit = ctx.network.settings.criteria.get(name)
-        within = (crit.lower, crit.upper) if crit else None
-        pred = predict(ctx.network, ctx.sur, ctx.post, name, mesh, n_draws=60, seed=ctx.seed,
-                       n_samples=10, within=within)
         out = ctx.network.model(d.observes.split(".")[0]).output(d.observes.split(".")[1])
         points = np.column_stack([d.x[:, 0], d.x[:, 1]])
         labels = dict(zip(("p_label", "v_label"), _axis_labels(ctx.network, d.input_keys),
