@@ -6,7 +6,6 @@ validation -> sensitivity -> process map -> report (HTML, metrics.json, posterio
 
 from __future__ import annotations
 
-import os
 import time
 import warnings
 from collections.abc import Iterator
@@ -20,6 +19,7 @@ from rich.console import Console
 from rich.progress import BarColumn, Progress, TaskID, TextColumn, TimeElapsedColumn
 
 from calnet.errors import CalibrationWarning, CalnetError
+from calnet.parallel import map_threads
 from calnet.spec import Network, load_spec, read_all
 from calnet.spec.models import SamplerSettings
 
@@ -226,10 +226,8 @@ class _Context:
             return predict_data(self.network, self.sur, self.post, self.data[name],
                                 seed=self.seed)
 
-        # side by side, one thread per core: XLA compiles each program on one core
-        order = list(self.data)
-        with ThreadPoolExecutor(max(1, min(len(order), os.cpu_count() or 1))) as pool:
-            self.predictions = dict(zip(order, pool.map(one, order), strict=True))
+        order = list(self.data)  # side by side, one thread per core
+        self.predictions = dict(zip(order, map_threads(one, order), strict=True))
 
     def validation(self, note) -> None:
         from calnet.validation import baselines

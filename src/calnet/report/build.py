@@ -2,11 +2,9 @@
 
 from __future__ import annotations
 
-import os
-from concurrent.futures import ThreadPoolExecutor
-
 import numpy as np
 
+from calnet.parallel import map_threads
 from calnet.report.figures import with_unit
 from calnet.report.headline import BASELINES, headline
 from calnet.report.html import Section, Table, fmt, write_report
@@ -79,9 +77,7 @@ def sensitivity_and_maps(ctx, note) -> None:
     from calnet.report import figures
 
     order = list(ctx.data)
-    workers = max(1, min(len(order), os.cpu_count() or 1))
-    with ThreadPoolExecutor(max_workers=workers) as pool:
-        computed = list(pool.map(lambda n: _sensitivity_of(ctx, n, note), order))
+    computed = map_threads(lambda n: _sensitivity_of(ctx, n, note), order)
     sens, maps = {}, {}
     for name, (res, spread, box, grid) in zip(order, computed, strict=True):
         d = ctx.data[name]

@@ -8,9 +8,7 @@ GP as ``ln x``.
 from __future__ import annotations
 
 import json
-import os
 from collections.abc import Callable, Mapping
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -19,6 +17,7 @@ import numpy as np
 
 from calnet.errors import SurrogateError
 from calnet.files import make_folder, replacing
+from calnet.parallel import map_threads
 from calnet.spec import Model, Network
 from calnet.surrogates.cv import CVResult, cross_validate
 from calnet.surrogates.fit import fit_gp
@@ -188,8 +187,5 @@ def fit_surrogates(network: Network, *, stores: Mapping[str, Path] | None = None
                               init=np.asarray(gp.log_params)) if folds else None)
         return OutputSurrogate(name, out, gp, cvr, len(y), n_excl)
 
-    # XLA compiles and runs each fit mostly on one core: fit outputs side by side
-    with ThreadPoolExecutor(max_workers=max(1, min(len(jobs), os.cpu_count() or 1))) as pool:
-        fitted = list(pool.map(fit, jobs))
-    items = {s.key: s for s in fitted}
+    items = {s.key: s for s in map_threads(fit, jobs)}  # outputs side by side
     return Surrogates(items)

@@ -1,0 +1,43 @@
+"""Independent pieces of a stage side by side, one thread per usable core.
+
+XLA compiles a program on one core, and SciPy's optimisers drive XLA calls from one
+Python thread; both release the GIL while they work, so a stage with independent pieces
+(one GP fit per output, one predictive per data set) runs them in threads.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Iterable
+from concurrent.futures import ThreadPoolExecutor
+from typing import TypeVar
+
+T = TypeVar("T")
+R = TypeVar("R")
+
+
+def usable_cores() -> int:
+    """The cores this process may run on (its CPU affinity; ``os.cpu_count`` elsewhere)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not on Linux
+        return max(1, os.cpu_count() or 1)
+
+
+def map_threads(fn: Callable[[T], R], items: Iterable[T]) -> list[R]:
+    """``[fn(item) for item in items]``, computed in up to :func:`usable_cores` threads.
+
+    Results keep the order of ``items``. The exception of the first failing item (in
+    that order) propagates once the calls already running have finished; calls not
+    started by then are dropped.
+
+    Examples
+    --------
+    >>> map_threads(lambda x: x * x, [1, 2, 3])
+    [1, 4, 9]
+    """
+    items = list(items)
+    if len(items) <= 1 or usable_cores() == 1:
+        return [fn(item) for item in items]
+    with ThreadPoolExecutor(max_workers=min(len(items), usable_cores())) as pool:
+        return list(pool.map(fn, items))
