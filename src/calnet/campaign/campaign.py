@@ -22,20 +22,17 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 import calnet
-from calnet.campaign.design import (
-    Design,
-    augment,
-    design_columns,
-    latin_hypercube,
-    log_columns,
-    model_box,
-    to_unit,
-)
 from calnet.campaign.executors import WorkerDied, executor_kind, make_executor
+from calnet.campaign.importing import import_into, read_runs
 from calnet.campaign.lease import holder as lease_holder
+from calnet.campaign.planning import (
+    choose_design,
+    design_conflict,
+    plan,
+    settings_of,
+    target_runs,
+)
 from calnet.campaign.runners import (
     CallableRunner,
     RunRecord,
@@ -51,7 +48,7 @@ from calnet.campaign.store import (
     model_fingerprint,
     store_errors,
 )
-from calnet.errors import CampaignError, CampaignWarning
+from calnet.errors import CampaignError, CampaignWarning, SpecError
 from calnet.files import why
 from calnet.progress import Lines, to_stderr
 from calnet.spec.models import Model
@@ -83,6 +80,10 @@ class CampaignSummary:
     executor : str
     workers : int
     seed : int
+    imported : int
+        Runs imported by this call (``campaign.import`` or ``--import``).
+    design : str
+        The store's design (``lhs``, ``sobol``, ``halton``, ``chain``, ``file:<name>``).
     """
 
     model: str
@@ -97,6 +98,8 @@ class CampaignSummary:
     executor: str = ""
     workers: int = 1
     seed: int = 0
+    imported: int = 0
+    design: str = ""
 
     @property
     def n_ok(self) -> int:
@@ -176,12 +179,19 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
     with store_errors(path), RunStore(path) as db:
         db.take_lease()
         _claim(db, network, model, seed, sim.name, version)
-        design = _plan(db, model, _target_runs(runs, model, network, db.planned()), seed)
+        imported = _import_spec_runs(db, network, model, seed)
+        choice = choose_design(network, model, db.meta())
+        problem = design_conflict(choice, db.meta(), path)
+        if problem:
+            raise CampaignError(problem)
+        total = plan(db, network, model, choice,
+                     target_runs(runs, network, model, choice, db.planned(), db.imported()),
+                     seed)
         if retry_failed:
             db.reset_failed()
         todo = db.unfinished()
         _check_versions(db, sim.name, version, bool(todo))
-        skipped = len(design) - len(todo)
+        skipped = total - len(todo)
         in_flight = sum(was for _, _, was in todo)
         timeout = run_timeout(network, model)
         tasks = ((sim, i, inputs, timeout, model.output_names) for i, inputs, _ in todo)
@@ -191,7 +201,7 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
         isolate = isinstance(sim, CallableRunner) and timeout is None
         with make_executor(executor, workers=workers, scheduler=scheduler,
                            isolate=isolate) as ex, \
-                _progress(progress, model_name, len(design), skipped, db) as advance:
+                _progress(progress, model_name, total, skipped, db) as advance:
             for task, result in ex.run(execute_run, tasks,
                                        on_submit=lambda t: db.mark_started([t[1]])):
                 rec = result if isinstance(result, RunRecord) else _worker_died(task[1], result)
@@ -199,10 +209,68 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
                 if rec.status != "ok" and len(failures) < 20:
                     failures[rec.index] = f"{rec.status}: {rec.message}"
                 advance(rec.status)
-        counts = db.status_counts()
-    return CampaignSummary(model_name, path, len(design), skipped, len(todo), in_flight,
+        counts, label = db.status_counts(), db.meta().get("design_kind", "")
+    return CampaignSummary(model_name, path, total, skipped, len(todo), in_flight,
                            counts, failures, time.perf_counter() - start, ex.name, ex.workers,
-                           seed)
+                           seed, imported, label)
+
+
+def import_runs(network: Network, model_name: str, table: str | Path, *,
+                store: str | Path | None = None, seed: int | None = None) -> CampaignSummary:
+    """Import a table of finished runs into a model's store (simulating nothing).
+
+    Parameters
+    ----------
+    network : Network
+    model_name : str
+    table : path
+        ``.csv`` or ``.parquet``: one column per input, parameter and output, an optional
+        ``status`` (``ok`` where absent); see :mod:`calnet.campaign.importing`.
+    store : path, optional
+        Default :func:`default_store`.
+    seed : int, optional
+        The store's seed (default ``network.settings.seed``), checked like a campaign's.
+
+    Returns
+    -------
+    CampaignSummary
+        ``imported`` runs added; runs the store already held are skipped, so importing
+        the same file again adds nothing.
+
+    Raises
+    ------
+    CampaignError
+        A bad table (one line naming the file, column and row), a store of another model
+        or seed, a row whose inputs the store holds with another result.
+    """
+    model = _model(network, model_name)
+    seed = network.settings.seed if seed is None else int(seed)
+    path = Path(store) if store is not None else default_store(network, model_name)
+    runs = read_runs(Path(table), model, strict=network.settings.strict)
+    sim = make_simulator(network, model, workdir=path.with_suffix(".work"))
+    start = time.perf_counter()
+    with store_errors(path), RunStore(path) as db:
+        db.take_lease()
+        _claim(db, network, model, seed, sim.name, simulator_version(sim))
+        added, _ = import_into(db, runs, seed=seed)
+        planned, counts = db.planned(), db.status_counts()
+        label = db.meta().get("design_kind", "")
+    return CampaignSummary(model_name, path, planned, planned, 0, 0, counts, {},
+                           time.perf_counter() - start, "none", 0, seed, added, label)
+
+
+def _import_spec_runs(db: RunStore, network: Network, model: Model, seed: int) -> int:
+    """Import the spec's ``campaign.import`` table, if any; the number of runs added."""
+    name = settings_of(network, model).import_
+    if name is None:
+        return 0
+    table = network.path(name)
+    if not table.is_file():
+        raise SpecError(f"no run table '{table}'; give a .csv or .parquet file of finished "
+                        "runs, relative to the spec", file=network.source or None,
+                        field=f"models.{model.name}.campaign.import")
+    return import_into(db, read_runs(table, model, strict=network.settings.strict),
+                       seed=seed)[0]
 
 
 def _complete_readonly(path: Path, network: Network, model: Model, seed: int,
@@ -212,12 +280,17 @@ def _complete_readonly(path: Path, network: Network, model: Model, seed: int,
     finished, no more runs asked for), read without writing a byte; else None."""
     if retry_failed or not path.is_file():
         return None
+    if settings_of(network, model).import_ is not None:
+        return None  # the import checks the table against the store, and may add runs
     try:
         with RunStore(path, readonly=True) as db:
             meta = db.meta()
-            planned = db.planned()
-            if (not meta or _foreign(meta, model, seed, path) or planned == 0
-                    or _target_runs(runs, model, network, planned) > planned
+            planned, imported = db.planned(), db.imported()
+            if not meta or _foreign(meta, model, seed, path) or planned + imported == 0:
+                return None
+            choice = choose_design(network, model, meta)
+            if (design_conflict(choice, meta, path)
+                    or target_runs(runs, network, model, choice, planned, imported) > planned
                     or db.unfinished()):
                 return None
             _check_versions(db, simulator, version, False)
@@ -225,7 +298,8 @@ def _complete_readonly(path: Path, network: Network, model: Model, seed: int,
     except (CampaignError, sqlite3.DatabaseError):
         return None  # let the writing path give the full diagnosis
     return CampaignSummary(model.name, path, planned, planned, 0, 0, counts, {},
-                           time.perf_counter() - start, "none", 0, seed)
+                           time.perf_counter() - start, "none", 0, seed, 0,
+                           meta.get("design_kind") or choice.label)
 
 
 def _check_versions(db: RunStore, simulator: str, version: str, more_to_run: bool) -> None:
@@ -273,8 +347,7 @@ def _claim(db: RunStore, network: Network, model: Model, seed: int, simulator: s
     else:
         db.set_meta({"schema": "1", "model": model.name, "model_hash": fingerprint_hash(fp),
                      "model_spec": json.dumps(fp), "seed": str(seed),
-                     "created_at": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
-                     "design": "scipy.stats.qmc.LatinHypercube(optimization='random-cd')"})
+                     "created_at": time.strftime("%Y-%m-%dT%H:%M:%S%z")})
     db.set_meta({"calnet_version": calnet.__version__, "simulator": simulator,
                  "simulator_version": version, "spec": network.source,
                  "spec_sha256": _file_hash(network.source)})
@@ -302,33 +375,6 @@ def _file_hash(path: str) -> str:
         return hashlib.sha256(Path(path).read_bytes()).hexdigest() if path else ""
     except OSError:
         return ""
-
-
-def _target_runs(runs: int | None, model: Model, network: Network, planned: int) -> int:
-    if runs is None:
-        return max((model.campaign or network.settings.campaign).runs, planned)
-    if runs < planned:
-        raise CampaignError(f"the store already plans {planned} runs; ask for at least "
-                            f"{planned} (--runs), or use a new --store for a smaller design")
-    return runs
-
-
-def _plan(db: RunStore, model: Model, runs: int, seed: int) -> Design:
-    """The design of ``runs`` points: a new hypercube, or the stored one augmented."""
-    planned = db.planned()
-    if planned == 0:
-        design = latin_hypercube(model, runs, seed=seed)
-    else:
-        lower, upper = model_box(model)
-        columns, log = design_columns(model), log_columns(model)
-        x = np.array([[r["inputs"][c] for c in columns] for r in db.rows()])
-        old = Design(columns, lower, upper, to_unit(x, lower, upper, log), log)
-        if runs <= planned:  # the stored points are the design: never recomputed, so a
-            return old      # unit-cube round trip cannot change their last bits
-        design = augment(old, runs - planned, seed=seed, model_name=model.name)
-    # only new points are planned; the stored ones keep their exact inputs
-    db.plan(((i, design.row(i)) for i in range(planned, len(design))), seed=seed)
-    return design
 
 
 def _worker_died(index: int, err: Any) -> RunRecord:
