@@ -69,13 +69,13 @@ def test_spec_import_key_simulates_nothing_without_runs(tmp_path):
     (tmp_path / "data").mkdir()
     toy_runs().to_parquet(tmp_path / "data" / "runs.parquet", index=False)
     net = load_spec(spec)
-    first = run_campaign(net, "toy", progress=False)
+    first = run_campaign(net, "toy", executor="in-process", progress=False)
     assert (first.imported, first.planned, first.ran, first.n_ok) == (6, 0, 0, 6)
-    again = run_campaign(net, "toy", progress=False)
+    again = run_campaign(net, "toy", executor="in-process", progress=False)
     assert (again.imported, again.n_ok) == (0, 6)
     (tmp_path / "data" / "runs.parquet").unlink()
     with pytest.raises(SpecError, match=r"models.toy.campaign.import: no run table"):
-        run_campaign(net, "toy", progress=False)
+        run_campaign(net, "toy", executor="in-process", progress=False)
 
 
 @pytest.mark.parametrize("suffix", [".csv", ".parquet"])

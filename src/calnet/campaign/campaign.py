@@ -24,13 +24,15 @@ from typing import Any
 
 import calnet
 from calnet.campaign.executors import WorkerDied, executor_kind, make_executor
-from calnet.campaign.importing import import_into, read_runs
+from calnet.campaign.importing import ImportedRuns, import_into, read_runs
 from calnet.campaign.lease import holder as lease_holder
 from calnet.campaign.planning import (
+    DesignChoice,
     choose_design,
     design_conflict,
     plan,
     settings_of,
+    spec_design,
     target_runs,
 )
 from calnet.campaign.runners import (
@@ -164,6 +166,8 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
     executor_kind(executor, workers=workers, scheduler=scheduler)  # bad options fail first
     seed = network.settings.seed if seed is None else int(seed)
     path = Path(store) if store is not None else default_store(network, model_name)
+    asked = spec_design(network, model)  # a bad design file or run table fails first
+    table = _spec_table(network, model)
     if fresh:
         held = lease_holder(path)
         if held:
@@ -173,14 +177,14 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
     version = simulator_version(sim)
     start = time.perf_counter()
     done = _complete_readonly(path, network, model, seed, runs, sim.name, version,
-                              retry_failed, start)
+                              retry_failed or table is not None, start, asked)
     if done is not None:  # nothing to run: the store is read, never written
         return done
     with store_errors(path), RunStore(path) as db:
         db.take_lease()
         _claim(db, network, model, seed, sim.name, version)
-        imported = _import_spec_runs(db, network, model, seed)
-        choice = choose_design(network, model, db.meta())
+        imported = import_into(db, table, seed=seed)[0] if table is not None else 0
+        choice = choose_design(network, model, db.meta(), asked)
         problem = design_conflict(choice, db.meta(), path)
         if problem:
             raise CampaignError(problem)
@@ -259,36 +263,35 @@ def import_runs(network: Network, model_name: str, table: str | Path, *,
                            time.perf_counter() - start, "none", 0, seed, added, label)
 
 
-def _import_spec_runs(db: RunStore, network: Network, model: Model, seed: int) -> int:
-    """Import the spec's ``campaign.import`` table, if any; the number of runs added."""
+def _spec_table(network: Network, model: Model) -> ImportedRuns | None:
+    """The spec's ``campaign.import`` table, read and validated; None without one."""
     name = settings_of(network, model).import_
     if name is None:
-        return 0
+        return None
     table = network.path(name)
     if not table.is_file():
         raise SpecError(f"no run table '{table}'; give a .csv or .parquet file of finished "
                         "runs, relative to the spec", file=network.source or None,
                         field=f"models.{model.name}.campaign.import")
-    return import_into(db, read_runs(table, model, strict=network.settings.strict),
-                       seed=seed)[0]
+    return read_runs(table, model, strict=network.settings.strict)
 
 
 def _complete_readonly(path: Path, network: Network, model: Model, seed: int,
-                       runs: int | None, simulator: str, version: str, retry_failed: bool,
-                       start: float) -> CampaignSummary | None:
+                       runs: int | None, simulator: str, version: str, write: bool,
+                       start: float, asked: DesignChoice | None) -> CampaignSummary | None:
     """The summary of a store that needs no work (same spec and seed, every planned run
-    finished, no more runs asked for), read without writing a byte; else None."""
-    if retry_failed or not path.is_file():
+    finished, no more runs asked for), read without writing a byte; else None. A run
+    table to import, or a design file, is checked against the store on the writing path
+    (``write``, or ``asked`` a design file)."""
+    if write or not path.is_file() or (asked is not None and asked.points is not None):
         return None
-    if settings_of(network, model).import_ is not None:
-        return None  # the import checks the table against the store, and may add runs
     try:
         with RunStore(path, readonly=True) as db:
             meta = db.meta()
             planned, imported = db.planned(), db.imported()
             if not meta or _foreign(meta, model, seed, path) or planned + imported == 0:
                 return None
-            choice = choose_design(network, model, meta)
+            choice = choose_design(network, model, meta, asked)
             if (design_conflict(choice, meta, path)
                     or target_runs(runs, network, model, choice, planned, imported) > planned
                     or db.unfinished()):

@@ -81,15 +81,24 @@ def stored_design(meta: dict[str, str]) -> str | None:
     return "lhs" if meta.get("design", "").startswith("scipy.stats.qmc.LatinHypercube") else None
 
 
-def choose_design(network: Network, model: Model, meta: dict[str, str]) -> DesignChoice:
-    """The design the spec asks for (a design file read and validated), or, unset, the
+def choose_design(network: Network, model: Model, meta: dict[str, str],
+                  asked: DesignChoice | None = None) -> DesignChoice:
+    """The design the spec asks for (``asked``, from :func:`spec_design`), or, unset, the
     store's (``meta``) or the default."""
+    if asked is not None:
+        return asked
+    stored = stored_design(meta)
+    kind = stored or ("chain" if has_links(network, model) else "lhs")
+    return DesignChoice("file" if kind.startswith("file:") else kind, False, label=kind)
+
+
+def spec_design(network: Network, model: Model) -> DesignChoice | None:
+    """The design the spec sets for ``model`` (a design file read and validated), or None
+    when it sets none."""
     settings = settings_of(network, model)
     _only_per_model(network)
     if settings.design is None:
-        stored = stored_design(meta)
-        kind = stored or ("chain" if has_links(network, model) else "lhs")
-        return DesignChoice("file" if kind.startswith("file:") else kind, False, label=kind)
+        return None
     if settings.design in DESIGN_KINDS:
         return DesignChoice(settings.design, True, label=settings.design)
     path = network.path(settings.design)
