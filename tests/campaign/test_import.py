@@ -11,8 +11,7 @@ import yaml
 from campaign_helpers import campaign_app, toy_network, toy_spec
 from typer.testing import CliRunner
 
-from calnet.campaign import export_runs, load_runs, run_campaign, runs_frame
-from calnet.campaign.campaign import import_runs
+from calnet.campaign import export_runs, import_runs, load_runs, run_campaign, runs_frame
 from calnet.errors import CampaignError, CampaignWarning, SpecError
 from calnet.spec import load_spec
 from calnet.surrogates import fit_gp
@@ -103,6 +102,9 @@ def test_status_column_and_unfinished_rows(tmp_path):
     frame.loc[1, "y"] = np.nan  # a failed run may lack its outputs
     summary = import_runs(net, "toy", write(frame, tmp_path / "runs.csv"))
     assert summary.status_counts == {"ok": 2, "failed": 1}
+    # --retry-failed runs the design's failures again, never an imported one
+    again = run_campaign(net, "toy", executor="in-process", progress=False, retry_failed=True)
+    assert (again.ran, again.status_counts) == (12, {"ok": 14, "failed": 1})
 
 
 def _fails(tmp_path, frame, match, *, name="runs.csv", strict=False):

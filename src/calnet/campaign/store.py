@@ -214,7 +214,8 @@ class RunStore:
     # ---------------------------------------------------------------- the plan
     def planned(self) -> int:
         """Number of design runs (simulated or to simulate; imported runs aside)."""
-        return self._db.execute(f"SELECT COUNT(*) FROM runs WHERE {self._simulated}").fetchone()[0]
+        return self._db.execute(f"SELECT COUNT(*) FROM runs WHERE {self._simulated}"
+                                ).fetchone()[0]
 
     def imported(self) -> int:
         """Number of imported runs."""
@@ -228,10 +229,6 @@ class RunStore:
     def design_rows(self) -> list[dict[str, Any]]:
         """The design runs (not the imported ones) as :meth:`rows` gives them, by index."""
         return [r for r in self.rows() if r.get("origin") in (None, "simulated")]
-
-    def input_hashes(self) -> dict[str, int]:
-        """Input hash -> index of every run in the store."""
-        return {h: i for i, h in self._db.execute("SELECT idx, input_hash FROM runs")}
 
     def plan(self, rows: Iterable[tuple[int, Mapping[str, float]]], *, seed: int,
              source: str = "lhs") -> None:
@@ -275,10 +272,12 @@ class RunStore:
         return [(i, json.loads(s), started is not None) for i, s, started in rows]
 
     def reset_failed(self) -> int:
-        """Forget the outcome of every run that is not ``ok``, so it runs again."""
+        """Forget the outcome of every design run that is not ``ok``, so it runs again
+        (imported runs keep theirs: there is nothing to run them again with)."""
         with self._db:
             cur = self._db.execute("UPDATE runs SET status = NULL, started_at = NULL "
-                                   "WHERE status IS NOT NULL AND status != 'ok'")
+                                   "WHERE status IS NOT NULL AND status != 'ok' AND "
+                                   f"{self._simulated}")
         return cur.rowcount
 
     def mark_started(self, indices: Iterable[int]) -> None:
