@@ -13,7 +13,7 @@ from typer.testing import CliRunner
 
 from calnet.campaign import default_store, load_runs, run_campaign, runs_frame
 from calnet.campaign.store import RunStore
-from calnet.errors import CampaignError, CampaignWarning
+from calnet.errors import CampaignError, CampaignWarning, SpecError
 from calnet.spec import load_spec
 
 
@@ -169,3 +169,18 @@ def test_chain_design_without_parent_runs_falls_back_to_lhs(tmp_path):
         summary = run(net, "M2")
     assert summary.n_ok == 8
     assert not default_store(net, "M1").exists()
+
+
+def test_a_points_file_or_import_under_settings_is_refused(tmp_path):
+    spec = toy_spec(tmp_path)
+    doc = yaml.safe_load(spec.read_text())
+    doc["settings"]["campaign"] = {"import": "runs.csv"}
+    spec.write_text(yaml.safe_dump(doc))
+    with pytest.raises(SpecError, match=r"settings.campaign.import: 'runs.csv' holds one "
+                                        r"model's points or runs; move it under models"):
+        run(load_spec(spec))
+    doc["settings"]["campaign"] = {"design": "oops"}
+    spec.write_text(yaml.safe_dump(doc))
+    with pytest.raises(SpecError, match=r"unknown design 'oops'; use one of lhs, sobol, "
+                                        "halton, chain or a .csv/.parquet file"):
+        load_spec(spec)

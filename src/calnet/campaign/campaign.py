@@ -1,11 +1,13 @@
 """The campaign driver: design, simulate, store (method.md section 2).
 
-``run_campaign(network, model)`` plans a Latin hypercube over the model's ``(x, theta)``
-box, runs every planned run that the store has not finished, commits each run as it
-finishes and returns a :class:`CampaignSummary`. Calling it again resumes: finished runs
-(whatever their status) are kept, runs that were in flight when a campaign died are run
-again. Asking for more runs than the store plans augments the design (new points fill
-the gaps, the old ones stay).
+``run_campaign(network, model)`` plans the model's design over its ``(x, theta)`` box
+(a Latin hypercube, a quasi-random sequence, a file of points, or chain-aware:
+:mod:`calnet.campaign.planning`), imports the spec's run table if it names one, runs
+every planned run that the store has not finished, commits each run as it finishes and
+returns a :class:`CampaignSummary`. Calling it again resumes: finished runs (whatever
+their status) are kept, runs that were in flight when a campaign died are run again.
+Asking for more runs than the store plans augments the design (new points fill the
+gaps, the old ones stay). ``import_runs`` only imports a table of finished runs.
 """
 
 from __future__ import annotations
@@ -16,8 +18,7 @@ import math
 import sqlite3
 import time
 import warnings
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -35,6 +36,7 @@ from calnet.campaign.planning import (
     spec_design,
     target_runs,
 )
+from calnet.campaign.progress_bar import campaign_progress
 from calnet.campaign.runners import (
     CallableRunner,
     RunRecord,
@@ -52,7 +54,6 @@ from calnet.campaign.store import (
 )
 from calnet.errors import CampaignError, CampaignWarning, SpecError
 from calnet.files import why
-from calnet.progress import Lines, to_stderr
 from calnet.spec.models import Model
 from calnet.spec.network import Network
 
@@ -205,7 +206,7 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
         isolate = isinstance(sim, CallableRunner) and timeout is None
         with make_executor(executor, workers=workers, scheduler=scheduler,
                            isolate=isolate) as ex, \
-                _progress(progress, model_name, total, skipped, db) as advance:
+                campaign_progress(progress, model_name, total, skipped, db) as advance:
             for task, result in ex.run(execute_run, tasks,
                                        on_submit=lambda t: db.mark_started([t[1]])):
                 rec = result if isinstance(result, RunRecord) else _worker_died(task[1], result)
@@ -386,60 +387,3 @@ def _worker_died(index: int, err: Any) -> RunRecord:
     return RunRecord(index, "failed", {}, f"the worker running it died ({type(err).__name__}: "
                      f"{err}); set a timeout to run each simulation in its own process",
                      {}, math.nan)
-
-
-@contextmanager
-def _progress(progress: bool | Callable[[str], None], name: str, total: int, done: int,
-              db: RunStore) -> Iterator[Any]:
-    """Yields ``advance(status)``: a Rich bar (done / failed / rate / ETA) on a terminal,
-    plain lines elsewhere or through ``progress`` when it is a callable."""
-    failed = sum(n for k, n in db.status_counts().items() if k not in ("ok", "unfinished"))
-    if not progress:
-        yield lambda status: None
-        return
-    from rich.console import Console
-
-    if callable(progress) or not Console().is_terminal:
-        yield _lines(Lines(name, progress if callable(progress) else to_stderr), total, done,
-                     failed)
-        return
-    from rich.progress import (
-        BarColumn,
-        MofNCompleteColumn,
-        Progress,
-        TextColumn,
-        TimeElapsedColumn,
-        TimeRemainingColumn,
-    )
-
-    columns = (TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
-               TextColumn("[red]{task.fields[failed]} failed"),
-               TextColumn("{task.fields[rate]}"), TimeElapsedColumn(), TextColumn("ETA"),
-               TimeRemainingColumn())
-    with Progress(*columns, transient=False) as bar:
-        task = bar.add_task(name, total=total, completed=done, failed=failed, rate="")
-        counts = {"failed": failed, "run": 0}
-        start = time.perf_counter()
-
-        def advance(status: str) -> None:
-            counts["run"] += 1
-            counts["failed"] += status != "ok"
-            rate = counts["run"] / max(time.perf_counter() - start, 1e-9)
-            bar.update(task, advance=1, failed=counts["failed"],
-                       rate=f"{rate * 60:.1f} runs/min" if rate < 1 else f"{rate:.1f} runs/s")
-
-        yield advance
-
-
-def _lines(lines: Lines, total: int, done: int, failed: int) -> Callable[[str], None]:
-    """``advance(status)`` writing a line at every 10 % of the runs (and every 10 s)."""
-    counts = {"done": done, "failed": failed}
-    lines.note(f"{total - done} runs to go of {total}")
-
-    def advance(status: str) -> None:
-        counts["done"] += 1
-        counts["failed"] += status != "ok"
-        lines.update(counts["done"] / total, f"{counts['done']}/{total} runs, "
-                                             f"{counts['failed']} failed")
-
-    return advance
