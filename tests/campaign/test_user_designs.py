@@ -184,3 +184,15 @@ def test_a_points_file_or_import_under_settings_is_refused(tmp_path):
     with pytest.raises(SpecError, match=r"unknown design 'oops'; use one of lhs, sobol, "
                                         "halton, chain or a .csv/.parquet file"):
         load_spec(spec)
+
+
+def test_chain_design_warns_when_the_chain_leaves_the_bounds(tmp_path):
+    """w1 lands in [0.5, 0.9]; M2 declares w1 in [0, 0.6], so about 85 % of the cloud
+    (w1 > 0.6) lies outside and is clipped to the bound."""
+    net = load_spec(chain_spec(tmp_path, runs=(8, 6, 6), w1_box=(0.0, 0.6)))
+    run(net, "M1")
+    with pytest.warns(CampaignWarning, match=r"M2: \d+% of the values its input 'w1' takes "
+                                             r"from upstream lie outside its bounds \[0, 0.6\]"):
+        run(net, "M2")
+    w1 = load_runs(net, "M2").X[:, 0]
+    assert (w1 >= 0.0).all() and (w1 <= 0.6).all()

@@ -36,7 +36,7 @@ from calnet.campaign.design import (
     latin_hypercube,
     to_unit,
 )
-from calnet.errors import CampaignError, CampaignWarning
+from calnet.errors import CampaignError, CampaignWarning, SurrogateError
 from calnet.spec.models import Model
 from calnet.spec.network import Network
 
@@ -90,6 +90,7 @@ def chain_points(network: Network, model: Model, old: Design, extra: int, *, see
     values = linked_cloud(network, model, gps, cloud, rng)
     lo, hi = old.lower[linked], old.upper[linked]
     log = old.log[linked] if old.log is not None else None
+    _warn_outside(model, linked, values, lo, hi)
     unit = to_unit(np.clip(values, lo, hi), lo, hi, log)
     span = np.maximum(unit.max(axis=0) - unit.min(axis=0), 1e-6)
     cand = np.clip(unit + rng.uniform(-margin, margin, unit.shape) * span, 0.0, 1.0)
@@ -145,10 +146,28 @@ def parent_surrogates(network: Network, model: Model, store: Path, *, seed: int)
             raise _NoRuns(f"its parent '{src.name}' has {int(ok.sum())} ok runs of "
                           f"'{link.source_var}', fewer than 2")
         lower, upper = gp_bounds(src)
-        gps[link.source] = fit_gp(x[ok], y[ok], lower=lower, upper=upper,
-                                  transform=src.output(link.source_var).transform,
-                                  n_restarts=2, seed=seed, name=link.source)
+        try:
+            gps[link.source] = fit_gp(x[ok], y[ok], lower=lower, upper=upper,
+                                      transform=src.output(link.source_var).transform,
+                                      n_restarts=2, seed=seed, name=link.source)
+        except SurrogateError as err:
+            raise _NoRuns(f"no GP of '{link.source}' could be fitted ({err})") from None
     return gps
+
+
+def _warn_outside(model: Model, linked: np.ndarray, values: np.ndarray, lower: np.ndarray,
+                  upper: np.ndarray) -> None:
+    """A warning when much of the cloud lies outside the model's bounds (it is clipped)."""
+    names = [v.name for v, on in zip((*model.inputs, *model.parameters), linked,
+                                     strict=True) if on]
+    for j, name in enumerate(names):
+        share = float(np.mean((values[:, j] < lower[j]) | (values[:, j] > upper[j])))
+        if share > 0.1:
+            warnings.warn(f"{model.name}: {share:.0%} of the values its input '{name}' takes "
+                          f"from upstream lie outside its bounds [{lower[j]:g}, {upper[j]:g}] "
+                          f"(from {values[:, j].min():.4g} to {values[:, j].max():.4g}); the "
+                          "design is clipped to the bounds: widen them to cover the chain",
+                          CampaignWarning, stacklevel=5)
 
 
 def linked_cloud(network: Network, model: Model, gps: dict, n: int,
