@@ -70,6 +70,9 @@ def test_a_design_file_is_run_as_given_and_grows_at_its_end(tmp_path):
     more.to_csv(tmp_path / "points.csv", index=False)
     again = run(net, "toy")
     assert (again.planned, again.skipped, again.ran) == (4, 3, 1)
+    grown = run(net, "toy", runs=6)  # maximin points after the file's
+    assert (grown.planned, grown.ran) == (6, 2)
+    assert run(net, "toy").ran == 0
     more.iloc[[1, 0, 2, 3]].to_csv(tmp_path / "points.csv", index=False)
     with pytest.raises(CampaignError, match=r"design file '.*points.csv' changed: row 1"):
         run(net, "toy")

@@ -162,10 +162,11 @@ def plan(db: RunStore, network: Network, model: Model, choice: DesignChoice, run
 
 def _file_rows(choice: DesignChoice, columns: tuple[str, ...], rows: list[dict],
                path: Path) -> list[dict[str, float]]:
-    """The design file's rows after those the store plans, which must be its first rows."""
+    """The design file's rows after those the store plans, which must be its first rows
+    (a store may plan more: points added by ``--runs`` after the file's)."""
     points = [{c: float(v) for c, v in zip(columns, p, strict=True)} for p in choice.points]
-    for k, row in enumerate(rows):
-        if k >= len(points) or input_hash(row["inputs"]) != input_hash(points[k]):
+    for k, row in enumerate(rows[:len(points)]):
+        if input_hash(row["inputs"]) != input_hash(points[k]):
             raise CampaignError(f"the design file '{choice.path}' changed: row {k + 1} is not "
                                 f"the point of the store '{path}' (run {row['idx']}); restore "
                                 "the file (new points go at its end), or simulate again "
