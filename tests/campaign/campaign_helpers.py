@@ -57,3 +57,29 @@ def campaign_app():
     app.command("campaign")(user_errors(campaign))
     app.command("other")(lambda: None)
     return app
+
+
+def chain_spec(folder: Path, *, runs=(8, 10, 10), design: str | None = None,
+               w1_box: tuple[float, float] = (-2.0, 3.0)) -> Path:
+    """Write a three-model chain (M1: x -> w1; M2: (w1, c) -> w2 with a parameter c;
+    M3: (w1, w2) -> y), the linked inputs' boxes much wider than where they land."""
+    def model(sim, inputs, outputs, n, parameters=None):
+        body = {"simulator": f"python:toy_sims:{sim}", "inputs": inputs,
+                "outputs": {o: {} for o in outputs},
+                "campaign": {"runs": n, **({"design": design} if design else {})}}
+        return {**body, **({"parameters": parameters} if parameters else {})}
+
+    spec = {"name": "chain", "settings": {"seed": 0},
+            "models": {
+                "M1": model("chain_m1", {"x": {"lower": 0.0, "upper": 1.0}}, ["w1"], runs[0]),
+                "M2": model("chain_m2", {"w1": {"lower": w1_box[0], "upper": w1_box[1]}},
+                            ["w2"], runs[1],
+                            {"c": {"lower": 0.0, "upper": 0.1}}),
+                "M3": model("chain_m3", {"w1": {"lower": -2.0, "upper": 3.0},
+                                         "w2": {"lower": -1.0, "upper": 9.0}}, ["y"], runs[2])},
+            "links": [{"from": "M1.w1", "to": "M2.w1"}, {"from": "M1.w1", "to": "M3.w1"},
+                      {"from": "M2.w2", "to": "M3.w2"}]}
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / "network.yaml"
+    path.write_text(yaml.safe_dump(spec, sort_keys=False))
+    return path

@@ -122,3 +122,18 @@ def busy(inputs):
         while time.monotonic() < end:
             a = np.linalg.inv(a @ a.T + np.eye(200))
     return quadratic(inputs)
+
+
+def chain_m1(inputs):
+    """``w1 = 0.5 + 0.4 sin(2 x)`` for x in [0, 1]: w1 lands in [0.5, 0.87]."""
+    return {"w1": 0.5 + 0.4 * math.sin(2.0 * inputs["x"])}
+
+
+def chain_m2(inputs):
+    """``w2 = w1^2 + c``."""
+    return {"w2": inputs["w1"] ** 2 + inputs.get("c", 0.0)}
+
+
+def chain_m3(inputs):
+    """``y = w1 + w2``."""
+    return {"y": inputs["w1"] + inputs["w2"]}

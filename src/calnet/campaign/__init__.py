@@ -1,8 +1,9 @@
 # ruff: noqa: F401  (the TYPE_CHECKING imports name the lazily loaded API)
 """Simulation campaigns (method.md section 2): design, run, store, read back.
 
-The verbs are :func:`run_campaign` (design and simulate, resumable) and :func:`load_runs`
-(the ``ok`` runs as arrays, for surrogates). Attributes are imported on first use, so
+The verbs are :func:`run_campaign` (design and simulate, resumable), :func:`import_runs`
+(finished runs from a table) and :func:`load_runs` (the ``ok`` runs as arrays, for
+surrogates). Attributes are imported on first use, so
 that ``import calnet.campaign`` (and the CLI) stays fast.
 """
 
@@ -12,7 +13,12 @@ import importlib
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:  # for type checkers only; at run time the names load lazily
-    from calnet.campaign.campaign import CampaignSummary, default_store, run_campaign
+    from calnet.campaign.campaign import (
+        CampaignSummary,
+        default_store,
+        import_runs,
+        run_campaign,
+    )
     from calnet.campaign.design import Design, augment, latin_hypercube
     from calnet.campaign.executors import make_executor
     from calnet.campaign.runners import RunRecord, execute_run, make_simulator
@@ -22,6 +28,7 @@ if TYPE_CHECKING:  # for type checkers only; at run time the names load lazily
 _EXPORTS = {
     "CampaignSummary": "calnet.campaign.campaign",
     "run_campaign": "calnet.campaign.campaign",
+    "import_runs": "calnet.campaign.campaign",
     "default_store": "calnet.campaign.campaign",
     "RunTable": "calnet.campaign.table",
     "load_runs": "calnet.campaign.table",

@@ -1,11 +1,13 @@
 """The campaign driver: design, simulate, store (method.md section 2).
 
-``run_campaign(network, model)`` plans a Latin hypercube over the model's ``(x, theta)``
-box, runs every planned run that the store has not finished, commits each run as it
-finishes and returns a :class:`CampaignSummary`. Calling it again resumes: finished runs
-(whatever their status) are kept, runs that were in flight when a campaign died are run
-again. Asking for more runs than the store plans augments the design (new points fill
-the gaps, the old ones stay).
+``run_campaign(network, model)`` plans the model's design over its ``(x, theta)`` box
+(a Latin hypercube, a quasi-random sequence, a file of points, or chain-aware:
+:mod:`calnet.campaign.planning`), imports the spec's run table if it names one, runs
+every planned run that the store has not finished, commits each run as it finishes and
+returns a :class:`CampaignSummary`. Calling it again resumes: finished runs (whatever
+their status) are kept, runs that were in flight when a campaign died are run again.
+Asking for more runs than the store plans augments the design (new points fill the
+gaps, the old ones stay). ``import_runs`` only imports a table of finished runs.
 """
 
 from __future__ import annotations
@@ -16,26 +18,25 @@ import math
 import sqlite3
 import time
 import warnings
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 import calnet
-from calnet.campaign.design import (
-    Design,
-    augment,
-    design_columns,
-    latin_hypercube,
-    log_columns,
-    model_box,
-    to_unit,
-)
 from calnet.campaign.executors import WorkerDied, executor_kind, make_executor
+from calnet.campaign.importing import ImportedRuns, import_into, read_runs
 from calnet.campaign.lease import holder as lease_holder
+from calnet.campaign.planning import (
+    DesignChoice,
+    choose_design,
+    design_conflict,
+    plan,
+    settings_of,
+    spec_design,
+    target_runs,
+)
+from calnet.campaign.progress_bar import campaign_progress
 from calnet.campaign.runners import (
     CallableRunner,
     RunRecord,
@@ -51,9 +52,8 @@ from calnet.campaign.store import (
     model_fingerprint,
     store_errors,
 )
-from calnet.errors import CampaignError, CampaignWarning
+from calnet.errors import CampaignError, CampaignWarning, SpecError
 from calnet.files import why
-from calnet.progress import Lines, to_stderr
 from calnet.spec.models import Model
 from calnet.spec.network import Network
 
@@ -83,6 +83,10 @@ class CampaignSummary:
     executor : str
     workers : int
     seed : int
+    imported : int
+        Runs imported by this call (``campaign.import`` or ``--import``).
+    design : str
+        The store's design (``lhs``, ``sobol``, ``halton``, ``chain``, ``file:<name>``).
     """
 
     model: str
@@ -97,6 +101,8 @@ class CampaignSummary:
     executor: str = ""
     workers: int = 1
     seed: int = 0
+    imported: int = 0
+    design: str = ""
 
     @property
     def n_ok(self) -> int:
@@ -161,6 +167,8 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
     executor_kind(executor, workers=workers, scheduler=scheduler)  # bad options fail first
     seed = network.settings.seed if seed is None else int(seed)
     path = Path(store) if store is not None else default_store(network, model_name)
+    asked = spec_design(network, model)  # a bad design file or run table fails first
+    table = _spec_table(network, model)
     if fresh:
         held = lease_holder(path)
         if held:
@@ -170,18 +178,25 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
     version = simulator_version(sim)
     start = time.perf_counter()
     done = _complete_readonly(path, network, model, seed, runs, sim.name, version,
-                              retry_failed, start)
+                              retry_failed or table is not None, start, asked)
     if done is not None:  # nothing to run: the store is read, never written
         return done
     with store_errors(path), RunStore(path) as db:
         db.take_lease()
         _claim(db, network, model, seed, sim.name, version)
-        design = _plan(db, model, _target_runs(runs, model, network, db.planned()), seed)
+        imported = import_into(db, table, seed=seed)[0] if table is not None else 0
+        choice = choose_design(network, model, db.meta(), asked)
+        problem = design_conflict(choice, db.meta(), path)
+        if problem:
+            raise CampaignError(problem)
+        total = plan(db, network, model, choice,
+                     target_runs(runs, network, model, choice, db.planned(), db.imported()),
+                     seed)
         if retry_failed:
             db.reset_failed()
         todo = db.unfinished()
         _check_versions(db, sim.name, version, bool(todo))
-        skipped = len(design) - len(todo)
+        skipped = total - len(todo)
         in_flight = sum(was for _, _, was in todo)
         timeout = run_timeout(network, model)
         tasks = ((sim, i, inputs, timeout, model.output_names) for i, inputs, _ in todo)
@@ -191,7 +206,7 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
         isolate = isinstance(sim, CallableRunner) and timeout is None
         with make_executor(executor, workers=workers, scheduler=scheduler,
                            isolate=isolate) as ex, \
-                _progress(progress, model_name, len(design), skipped, db) as advance:
+                campaign_progress(progress, model_name, total, skipped, db) as advance:
             for task, result in ex.run(execute_run, tasks,
                                        on_submit=lambda t: db.mark_started([t[1]])):
                 rec = result if isinstance(result, RunRecord) else _worker_died(task[1], result)
@@ -199,25 +214,87 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
                 if rec.status != "ok" and len(failures) < 20:
                     failures[rec.index] = f"{rec.status}: {rec.message}"
                 advance(rec.status)
-        counts = db.status_counts()
-    return CampaignSummary(model_name, path, len(design), skipped, len(todo), in_flight,
+        counts, label = db.status_counts(), db.meta().get("design_kind", "")
+    return CampaignSummary(model_name, path, total, skipped, len(todo), in_flight,
                            counts, failures, time.perf_counter() - start, ex.name, ex.workers,
-                           seed)
+                           seed, imported, label)
+
+
+def import_runs(network: Network, model_name: str, table: str | Path, *,
+                store: str | Path | None = None, seed: int | None = None) -> CampaignSummary:
+    """Import a table of finished runs into a model's store (simulating nothing).
+
+    Parameters
+    ----------
+    network : Network
+    model_name : str
+    table : path
+        ``.csv`` or ``.parquet``: one column per input, parameter and output, an optional
+        ``status`` (``ok`` where absent); see :mod:`calnet.campaign.importing`.
+    store : path, optional
+        Default :func:`default_store`.
+    seed : int, optional
+        The store's seed (default ``network.settings.seed``), checked like a campaign's.
+
+    Returns
+    -------
+    CampaignSummary
+        ``imported`` runs added; runs the store already held are skipped, so importing
+        the same file again adds nothing.
+
+    Raises
+    ------
+    CampaignError
+        A bad table (one line naming the file, column and row), a store of another model
+        or seed, a row whose inputs the store holds with another result.
+    """
+    model = _model(network, model_name)
+    seed = network.settings.seed if seed is None else int(seed)
+    path = Path(store) if store is not None else default_store(network, model_name)
+    runs = read_runs(Path(table), model, strict=network.settings.strict)
+    sim = make_simulator(network, model, workdir=path.with_suffix(".work"))
+    start = time.perf_counter()
+    with store_errors(path), RunStore(path) as db:
+        db.take_lease()
+        _claim(db, network, model, seed, sim.name, simulator_version(sim))
+        added, _ = import_into(db, runs, seed=seed)
+        planned, counts = db.planned(), db.status_counts()
+        label = db.meta().get("design_kind", "")
+    return CampaignSummary(model_name, path, planned, planned, 0, 0, counts, {},
+                           time.perf_counter() - start, "none", 0, seed, added, label)
+
+
+def _spec_table(network: Network, model: Model) -> ImportedRuns | None:
+    """The spec's ``campaign.import`` table, read and validated; None without one."""
+    name = settings_of(network, model).import_
+    if name is None:
+        return None
+    table = network.path(name)
+    if not table.is_file():
+        raise SpecError(f"no run table '{table}'; give a .csv or .parquet file of finished "
+                        "runs, relative to the spec", file=network.source or None,
+                        field=f"models.{model.name}.campaign.import")
+    return read_runs(table, model, strict=network.settings.strict)
 
 
 def _complete_readonly(path: Path, network: Network, model: Model, seed: int,
-                       runs: int | None, simulator: str, version: str, retry_failed: bool,
-                       start: float) -> CampaignSummary | None:
+                       runs: int | None, simulator: str, version: str, write: bool,
+                       start: float, asked: DesignChoice | None) -> CampaignSummary | None:
     """The summary of a store that needs no work (same spec and seed, every planned run
-    finished, no more runs asked for), read without writing a byte; else None."""
-    if retry_failed or not path.is_file():
+    finished, no more runs asked for), read without writing a byte; else None. A run
+    table to import, or a design file, is checked against the store on the writing path
+    (``write``, or ``asked`` a design file)."""
+    if write or not path.is_file() or (asked is not None and asked.points is not None):
         return None
     try:
         with RunStore(path, readonly=True) as db:
             meta = db.meta()
-            planned = db.planned()
-            if (not meta or _foreign(meta, model, seed, path) or planned == 0
-                    or _target_runs(runs, model, network, planned) > planned
+            planned, imported = db.planned(), db.imported()
+            if not meta or _foreign(meta, model, seed, path) or planned + imported == 0:
+                return None
+            choice = choose_design(network, model, meta, asked)
+            if (design_conflict(choice, meta, path)
+                    or target_runs(runs, network, model, choice, planned, imported) > planned
                     or db.unfinished()):
                 return None
             _check_versions(db, simulator, version, False)
@@ -225,7 +302,8 @@ def _complete_readonly(path: Path, network: Network, model: Model, seed: int,
     except (CampaignError, sqlite3.DatabaseError):
         return None  # let the writing path give the full diagnosis
     return CampaignSummary(model.name, path, planned, planned, 0, 0, counts, {},
-                           time.perf_counter() - start, "none", 0, seed)
+                           time.perf_counter() - start, "none", 0, seed, 0,
+                           meta.get("design_kind") or choice.label)
 
 
 def _check_versions(db: RunStore, simulator: str, version: str, more_to_run: bool) -> None:
@@ -273,8 +351,7 @@ def _claim(db: RunStore, network: Network, model: Model, seed: int, simulator: s
     else:
         db.set_meta({"schema": "1", "model": model.name, "model_hash": fingerprint_hash(fp),
                      "model_spec": json.dumps(fp), "seed": str(seed),
-                     "created_at": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
-                     "design": "scipy.stats.qmc.LatinHypercube(optimization='random-cd')"})
+                     "created_at": time.strftime("%Y-%m-%dT%H:%M:%S%z")})
     db.set_meta({"calnet_version": calnet.__version__, "simulator": simulator,
                  "simulator_version": version, "spec": network.source,
                  "spec_sha256": _file_hash(network.source)})
@@ -304,93 +381,9 @@ def _file_hash(path: str) -> str:
         return ""
 
 
-def _target_runs(runs: int | None, model: Model, network: Network, planned: int) -> int:
-    if runs is None:
-        return max((model.campaign or network.settings.campaign).runs, planned)
-    if runs < planned:
-        raise CampaignError(f"the store already plans {planned} runs; ask for at least "
-                            f"{planned} (--runs), or use a new --store for a smaller design")
-    return runs
-
-
-def _plan(db: RunStore, model: Model, runs: int, seed: int) -> Design:
-    """The design of ``runs`` points: a new hypercube, or the stored one augmented."""
-    planned = db.planned()
-    if planned == 0:
-        design = latin_hypercube(model, runs, seed=seed)
-    else:
-        lower, upper = model_box(model)
-        columns, log = design_columns(model), log_columns(model)
-        x = np.array([[r["inputs"][c] for c in columns] for r in db.rows()])
-        old = Design(columns, lower, upper, to_unit(x, lower, upper, log), log)
-        if runs <= planned:  # the stored points are the design: never recomputed, so a
-            return old      # unit-cube round trip cannot change their last bits
-        design = augment(old, runs - planned, seed=seed, model_name=model.name)
-    # only new points are planned; the stored ones keep their exact inputs
-    db.plan(((i, design.row(i)) for i in range(planned, len(design))), seed=seed)
-    return design
-
-
 def _worker_died(index: int, err: Any) -> RunRecord:
     if isinstance(err, WorkerDied):
         return RunRecord(index, "failed", {}, str(err), {}, math.nan)
     return RunRecord(index, "failed", {}, f"the worker running it died ({type(err).__name__}: "
                      f"{err}); set a timeout to run each simulation in its own process",
                      {}, math.nan)
-
-
-@contextmanager
-def _progress(progress: bool | Callable[[str], None], name: str, total: int, done: int,
-              db: RunStore) -> Iterator[Any]:
-    """Yields ``advance(status)``: a Rich bar (done / failed / rate / ETA) on a terminal,
-    plain lines elsewhere or through ``progress`` when it is a callable."""
-    failed = sum(n for k, n in db.status_counts().items() if k not in ("ok", "unfinished"))
-    if not progress:
-        yield lambda status: None
-        return
-    from rich.console import Console
-
-    if callable(progress) or not Console().is_terminal:
-        yield _lines(Lines(name, progress if callable(progress) else to_stderr), total, done,
-                     failed)
-        return
-    from rich.progress import (
-        BarColumn,
-        MofNCompleteColumn,
-        Progress,
-        TextColumn,
-        TimeElapsedColumn,
-        TimeRemainingColumn,
-    )
-
-    columns = (TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
-               TextColumn("[red]{task.fields[failed]} failed"),
-               TextColumn("{task.fields[rate]}"), TimeElapsedColumn(), TextColumn("ETA"),
-               TimeRemainingColumn())
-    with Progress(*columns, transient=False) as bar:
-        task = bar.add_task(name, total=total, completed=done, failed=failed, rate="")
-        counts = {"failed": failed, "run": 0}
-        start = time.perf_counter()
-
-        def advance(status: str) -> None:
-            counts["run"] += 1
-            counts["failed"] += status != "ok"
-            rate = counts["run"] / max(time.perf_counter() - start, 1e-9)
-            bar.update(task, advance=1, failed=counts["failed"],
-                       rate=f"{rate * 60:.1f} runs/min" if rate < 1 else f"{rate:.1f} runs/s")
-
-        yield advance
-
-
-def _lines(lines: Lines, total: int, done: int, failed: int) -> Callable[[str], None]:
-    """``advance(status)`` writing a line at every 10 % of the runs (and every 10 s)."""
-    counts = {"done": done, "failed": failed}
-    lines.note(f"{total - done} runs to go of {total}")
-
-    def advance(status: str) -> None:
-        counts["done"] += 1
-        counts["failed"] += status != "ok"
-        lines.update(counts["done"] / total, f"{counts['done']}/{total} runs, "
-                                             f"{counts['failed']} failed")
-
-    return advance

@@ -37,6 +37,9 @@ def campaign(
         "--fresh", help="delete the store and simulate everything again")] = False,
     retry_failed: Annotated[bool, typer.Option(
         "--retry-failed", help="run again the runs that did not finish ok")] = False,
+    import_: Annotated[Path | None, typer.Option(
+        "--import", metavar="FILE", help="import finished runs from a .csv or .parquet "
+        "table into the store (no simulation); needs --model")] = None,
     export: Annotated[Path | None, typer.Option(
         metavar="FILE", help="also write the runs to a .csv or .parquet file")] = None,
     no_progress: Annotated[bool, typer.Option(
@@ -47,11 +50,11 @@ def campaign(
     Finished runs are kept, runs that were in flight when a campaign stopped are run again,
     so an interrupted campaign (Ctrl-C, a killed job) resumes where it stopped. With
     --workers K, K local processes (or a Dask LocalCluster with --executor dask) share
-    the runs.
+    the runs. With --import FILE, the finished runs of a table go into the store instead.
     """
     from rich.console import Console
 
-    from calnet.campaign.campaign import run_campaign
+    from calnet.campaign.campaign import import_runs, run_campaign
     from calnet.campaign.table import check_export, export_runs
     from calnet.errors import CampaignError
     from calnet.spec import load_spec
@@ -60,18 +63,28 @@ def campaign(
     names = [model] if model else list(network.order)
     if len(names) > 1 and (store or export):
         raise CampaignError("--store and --export name one file; give --model too")
+    if import_ and len(names) > 1:
+        raise CampaignError("--import reads one model's runs; give --model too")
+    if import_ and (fresh or retry_failed or runs):
+        raise CampaignError("--import only adds runs to a store; import first, then run "
+                            "`calnet campaign` again for --runs/--retry-failed (or give a "
+                            "new --store for an empty one)")
     if export:
         check_export(export)
     console = Console(highlight=False)
     useless = []
     for name in names:
-        summary = run_campaign(network, name, runs=runs, workers=workers, scheduler=scheduler,
-                               store=store, executor=executor, seed=seed, progress=not no_progress,
-                               fresh=fresh, retry_failed=retry_failed)
+        if import_:
+            summary = import_runs(network, name, import_, store=store, seed=seed)
+        else:
+            summary = run_campaign(network, name, runs=runs, workers=workers,
+                                   scheduler=scheduler, store=store, executor=executor,
+                                   seed=seed, progress=not no_progress, fresh=fresh,
+                                   retry_failed=retry_failed)
         print_summary(summary, console)
         if export:
             console.print(f"exported to {export_runs(summary.store_path, export)}")
-        if summary.planned and not summary.n_ok:
+        if (summary.planned or summary.imported) and not summary.n_ok:
             useless.append(name)
     if useless:
         raise CampaignError(f"no run of {', '.join(useless)} finished ok (the first failures "
@@ -83,7 +96,11 @@ def print_summary(summary: Any, console: Any) -> None:
     """A few lines: counts per status, throughput, the first failures."""
     counts = ", ".join(f"{k} {n}" for k, n in sorted(summary.status_counts.items()))
     rate = summary.ran / summary.wall_time if summary.wall_time > 0 else 0.0
-    if summary.ran == 0 and summary.skipped == summary.planned:
+    if summary.imported:
+        console.print(f"[bold]{summary.model}[/]: imported {summary.imported} runs")
+    if summary.planned == 0:
+        pass  # imported runs only: no design to report on
+    elif summary.ran == 0 and summary.skipped == summary.planned:
         console.print(f"[bold]{summary.model}[/]: complete, all {summary.planned} runs "
                       f"finished (seed {summary.seed}); nothing to run")
     else:
@@ -91,7 +108,8 @@ def print_summary(summary: Any, console: Any) -> None:
                       f"{summary.skipped} already finished, {summary.ran} run now "
                       f"({summary.rerun_in_flight} re-run after an interruption) in "
                       f"{summary.wall_time:.1f} s ({rate:.2f} runs/s, {summary.executor}, "
-                      f"{summary.workers} worker(s), seed {summary.seed})")
+                      f"{summary.workers} worker(s), seed {summary.seed}"
+                      + (f", {summary.design} design)" if summary.design else ")"))
     console.print(f"  store {summary.store_path}: {counts}")
     for index, message in list(summary.failures.items())[:5]:
         console.print(f"  [yellow]run {index}[/]: {message}", soft_wrap=True)

@@ -137,6 +137,45 @@ def latin_hypercube(model: Model, runs: int, *, seed: int) -> Design:
     return Design(design_columns(model), lower, upper, sampler.random(runs), log_columns(model))
 
 
+def qmc_design(model: Model, runs: int, *, kind: str, seed: int) -> Design:
+    """A scrambled low-discrepancy design (``sobol`` or ``halton``) of ``runs`` points.
+
+    Parameters
+    ----------
+    model : Model
+    runs : int
+    kind : {"sobol", "halton"}
+        ``scipy.stats.qmc.Sobol`` or ``scipy.stats.qmc.Halton``, scrambled with a
+        generator fixed by ``(seed, model.name, runs)``. A Sobol design of ``runs`` points
+        is the first ``runs`` points of the scrambled sequence of the next power of 2.
+    seed : int
+
+    Returns
+    -------
+    Design
+        ``unit`` has shape ``(runs, n_inputs + n_parameters)``.
+
+    Examples
+    --------
+    >>> from calnet.spec import Model, Input, Output, SimulatorRef
+    >>> m = Model(name="m", simulator=SimulatorRef(kind="python", target="a:f"),
+    ...           inputs=[Input(name="x", lower=0, upper=2)], outputs=[Output(name="y")])
+    >>> qmc_design(m, 5, kind="sobol", seed=0).points.shape
+    (5, 1)
+    """
+    if runs < 1:
+        raise CampaignError(f"a campaign needs at least 1 run, got {runs}; raise --runs")
+    lower, upper = model_box(model)
+    rng = design_rng(seed, model.name, runs)
+    if kind == "sobol":
+        unit = qmc.Sobol(d=len(lower), rng=rng).random_base2(int(np.ceil(np.log2(runs))))
+    elif kind == "halton":
+        unit = qmc.Halton(d=len(lower), rng=rng).random(runs)
+    else:
+        raise CampaignError(f"unknown quasi-random design '{kind}'; use sobol or halton")
+    return Design(design_columns(model), lower, upper, unit[:runs], log_columns(model))
+
+
 def augment(design: Design, extra: int, *, seed: int, model_name: str,
             candidates_per_point: int = 30) -> Design:
     """Add ``extra`` points to ``design`` without moving its existing points.

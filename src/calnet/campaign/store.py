@@ -17,6 +17,11 @@ diagnostics        JSON object, the simulator's diagnostics
 wall_time          seconds
 simulator          simulator name; simulator_version its version
 finished_at        UNIX time the row was committed
+origin             ``simulated`` (a design point run by the campaign; NULL in stores made
+                   before runs could be imported) or ``imported`` (a finished run read
+                   from a table)
+source             the design that placed a simulated run (``lhs``, ``sobol``, ``halton``,
+                   ``chain``, ``file:<name>``), or the file an imported run came from
 =================  =======================================================================
 
 The database runs in WAL mode while a campaign writes; every finished run is committed on
@@ -62,7 +67,9 @@ CREATE TABLE IF NOT EXISTS runs (
     wall_time REAL,
     simulator TEXT,
     simulator_version TEXT,
-    finished_at REAL
+    finished_at REAL,
+    origin TEXT,
+    source TEXT
 );
 """
 
@@ -150,10 +157,14 @@ class RunStore:
                 self._db.execute("PRAGMA journal_mode=WAL")
                 self._db.execute("PRAGMA synchronous=NORMAL")
                 self._db.executescript(_SCHEMA + LEASE_SCHEMA)
+                _add_provenance_columns(self._db)
             self._db.execute("SELECT idx, status FROM runs LIMIT 1")
+            columns = {row[1] for row in self._db.execute("PRAGMA table_info(runs)")}
         except sqlite3.Error as err:
             self._db.close()
             raise store_error(self.path, err) from None
+        # a store read before runs could be imported has no origin column: all simulated
+        self._simulated = _SIMULATED if "origin" in columns else "1"
 
     def take_lease(self) -> None:
         """Hold the store for this process until :meth:`close` (see
@@ -202,10 +213,27 @@ class RunStore:
 
     # ---------------------------------------------------------------- the plan
     def planned(self) -> int:
-        return self._db.execute("SELECT COUNT(*) FROM runs").fetchone()[0]
+        """Number of design runs (simulated or to simulate; imported runs aside)."""
+        return self._db.execute(f"SELECT COUNT(*) FROM runs WHERE {self._simulated}"
+                                ).fetchone()[0]
 
-    def plan(self, rows: Iterable[tuple[int, Mapping[str, float]]], *, seed: int) -> None:
-        """Add design rows ``(index, inputs)``; existing indices must hold the same inputs."""
+    def imported(self) -> int:
+        """Number of imported runs."""
+        return self._db.execute(f"SELECT COUNT(*) FROM runs WHERE NOT {self._simulated}"
+                                ).fetchone()[0]
+
+    def next_index(self) -> int:
+        """The index a new run gets: one past the largest in the store (0 when empty)."""
+        return self._db.execute("SELECT COALESCE(MAX(idx) + 1, 0) FROM runs").fetchone()[0]
+
+    def design_rows(self) -> list[dict[str, Any]]:
+        """The design runs (not the imported ones) as :meth:`rows` gives them, by index."""
+        return [r for r in self.rows() if r.get("origin") in (None, "simulated")]
+
+    def plan(self, rows: Iterable[tuple[int, Mapping[str, float]]], *, seed: int,
+             source: str = "lhs") -> None:
+        """Add design rows ``(index, inputs)`` placed by the design ``source``; existing
+        indices must hold the same inputs."""
         known = dict(self._db.execute("SELECT idx, input_hash FROM runs"))
         new = []
         for index, inputs in rows:
@@ -215,10 +243,27 @@ class RunStore:
                     raise CampaignError(f"{self.path}: run {index} holds other inputs than "
                                         "the design asks for; use a new --store or --fresh")
                 continue
-            new.append((index, digest, _dumps(inputs), seed))
+            new.append((index, digest, _dumps(inputs), seed, source))
         with self._db:
-            self._db.executemany("INSERT INTO runs (idx, input_hash, inputs, seed) "
-                                 "VALUES (?, ?, ?, ?)", new)
+            self._db.executemany("INSERT INTO runs (idx, input_hash, inputs, seed, origin, "
+                                 "source) VALUES (?, ?, ?, ?, 'simulated', ?)", new)
+
+    def add_imported(self, runs: Iterable[Mapping[str, Any]], *, seed: int, source: str) -> int:
+        """Insert finished runs read from the file ``source``, each a mapping with
+        ``inputs``, ``status``, ``outputs`` and optionally ``message``, ``simulator``,
+        ``simulator_version``, ``wall_time``; indices follow the store's last. Returns the
+        number inserted (one transaction: all or none)."""
+        start, now = self.next_index(), time.time()
+        new = [(start + k, input_hash(r["inputs"]), _dumps(r["inputs"]), seed, r["status"],
+                _dumps(r["outputs"]), r.get("message", ""), _dumps({}), r.get("wall_time"),
+                r.get("simulator"), r.get("simulator_version"), now, source)
+               for k, r in enumerate(runs)]
+        with self._db:
+            self._db.executemany(
+                "INSERT INTO runs (idx, input_hash, inputs, seed, status, outputs, message, "
+                "diagnostics, wall_time, simulator, simulator_version, finished_at, origin, "
+                "source) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, 'imported', ?)", new)
+        return len(new)
 
     def unfinished(self) -> list[tuple[int, dict[str, float], bool]]:
         """``(index, inputs, was_in_flight)`` of every run without a status, by index."""
@@ -227,10 +272,12 @@ class RunStore:
         return [(i, json.loads(s), started is not None) for i, s, started in rows]
 
     def reset_failed(self) -> int:
-        """Forget the outcome of every run that is not ``ok``, so it runs again."""
+        """Forget the outcome of every design run that is not ``ok``, so it runs again
+        (imported runs keep theirs: there is nothing to run them again with)."""
         with self._db:
             cur = self._db.execute("UPDATE runs SET status = NULL, started_at = NULL "
-                                   "WHERE status IS NOT NULL AND status != 'ok'")
+                                   "WHERE status IS NOT NULL AND status != 'ok' AND "
+                                   f"{self._simulated}")
         return cur.rowcount
 
     def mark_started(self, indices: Iterable[int]) -> None:
@@ -251,9 +298,10 @@ class RunStore:
 
     # ---------------------------------------------------------------- reading
     def versions(self) -> dict[str, int]:
-        """Simulator version -> number of finished runs made with it."""
+        """Simulator version -> number of finished design runs made with it (imported runs
+        aside: they come from wherever the user made them)."""
         rows = self._db.execute("SELECT COALESCE(simulator_version, ''), COUNT(*) FROM runs "
-                                "WHERE status IS NOT NULL GROUP BY 1")
+                                f"WHERE status IS NOT NULL AND {self._simulated} GROUP BY 1")
         return {v: int(n) for v, n in rows}
 
     def status_counts(self) -> dict[str, int]:
@@ -272,6 +320,19 @@ class RunStore:
                 row[key] = json.loads(row[key]) if row[key] is not None else None
             out.append(row)
         return out
+
+
+_SIMULATED = "COALESCE(origin, 'simulated') = 'simulated'"
+
+
+def _add_provenance_columns(db: sqlite3.Connection) -> None:
+    """Give a store made before runs could be imported its ``origin`` and ``source``
+    columns (NULL in its rows: simulated by the Latin hypercube)."""
+    have = {row[1] for row in db.execute("PRAGMA table_info(runs)")}
+    with db:
+        for column in ("origin", "source"):
+            if column not in have:
+                db.execute(f"ALTER TABLE runs ADD COLUMN {column} TEXT")
 
 
 # primary SQLite result codes (https://sqlite.org/rescode.html)

@@ -100,7 +100,8 @@ def load_runs(network: Network, model_name: str, store: str | Path | None = None
 
 def runs_frame(store: str | Path) -> Any:
     """Every run of a store as a pandas DataFrame: ``run``, ``status``, ``message``, one
-    column per input/parameter, one per output, then wall time, simulator and hashes."""
+    column per input/parameter, one per output, then wall time, simulator, hashes and
+    provenance (``origin``: simulated or imported; ``source``: the design or the file)."""
     import pandas as pd
 
     with RunStore(store, readonly=True) as db:
@@ -113,7 +114,8 @@ def runs_frame(store: str | Path) -> Any:
                 **{k: (r["outputs"] or {}).get(k, np.nan) for k in outputs},
                 "wall_time_s": r["wall_time"], "simulator": r["simulator"],
                 "simulator_version": r["simulator_version"], "seed": r["seed"],
-                "input_hash": r["input_hash"]} for r in rows]
+                "input_hash": r["input_hash"], "origin": r.get("origin") or "simulated",
+                "source": r.get("source") or ""} for r in rows]
     return pd.DataFrame.from_records(records)
 
 

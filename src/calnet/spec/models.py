@@ -86,11 +86,37 @@ class SimulatorRef(Frozen):
         return self
 
 
+DESIGN_KINDS = ("lhs", "sobol", "halton", "chain")
+
+
 class CampaignSettings(Frozen):
-    """Simulation campaign of one model (method.md section 2)."""
+    """Simulation campaign of one model (method.md section 2, docs/campaigns.md).
+
+    ``design`` is ``lhs``, ``sobol``, ``halton``, ``chain`` or a ``.csv``/``.parquet`` file
+    of points (relative to the spec); unset, it is ``chain`` for a model with linked
+    inputs and ``lhs`` otherwise (a store keeps the design that made it). ``import``
+    names a ``.csv``/``.parquet`` table of finished runs to load into the store. ``runs``
+    is the size of the simulated design; with ``import`` and no ``runs`` nothing is
+    simulated.
+    """
 
     runs: PositiveInt = 100
     timeout: float | None = Field(None, gt=0, description="seconds per run")
+    design: str | None = Field(None, description="lhs, sobol, halton, chain or a points file")
+    import_: str | None = Field(None, alias="import", description="a table of finished runs")
+
+    @field_validator("design", "import_")
+    @classmethod
+    def _kind_or_table(cls, value: str | None, info: Any) -> str | None:
+        if value is None:
+            return None
+        is_table = value.lower().endswith((".csv", ".parquet"))
+        if info.field_name == "design" and value not in DESIGN_KINDS and not is_table:
+            raise ValueError(f"unknown design '{value}'; use one of {', '.join(DESIGN_KINDS)} "
+                             "or a .csv/.parquet file of points")
+        if info.field_name == "import_" and not is_table:
+            raise ValueError(f"cannot import '{value}'; name a .csv or .parquet file of runs")
+        return value
 
 
 class SurrogateSettings(Frozen):
