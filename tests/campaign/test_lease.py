@@ -34,7 +34,9 @@ def _lease(path) -> tuple | None:
 
 def test_two_campaigns_at_once_run_every_run_once(tmp_path, monkeypatch):
     count = tmp_path / "executions.txt"
+    release = tmp_path / "release"  # the first campaign's runs wait for it
     monkeypatch.setenv("TOY_COUNT_FILE", str(count))
+    monkeypatch.setenv("TOY_RELEASE_FILE", str(release))
     spec = toy_spec(tmp_path, "python:toy_sims:counted", runs=RUNS)
     store = tmp_path / "campaigns" / "toy.sqlite"
     argv = [sys.executable, "-m", "calnet.campaign", str(spec), "--no-progress"]
@@ -45,6 +47,7 @@ def test_two_campaigns_at_once_run_every_run_once(tmp_path, monkeypatch):
             assert first.poll() is None and time.monotonic() < deadline
             time.sleep(0.05)
         second = subprocess.run(argv, capture_output=True, text=True, timeout=60)
+        release.touch()
         output, _ = first.communicate(timeout=120)
     finally:
         first.kill()

@@ -98,9 +98,15 @@ def slow(inputs):
 
 def counted(inputs):
     """``quadratic`` after 0.2 s, appending one line per execution to the file named by
-    ``$TOY_COUNT_FILE`` (the two-writers test counts executions)."""
+    ``$TOY_COUNT_FILE`` (the two-writers test counts executions). With
+    ``$TOY_RELEASE_FILE`` set, each run first waits (up to 120 s) for that file to exist,
+    so that a campaign is still running while the test starts a second one."""
     with open(os.environ["TOY_COUNT_FILE"], "a") as fh:
         fh.write(f"{inputs['x']!r}\n")
+    release = os.environ.get("TOY_RELEASE_FILE")
+    deadline = time.monotonic() + 120
+    while release and not os.path.exists(release) and time.monotonic() < deadline:
+        time.sleep(0.05)
     time.sleep(0.2)
     return quadratic(inputs)
 
