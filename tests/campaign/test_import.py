@@ -134,7 +134,7 @@ def test_another_models_table_is_recognised(tmp_path):
 
 @pytest.mark.parametrize(("column", "value", "match"), [
     ("b", "abc", r"column 'b', row 3: 'abc' is not a number"),
-    ("x", np.nan, r"column 'x', row 3: empty; every input and parameter needs a finite"),
+    ("x", np.nan, r"column 'x', row 3: empty or NaN; every input and parameter needs a finite"),
     ("a", np.inf, r"column 'a', row 3: inf; every input"),
     ("y", np.nan, r"column 'y', row 3: nan in a run with status ok"),
 ])

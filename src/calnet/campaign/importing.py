@@ -183,7 +183,7 @@ def _numbers(frame: Any, column: str, path: Path, rows: np.ndarray | None = None
                             f"'{raw.iloc[bad[0]]}' is not a number; write a number there")
     bad = np.flatnonzero(~np.isfinite(values))
     if finite and bad.size:
-        value = "empty" if not text[bad[0]] else f"{values[bad[0]]}"
+        value = "empty or NaN" if not text[bad[0]] else f"{values[bad[0]]}"
         raise CampaignError(f"{path}: column '{column}', row {rows[bad[0]]}: {value}; every "
                             "input and parameter needs a finite value")
     return values
