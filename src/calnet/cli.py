@@ -84,8 +84,8 @@ class App(typer.Typer):
 
 app = App(no_args_is_help=True,
           help="Bayesian calibration of networks of coupled simulation models.")
-console = Console(stderr=False, highlight=False)
-err_console = Console(stderr=True, highlight=False)
+console = Console(stderr=False, highlight=False, emoji=False)  # ":x:" in python:x:f is text
+err_console = Console(stderr=True, highlight=False, emoji=False)
 
 SpecArg = Annotated[Path, typer.Argument(
     metavar="SPEC", show_default=False, help="network YAML, or a folder with network.yaml")]
