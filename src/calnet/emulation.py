@@ -30,15 +30,15 @@ from calnet.spec import Network  # noqa: E402
 from calnet.surrogates.network import Surrogates  # noqa: E402
 
 
-@partial(jax.jit, static_argnums=(0, 1, 2, 3))
-def _over_samples(plan: ChainPlan, model: str, key: str, eps_on: tuple[str, ...], gps, xp,
-                  thetas, eps):
+@partial(jax.jit, static_argnums=(0, 1, 2))
+def _over_samples(plan: ChainPlan, model: str, key: str, gps, xp, thetas, eps, on):
     """Modelled mean and variance (S, n) of GP ``key`` per sample row: parameters
-    ``thetas`` (model -> (S, p)), the linked outputs in ``eps_on`` drawn with ``eps``
-    (link -> (S, n)) and the others at their predictive mean."""
+    ``thetas`` (model -> (S, p)), each linked output drawn with ``eps`` (link -> (S, n))
+    times ``on`` (link -> 1.0, or 0.0 for its predictive mean): one compiled program for
+    every choice of links."""
 
     def one(th, ep):
-        _, mean, var = plan.output(gps, model, key, xp, th, {k: ep[k] for k in eps_on})
+        _, mean, var = plan.output(gps, model, key, xp, th, {k: ep[k] * on[k] for k in ep})
         return mean, var
     return jax.vmap(one)(thetas, eps)
 
@@ -112,8 +112,9 @@ def predict_output(network: Network, surrogates: Surrogates, posterior: NetworkP
     eps = {k: jnp.asarray(rng.standard_normal((n_samples, len(x)))) for k in links}
 
     def run(eps_on):
-        return (np.asarray(a) for a in _over_samples(plan, model, output, tuple(eps_on), gps,
-                                                     xp, thetas, eps))
+        on = {k: jnp.asarray(float(k in eps_on)) for k in links}
+        return (np.asarray(a) for a in _over_samples(plan, model, output, gps, xp, thetas,
+                                                     eps, on))
 
     mean0, _ = run(())
     mean_all, var_all = run(links)
