@@ -143,6 +143,9 @@ def _lines(metrics: Mapping[str, Any], summary: Mapping[str, Any]) -> list[str]:
                    "predict is empty)") + " through the chain." + (
                     " Quick run: fewer restarts and folds." if metrics.get("quick") else "")]
     cal = metrics.get("calibration", {})
+    if not summary:
+        return [f"Calibration: {cal.get('mode', '?')}; no calibration parameters, so only "
+                "the data sets' discrepancy and unknown noise are calibrated."]
     calibrated = [m for m, s in summary.items() if not s.get("prior_only")]
     prior = [m for m, s in summary.items() if s.get("prior_only")]
     lines = [f"Calibration: {cal.get('mode', '?')}, {len(calibrated)} model(s) with data"
