@@ -77,3 +77,43 @@ def test_emulation_only_chain_end_to_end(tmp_path, monkeypatch):
     assert res.exit_code == 0, res.output
     assert "no data sets: nothing to calibrate; the posterior is empty (0 parameters)" \
         in res.output
+
+
+@pytest.mark.integration
+@pytest.mark.slow
+def test_cli_calibrate_and_predict_with_data_but_no_parameters(tmp_path, monkeypatch):
+    """The chain with y observed (known noise, no discrepancy) and no parameters: nothing
+    to sample, a posterior of 0 draws, and predict uses it (it raised IndexError, exit 3)."""
+    import yaml
+
+    work = tmp_path / "chain3"
+    shutil.copytree(CHAIN3, work, ignore=shutil.ignore_patterns("__pycache__", "campaigns"))
+    monkeypatch.syspath_prepend(str(work))
+    monkeypatch.setenv("PYTHONPATH", str(work))
+    spec = yaml.safe_load((work / "network.yaml").read_text())
+    spec["models"]["M3"]["outputs"]["y"]["measurable"] = True
+    spec["data"] = {"yd": {"path": "yd.csv", "observes": "M3.y", "columns": {"x": "x", "y": "y"},
+                           "noise": {"sd": 0.02}, "discrepancy": "none"}}
+    (work / "network.yaml").write_text(yaml.safe_dump(spec))
+    x = np.array([0.1, 0.3, 0.5, 0.7, 0.9])
+    (work / "yd.csv").write_text("x,y\n" + "".join(f"{a},{b}\n" for a, b in
+                                                   zip(x, _composite(x), strict=True)))
+    out = tmp_path / "out"
+    for args in (["campaign", str(work), "--no-progress"],
+                 ["surrogates", str(work), "--out", str(out / "surrogates"), "--no-cv"]):
+        res = runner.invoke(app, args)
+        assert res.exit_code == 0, res.output
+    res = runner.invoke(app, ["calibrate", str(work), "--surrogates", str(out / "surrogates"),
+                              "--out", str(out / "posterior")], terminal_width=400)
+    assert res.exit_code == 0, res.output
+    assert "no calibration parameters: nothing to sample" in res.output
+    res = runner.invoke(app, ["predict", str(work), "--run", str(out), "--at", "x=0.8",
+                              "--json"])
+    assert res.exit_code == 0, res.output
+    preds = {p["dataset"] or p["observes"]: p for p in json.loads(res.output)["predictions"]}
+    assert set(preds) == {"yd", "M3.y"}  # the data set, and settings.predict's output
+    truth = float(_composite(np.array(0.8)))
+    for p in preds.values():
+        assert p["lower95"][0] <= truth <= p["upper95"][0], p
+    assert "noise" in preds["yd"]["variance_shares"]
+    assert "noise" not in preds["M3.y"]["variance_shares"]  # the simulator's output
