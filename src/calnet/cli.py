@@ -84,8 +84,8 @@ class App(typer.Typer):
 
 app = App(no_args_is_help=True,
           help="Bayesian calibration of networks of coupled simulation models.")
-console = Console(stderr=False, highlight=False)
-err_console = Console(stderr=True, highlight=False)
+console = Console(stderr=False, highlight=False, emoji=False)  # ":x:" in python:x:f is text
+err_console = Console(stderr=True, highlight=False, emoji=False)
 
 SpecArg = Annotated[Path, typer.Argument(
     metavar="SPEC", show_default=False, help="network YAML, or a folder with network.yaml")]
@@ -352,6 +352,19 @@ def calibrate(
     summary = posterior_summary(network, post)
     doc = {**summary, "surrogate_check": {c.dataset: c.to_dict() for c in post.checks}}
     (out / "summary.json").write_text(json.dumps(doc, indent=1, default=_json_default))
+    if not post.calibrated:
+        kept = (f"the parameters of {', '.join(post.prior_only)} keep their priors "
+                f"({post.n_draws} prior draws)" if post.prior_only
+                else "the posterior is empty (0 parameters)")
+        console.print(f"no data sets: nothing to calibrate; {kept}. Written to {out}; "
+                      "calnet predict and calnet run predict from it", soft_wrap=True)
+        return
+    if not post.theta:
+        sampled = [ds for ds, h in post.hyper.items() if h]
+        what = (f"sampled the discrepancy and noise of {', '.join(sampled)} only" if sampled
+                else "nothing to sample (known noise, no discrepancy)")
+        console.print(f"no calibration parameters: {what}. Written to {out}", soft_wrap=True)
+        return
     table = Table("model", "parameter", "range", "mode", "mean", "95% interval", "unit",
                   "R-hat", "ESS bulk", title=f"{post.mode} calibration"
                   + (f", upstream plugged in by its {post.plug}" if post.mode == "segmented"
@@ -376,14 +389,27 @@ def calibrate(
                   f"prior-vs-posterior plots written to {out}")
 
 
-def _takes(network, dataset: str, name: str) -> bool:
-    """Whether ``name`` (bare or qualified) is a process input of ``dataset``."""
-    ds = network.dataset(dataset)
+def _takes(network, target: str, name: str) -> bool:
+    """Whether ``name`` (bare or qualified) is a process input of ``target``."""
+    from calnet.predict import resolve_input
+
     try:
-        network.resolve_column_key(ds, name, network.process_input_keys(ds.observed_model))
-    except ValueError:
-        return False
-    return True
+        return resolve_input(network, target, name) is not None
+    except CalnetError:  # ambiguous: predicting the target says so
+        return True
+
+
+def _predict_posterior(network, run_dir: Path):
+    """The run's posterior; for a network without parameters that was never calibrated
+    (``calnet surrogates`` only), the empty one."""
+    from calnet.calibration.network import uncalibrated
+    from calnet.calibration.persist import FILE, load_posterior
+
+    folder = run_dir / "posterior"
+    if not (folder / f"{FILE}.json").is_file() and not any(m.parameters
+                                                          for m in network.models):
+        return uncalibrated(network)
+    return load_posterior(folder, network)
 
 
 @app.command()
@@ -396,7 +422,8 @@ def predict(
     csv: Annotated[Path | None, typer.Option(
         metavar="FILE", help="CSV of points, one column per input")] = None,
     dataset: Annotated[list[str], typer.Option(
-        "--dataset", "-d", metavar="NAME", help="data set to predict (default: every one)")
+        "--dataset", "-d", metavar="NAME", help="data set, or model.output with a surrogate, "
+        "to predict (repeatable; default: every data set and settings.predict output)")
     ] = [],  # noqa: B006
     run_dir: Annotated[Path, typer.Option(
         "--run", metavar="DIR", help="folder written by calnet run")
@@ -408,12 +435,15 @@ def predict(
     output: Annotated[Path | None, typer.Option(
         metavar="FILE", help="also write the predictions as CSV")] = None,
 ) -> None:
-    """Predict measurable outputs at new settings, with 95 % bands.
+    """Predict outputs at new settings, with 95 % bands.
 
-    Each point comes with its uncertainty budget: the shares of the upstream parameters,
-    each emulator, the discrepancy and the noise.
+    A data set's output is predicted as a new measurement (calibrated chain, discrepancy,
+    noise); a simulator output (-d model.output, e.g. one listed in settings.predict) as
+    the simulator would give it, by Monte Carlo through the linked surrogates. Each point
+    comes with its uncertainty budget: the shares of the parameters, each emulator, the
+    discrepancy and the noise.
     """
-    from calnet.calibration.persist import load_posterior
+    from calnet.emulation import predict_output
     from calnet.predict import predict as run_predict
     from calnet.predict import settings_matrix
     from calnet.spec import load_spec
@@ -428,32 +458,37 @@ def predict(
     if not (sur_dir / "surrogates.json").is_file():
         raise CalnetError(f"no fitted surrogates in '{sur_dir}'; run 'calnet run SPEC --out "
                           f"{run_dir}' first, or pass --run DIR")
-    post = load_posterior(run_dir / "posterior", network)
-    names = dataset or list(post.hyper)
-    unknown = [d for d in names if d not in post.hyper]
-    if unknown:
-        raise CalnetError(f"no calibrated data set {unknown}; choose from {list(post.hyper)}")
+    post = _predict_posterior(network, run_dir)
     sur = Surrogates.load(sur_dir)
+    names = dataset or [*post.hyper, *network.settings.predict]
+    unknown = [d for d in names if d not in (sur.items if "." in d else post.hyper)]
+    if unknown:
+        raise CalnetError(f"nothing to predict for {unknown}; choose a calibrated data set "
+                          f"{list(post.hyper)} or an output with a surrogate {list(sur.items)}")
+    if not names:
+        raise CalnetError("nothing to predict: the network has no data sets and "
+                          "settings.predict is empty; pass -d model.output")
     seed = network.settings.seed if seed is None else seed
     results, table_rows = [], []
-    # without -d, a point may carry inputs that only some of the data sets take
+    # without -d, a point may carry inputs that only some of the targets take
     skip = set() if dataset else {k for row in rows for k in row
                                   if any(_takes(network, d, k) for d in names)}
     for name in names:
         x, notes = settings_matrix(network, name, rows, skip=skip)
         for note in dict.fromkeys(notes):
             warnings.warn(note, stacklevel=1)
-        pred = run_predict(network, sur, post, name, x, n_draws=draws, seed=seed)
+        pred = (predict_output(network, sur, post, name, x, seed=seed) if "." in name
+                else run_predict(network, sur, post, name, x, n_draws=draws, seed=seed))
         shares = [{k: float(v[i]) for k, v in pred.point_shares().items()}
                   for i in range(len(x))]
         results.append(pred.to_dict() | {"variance_share_per_point": shares})
-        unit = network.model(network.dataset(name).observed_model).output(
-            network.dataset(name).observed_output).unit
+        model, out_name = pred.observes.split(".")
+        unit = network.model(model).output(out_name).unit
         for i in range(len(x)):
             top = sorted(shares[i].items(), key=lambda kv: -kv[1])[:3]
-            table_rows.append((pred.observes, ", ".join(f"{k.split('.', 1)[1]}={v:g}" for k, v
-                                                        in zip(pred.input_keys, x[i],
-                                                               strict=True)),
+            table_rows.append((f"{name} (simulator)" if "." in name else pred.observes,
+                               ", ".join(f"{k.split('.', 1)[1]}={v:g}" for k, v
+                                         in zip(pred.input_keys, x[i], strict=True)),
                                f"{pred.mean[i]:.4g}", f"[{pred.lower[i]:.4g}, "
                                f"{pred.upper[i]:.4g}]", unit,
                                ", ".join(f"{k} {v:.0%}" for k, v in top)))

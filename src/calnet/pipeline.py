@@ -2,6 +2,8 @@
 
 campaign (shipped store unless ``fresh``) -> surrogates -> calibration -> prediction and
 validation -> sensitivity -> process map -> report (HTML, metrics.json, posteriors, figures).
+A network without data sets is emulated only: nothing is calibrated or validated, and the
+report shows the outputs of ``settings.predict`` predicted through the chain.
 """
 
 from __future__ import annotations
@@ -169,6 +171,7 @@ class _Context:
         self.data = read_all(network)
         self.stores: dict[str, Path] = {}
         self.figures: dict[str, Path] = {}
+        self.emulated: dict = {}  # settings.predict outputs, from the prediction stage
         self.sampler = (_quick_sampler(network.settings.sampler) if quick
                         else network.settings.sampler)
 
@@ -219,6 +222,7 @@ class _Context:
         save_posterior(self.post, self.out / "posterior")  # stage netCDFs + what predict needs
 
     def prediction(self, note) -> None:
+        from calnet.emulation import output_slices
         from calnet.predict import predict_data
 
         def one(name):
@@ -228,6 +232,11 @@ class _Context:
 
         order = list(self.data)  # side by side, one thread per core
         self.predictions = dict(zip(order, map_threads(one, order), strict=True))
+        self.emulated = {}
+        for key in self.network.settings.predict:
+            note(key)
+            self.emulated[key] = output_slices(self.network, self.sur, self.post, key,
+                                               seed=self.seed)
 
     def validation(self, note) -> None:
         from calnet.validation import baselines
@@ -240,7 +249,7 @@ class _Context:
         with pool:
             self._validate_each(naive, out, note)
         self.metrics["validation"] = out
-        if self.network.settings.compare:
+        if self.network.settings.compare and self.data:
             from calnet.validation import compare_variants
 
             self.metrics["comparison"] = compare_variants(

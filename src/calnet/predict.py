@@ -23,7 +23,12 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 from calnet.calibration.koh import KOHModel  # noqa: E402
-from calnet.calibration.network import NetworkPosterior, known_noise_var, make_term  # noqa: E402
+from calnet.calibration.network import (  # noqa: E402
+    NetworkPosterior,
+    draw_index,
+    known_noise_var,
+    make_term,
+)
 from calnet.chain import ChainPlan  # noqa: E402
 from calnet.errors import CalnetError  # noqa: E402
 from calnet.spec import Network  # noqa: E402
@@ -34,11 +39,15 @@ Z95 = 1.959963984540054
 
 @dataclass(frozen=True)
 class Prediction:
-    """Posterior predictive of one data set's output at process settings ``x``.
+    """Posterior predictive of one data set's output at process settings ``x``, or of a
+    simulator output through the chain (:func:`calnet.emulation.predict_output`).
 
     Attributes
     ----------
-    dataset, observes : str
+    dataset : str or None
+        The data set; None for a simulator output predicted without one.
+    observes : str
+        ``model.output`` predicted.
     input_keys : tuple of str
         ``model.input`` of each column of ``x``.
     x : ndarray (n, k)
@@ -52,7 +61,7 @@ class Prediction:
         Predictive samples of a new measurement, natural scale.
     """
 
-    dataset: str
+    dataset: str | None
     observes: str
     input_keys: tuple[str, ...]
     x: np.ndarray
@@ -263,7 +272,8 @@ def predict(network: Network, surrogates: Surrogates, posterior: NetworkPosterio
     x : array (n, k)
         Process inputs, columns in the order of ``network.process_inputs(model)``.
     n_draws : int
-        Posterior draws used (thinned evenly from the posterior).
+        Posterior draws used (thinned evenly from the posterior; repeated where it holds
+        fewer), each with its own draw of the upstream surrogates.
     n_samples : int
         Predictive samples per draw used for the 95 % interval.
     within : (lower, upper), optional
@@ -274,8 +284,9 @@ def predict(network: Network, surrogates: Surrogates, posterior: NetworkPosterio
         data set with known noise (default: the mean over its calibration data).
     """
     x = np.atleast_2d(np.asarray(x, dtype=float))
-    total = posterior.n_draws
-    idx = np.linspace(0, total - 1, min(n_draws, total)).astype(int)
+    # n_draws rows even from fewer draws (repeated), so that the upstream surrogates'
+    # draws below still number n_draws (a posterior without parameters has 0 draws)
+    idx = np.resize(draw_index(posterior.n_draws, n_draws), n_draws)
     st = _setup(network, surrogates, posterior, dataset, idx)
     if x.shape[1] != len(st.keys):
         raise CalnetError(f"predict: expected {len(st.keys)} process inputs "
@@ -387,35 +398,55 @@ def metrics(y: np.ndarray, mean: np.ndarray, lower: np.ndarray | None = None,
     return out
 
 
-def settings_matrix(network: Network, dataset: str, rows: list[dict[str, float]], *,
+def target_model(network: Network, target: str) -> str:
+    """The model whose output ``target`` predicts: a data set's observed model, or the
+    model of ``model.output``."""
+    return target.split(".")[0] if "." in target else network.dataset(target).observed_model
+
+
+def resolve_input(network: Network, target: str, name: str) -> str | None:
+    """``model.input`` of the process input ``name`` (bare or qualified) of ``target`` (a
+    data set or ``model.output``); None if it is none of them, CalnetError if ambiguous."""
+    keys = network.process_input_keys(target_model(network, target))
+    if name in keys:
+        return name
+    matches = [k for k in keys if k.split(".")[1] == name]
+    if len(matches) > 1:
+        raise CalnetError(f"'{name}' is ambiguous for {target} ({matches}); write it as "
+                          "model.input")
+    return matches[0] if matches else None
+
+
+def settings_matrix(network: Network, target: str, rows: list[dict[str, float]], *,
                     skip: Collection[str] = ()) -> tuple[np.ndarray, list[str]]:
-    """Process settings for ``dataset``'s prediction as an array ``(n, k)``.
+    """Process settings for predicting ``target`` (a data set or ``model.output``) as an
+    array ``(n, k)``.
 
     Each row maps input names (bare ``P`` or qualified ``melt_pool.P``) to values. Every
-    process input must be given; names that are not process inputs of the data set's
-    chain are an error, except those in ``skip`` (inputs of other data sets predicted
+    process input must be given; names that are not process inputs of the target's
+    chain are an error, except those in ``skip`` (inputs of other targets predicted
     from the same rows), which are ignored. Returns the array and a list of warnings for
     values outside the declared bounds (the surrogates extrapolate there).
     """
-    ds = network.dataset(dataset)
-    pairs = network.process_inputs(ds.observed_model)
-    keys = network.process_input_keys(ds.observed_model)
+    model = target_model(network, target)
+    what = target if "." in target else network.dataset(target).observes
+    pairs = network.process_inputs(model)
+    keys = network.process_input_keys(model)
     x = np.empty((len(rows), len(keys)))
     notes: list[str] = []
     for r, row in enumerate(rows):
         given: dict[str, float] = {}
         for name, value in row.items():
-            try:
-                key = network.resolve_column_key(ds, name, keys)
-            except ValueError:
+            key = resolve_input(network, target, name)
+            if key is None:
                 if name in skip:
                     continue
-                raise CalnetError(f"'{name}' is not a process input of '{ds.observes}'; "
-                                  f"give {_names(keys)}") from None
+                raise CalnetError(f"'{name}' is not a process input of '{what}'; "
+                                  f"give {_names(keys)}")
             given[key] = value
         missing = [k for k in keys if k not in given]
         if missing:
-            raise CalnetError(f"point {r + 1}: missing {_names(missing)}; '{ds.observes}' "
+            raise CalnetError(f"point {r + 1}: missing {_names(missing)}; '{what}' "
                               f"needs {_names(keys)}")
         for j, (key, (m, i)) in enumerate(zip(keys, pairs, strict=True)):
             value = given[key]

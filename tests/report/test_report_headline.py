@@ -74,3 +74,21 @@ def test_headline_box_is_rendered_first(tmp_path):
     assert '<p class="ok">No warnings.</p>' in clean.read_text()
     assert 'id="headline"' not in write_report(tmp_path / "n", title="t",
                                                sections=[]).read_text()
+
+
+def test_emulation_only_and_parameterless_runs_say_what_was_calibrated():
+    """No data: no calibration line, the predicted outputs' table instead; data without
+    parameters: only the discrepancy and noise were calibrated."""
+    sl = {"x": [0.0, 0.5, 1.0], "mean": [1.0, 2.0, 4.0], "lower95": [0.5, 1.8, 3.0],
+          "upper95": [1.5, 2.2, 5.0]}
+    metrics = {"quick": False, "warnings": [], "validation": {},
+               "predicted_outputs": {"M3.y": {"output": "M3.y", "inputs": ["M1.x"],
+                                              "slices": {"M1.x": sl},
+                                              "variance_shares": {"emulator M3.y": 1.0}}}}
+    box = headline(metrics, {}, predicted_units={"M3.y": "mm"})
+    assert box.lines == ("No data sets: emulation only, nothing calibrated; the surrogates "
+                         "predict M3.y through the chain.",)
+    (table,) = box.tables
+    assert table.rows == (("M3.y", "x", "[1, 4]", "1.133", "2", "mm"),)  # widths 1, .4, 2
+    with_data = {**metrics, "calibration": {"mode": "segmented"}}
+    assert "no calibration parameters" in headline(with_data, {}).lines[0]

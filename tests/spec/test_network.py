@@ -138,7 +138,8 @@ def _check_warnings(folder, sims) -> list[str]:
     """``calnet check`` on one-input models with these simulators: its warning lines."""
     models = {m: {"simulator": sim, "inputs": {"x": {"lower": 0, "upper": 1}},
                   "outputs": {"y": {}}} for m, sim in sims.items()}
-    (folder / "network.yaml").write_text(yaml.safe_dump({"models": models}))
+    spec = {"models": models, "settings": {"predict": [f"{m}.y" for m in sims]}}
+    (folder / "network.yaml").write_text(yaml.safe_dump(spec))
     res = runner.invoke(app, ["check", str(folder)], terminal_width=400)
     assert res.exit_code == 0, res.output
     return [" ".join(line.split()) for line in res.output.splitlines()

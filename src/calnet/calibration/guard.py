@@ -118,12 +118,11 @@ def _over_draws(spec: KOHModel, gps, tdata, thetas, hyper):
 def check_surrogates(network, surrogates, posterior, *, n_draws: int = 50
                      ) -> list[SurrogateCheck]:
     """:class:`SurrogateCheck` of every calibrated data set."""
-    from calnet.calibration.network import make_term
+    from calnet.calibration.network import draw_index, make_term
 
     plan = ChainPlan.from_network(network)
     gps = {k: s.gp for k, s in surrogates.items.items()}
-    total = posterior.n_draws
-    idx = np.linspace(0, total - 1, min(n_draws, total)).astype(int)
+    idx = draw_index(posterior.n_draws, n_draws)
     thetas = {m: jnp.asarray(v[idx]) for m, v in posterior.theta.items()}
     for m in plan.models:
         if m.n_parameters == 0:

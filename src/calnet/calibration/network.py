@@ -102,7 +102,26 @@ class NetworkPosterior:
 
     @property
     def n_draws(self) -> int:
-        return next(iter(self.theta.values())).shape[0] if self.theta else 0
+        """Draws of the network: of its parameters, else of its data sets' noise and
+        discrepancy; 0 for a network with neither (nothing was sampled)."""
+        for arrays in (self.theta, *self.hyper.values()):
+            if arrays:
+                return next(iter(arrays.values())).shape[0]
+        return 0
+
+    @property
+    def calibrated(self) -> bool:
+        """Whether anything was sampled against data (False without data sets)."""
+        return bool(self.data)
+
+
+def draw_index(total: int, n: int) -> np.ndarray:
+    """``n`` posterior draws (at most ``total``) evenly spread over ``total``; one (index 0,
+    into no arrays) for a posterior of 0 draws: nothing was sampled, so every draw is the
+    same (a network without parameters whose noise is known and has no discrepancy)."""
+    if total == 0:
+        return np.zeros(1, dtype=int)
+    return np.linspace(0, total - 1, min(n, total)).astype(int)
 
 
 # ----------------------------------------------------------------------------- terms
@@ -333,17 +352,26 @@ def calibrate(network: Network, surrogates: Surrogates, *, data=None, mode: str 
     if data is None:
         data = {k: v.train for k, v in read_all(network).items()}
     if not data:
-        raise CalibrationError("the network has no data sets; add one under 'data:' to "
-                               "calibrate")
-    if not any(network.model(m).parameters for m in network.order):
-        raise CalibrationError("the network has no calibration parameters; declare "
-                               "'parameters:' in a model to calibrate")
+        return uncalibrated(network, sampler=sampler, seed=seed)
     plan = ChainPlan.from_network(network)
     if mode == "joint":
         post = _joint(network, surrogates, data, plan, seed, sampler, emu, progress)
     else:
         post = _segmented(network, surrogates, data, plan, seed, sampler, emu, plug, progress)
     return _checked(network, surrogates, post)
+
+
+def uncalibrated(network: Network, *, sampler: SamplerSettings | None = None,
+                 seed: int = 0) -> NetworkPosterior:
+    """The posterior of a network without data: nothing sampled, every parameter keeps its
+    prior (``chains * draws / thin`` draws from it, seeded); without parameters it is
+    empty (0 draws)."""
+    sampler = sampler or network.settings.sampler
+    keys = _all_keys(network)
+    n = sampler.chains * (sampler.draws // sampler.thin) if keys else 0
+    draws = {k: _prior_draws(network, k, n, seed) for k in keys}
+    prior_only = tuple(m for m in network.order if network.model(m).parameters)
+    return _posterior(network, "none", "-", (), draws, {}, prior_only, {}, ())
 
 
 def _checked(network, surrogates, post: NetworkPosterior) -> NetworkPosterior:
@@ -369,6 +397,8 @@ def _joint(network, surrogates, data, plan, seed, sampler, emu, progress) -> Net
         progress("joint: " + ", ".join(models))
     ld = build_koh(network, surrogates, free=free, datasets=data, emulator_variance=emu,
                    name="joint", plan=plan)
+    if ld.dim == 0:  # no parameters, known noise, no discrepancy: nothing to sample
+        return _posterior(network, "joint", "-", (), {}, data, (), {}, ())
     idata = _sample(ld, sampler, seed, progress)
     summarize(idata, warn=True, stacklevel=4)  # R-hat, ESS and divergence warnings
     stage = StageResult(models, tuple(data), idata, ld)
@@ -415,6 +445,8 @@ def _segmented(network, surrogates, data, plan, seed, sampler, emu, plug, progre
             progress(f"segmented: {name}")
         ld = build_koh(network, surrogates, free=free, datasets=own, emulator_variance=emu,
                        fixed={k: plug_at[k] for k in fixed_keys}, name=name, plan=plan)
+        if ld.dim == 0:  # no parameters, known noise, no discrepancy: nothing to sample
+            continue
         idata = _sample(ld, sampler, seed + i, progress)
         summarize(idata, warn=True, stacklevel=4)
         moved = [k for k in fixed_keys if np.ptp(draws[k]) > 0]
@@ -522,7 +554,7 @@ def _posterior(network, mode, plug, stages, draws, data, prior_only, plugged,
     n = max((len(v) for v in draws.values()), default=0)
     theta = {m: np.column_stack([np.resize(draws[k], n) for k in parameter_keys(network, m)])
              for m in network.order if network.model(m).parameters}
-    hyper = {}
+    hyper: dict = {ds: {} for ds in data}  # {} where nothing of the data set is sampled
     for stage in stages:
         for ds in stage.datasets:
             hyper[ds] = {h: stage.draws(f"{h}_{ds}") for h in ("ell", "sd2", "se2")

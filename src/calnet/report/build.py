@@ -5,6 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from calnet.parallel import map_threads
+from calnet.report.emulation import caption as emulation_caption
+from calnet.report.emulation import emulation_section, slices_figure
 from calnet.report.figures import with_unit
 from calnet.report.headline import BASELINES, headline
 from calnet.report.html import Section, Table, fmt, write_report
@@ -41,6 +43,7 @@ def _sensitivity_of(ctx, name, note):
     """Sobol indices, their spread over draws and (for two process inputs) the predictive
     map of data set ``name``: ``(indices, spread, box, map)``, map ``(g0, g1, pred)`` or
     None."""
+    from calnet.calibration.network import draw_index
     from calnet.predict import predict
     from calnet.sensitivity import sobol_indices, sobol_spread
 
@@ -50,10 +53,10 @@ def _sensitivity_of(ctx, name, note):
     note(f"Sobol {name}")
     box = _process_box(ctx, name)
     names = [k.split(".")[1] for k in d.input_keys]
-    idx = np.linspace(0, total - 1, min(50, total)).astype(int)
+    idx = draw_index(total, 50)
     res = sobol_indices(_mean_fn(ctx, name, idx), box, names=names, n_base=n_base,
                         n_bootstrap=100, seed=ctx.seed)
-    draws = np.linspace(0, total - 1, 3 if ctx.quick else 20).astype(int)
+    draws = draw_index(total, 3 if ctx.quick else 20)
     spread = sobol_spread(_mean_fn(ctx, name, draws, per_draw=True), box, names=names,
                           n_base=n_base // 2, seed=ctx.seed)
     if d.x.shape[1] != 2:
@@ -217,12 +220,15 @@ def write_outputs(ctx) -> None:
 
     net, out = ctx.network, ctx.out
     summary = posterior_summary(ctx.network, ctx.post)
-    ctx.metrics["calibration"] = {"mode": ctx.post.mode, "plug": ctx.post.plug,
-                                  "sampler": ctx.sampler.model_dump(), "models": summary,
-                                  "notes": list(ctx.post.notes),
-                                  "surrogate_check": {c.dataset: c.to_dict()
-                                                      for c in ctx.post.checks}}
+    if ctx.post.calibrated:
+        ctx.metrics["calibration"] = {"mode": ctx.post.mode, "plug": ctx.post.plug,
+                                      "sampler": ctx.sampler.model_dump(), "models": summary,
+                                      "notes": list(ctx.post.notes),
+                                      "surrogate_check": {c.dataset: c.to_dict()
+                                                          for c in ctx.post.checks}}
     ctx.metrics["predictions"] = {k: p.to_dict() for k, p in ctx.predictions.items()}
+    if ctx.emulated:
+        ctx.metrics["predicted_outputs"] = {k: s.to_dict() for k, s in ctx.emulated.items()}
     ctx.metrics["warnings"] = sorted(set(ctx.warnings))
     fig = ctx.figures
     fig["network"] = figures.network_diagram(
@@ -256,6 +262,11 @@ def write_outputs(ctx) -> None:
             fig[f"pit {name}"] = figures.pit_histogram(
                 v.get("loo", {}).get("pit", []), v["pit"], out / "figures" / f"pit_{name}.png",
                 f"Predictive check: {d.observes}")
+    for key, s in ctx.metrics.get("predicted_outputs", {}).items():
+        fig[f"predicted {key}"] = slices_figure(
+            s, out / "figures" / f"predicted_{key}.png", _output_unit(net, key),
+            {k: net.model(k.split(".")[0]).variable(k.split(".")[1]).unit
+             for k in s["inputs"]})
     write_metrics(out / "metrics.json", ctx.metrics)
     write_posterior_csv(out / "posterior", ctx.post.theta, summary)
     sections = _sections(ctx, summary)
@@ -264,9 +275,18 @@ def write_outputs(ctx) -> None:
              for k, d in ctx.data.items()}
     box = headline(ctx.metrics, summary, units=units,
                    warnings_section=titles.index("Warnings") + 1 if "Warnings" in titles
-                   else None)
+                   else None, predicted_units=_predicted_units(ctx))
     write_report(out, title=f"calnet report: {net.name}", sections=sections,
                  subtitle=net.description or None, headline=box)
+
+
+def _output_unit(network, key: str) -> str:
+    model, output = key.split(".")
+    return network.model(model).output(output).unit
+
+
+def _predicted_units(ctx) -> dict[str, str]:
+    return {k: _output_unit(ctx.network, k) for k in ctx.metrics.get("predicted_outputs", {})}
 
 
 def _caption(ctx, key: str) -> str:
@@ -274,6 +294,8 @@ def _caption(ctx, key: str) -> str:
     kind, _, name = key.partition(" ")
     d = ctx.data.get(name)
     observes = d.observes if d is not None else name
+    if kind == "predicted":
+        return emulation_caption(name, ctx.metrics["predicted_outputs"][name])
     if kind == "network":
         return ("The model network: one box per model with its inputs and outputs (measured "
                 "outputs in red); an arrow carries an upstream quantity into a downstream "
@@ -317,16 +339,18 @@ def _sections(ctx, summary) -> list[Section]:
     net = ctx.network
     pick = lambda prefix: [(p, _caption(ctx, k)) for k, p in fig.items()  # noqa: E731
                            if k.startswith(prefix)]
+    how = ((f"Calibration: {ctx.post.mode}" + (f", upstream plugged in by {ctx.post.plug}"
+                                                if ctx.post.mode == "segmented" else ""))
+           if ctx.post.calibrated else "No data sets: emulation only, nothing calibrated")
+    data_table = [Table("Data sets (measured points)",
+                        ["data set", "observes", "points", "training points", "test points"],
+                        [[k, d.observes, len(d.y), int((~d.is_test).sum()),
+                          int(d.is_test.sum())] for k, d in ctx.data.items()])] if ctx.data else []
     overview = Section("Network and data", paragraphs=[
-        f"Models in topological order: {' -> '.join(net.order)}. Calibration: "
-        f"{ctx.post.mode}" + (f", upstream plugged in by {ctx.post.plug}"
-                              if ctx.post.mode == "segmented" else "") +
+        f"Models in topological order: {' -> '.join(net.order)}. {how}"
         f". Total wall time {ctx.run_info['timings_s']['total']:.1f} s." +
         (" Quick run: fewer draws, restarts and folds." if ctx.quick else "")],
-        tables=[Table("Data sets (measured points)",
-                      ["data set", "observes", "points", "training points", "test points"],
-                      [[k, d.observes, len(d.y), int((~d.is_test).sum()), int(d.is_test.sum())]
-                       for k, d in ctx.data.items()]),
+        tables=[*data_table,
                 Table("Simulation campaigns (simulator runs per model)",
                       ["model", "finished runs", "ok runs", "runs not ok (left out)",
                        "outcomes of the finished runs"],
@@ -427,7 +451,10 @@ def _sections(ctx, summary) -> list[Section]:
         "First-order and total-effect indices over the data's process box",
         ["data set", "input", "S1", "ST", "ST over posterior draws (95 %)"], srows)],
         figures=pick("sobol ") + pick("map ") + pick("process "))
-    sections = [overview, sur, cal, val, sens]
+    sections = [overview, sur] + ([cal] if rows else []) + ([val, sens] if ctx.data else [])
+    if ctx.emulated:
+        sections.append(emulation_section(m["predicted_outputs"], _predicted_units(ctx),
+                                          pick("predicted ")))
     if ref:
         sections.append(Section("Comparison with the reference study", paragraphs=[
             "Published values (method.md section 7) beside this run. The reference used a "

@@ -22,6 +22,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from calnet.calibration.diagnostics import ESS_MIN, RHAT_MAX
+from calnet.report.emulation import headline_table
 from calnet.report.html import Headline, Table, fmt
 
 #: bullets in the box; the rest are counted and left to the Warnings section
@@ -35,7 +36,8 @@ BASELINES = {"training_mean": "training mean", "power_law": "power law",
 
 def headline(metrics: Mapping[str, Any], summary: Mapping[str, Any], *,
              units: Mapping[str, str] | None = None,
-             warnings_section: int | None = None) -> Headline:
+             warnings_section: int | None = None,
+             predicted_units: Mapping[str, str] | None = None) -> Headline:
     """The report's headline box.
 
     Parameters
@@ -50,13 +52,16 @@ def headline(metrics: Mapping[str, Any], summary: Mapping[str, Any], *,
         ``{data set: unit of its observed output}``, for the RMSE column.
     warnings_section : int, optional
         Number of the report's Warnings section, named in the closing line.
+    predicted_units : dict, optional
+        ``{model.output: unit}`` of the outputs in ``metrics["predicted_outputs"]``.
 
     Returns
     -------
     Headline
     """
     tables = [_parameter_table(summary),
-              _error_table(metrics.get("validation", {}), units or {})]
+              _error_table(metrics.get("validation", {}), units or {}),
+              headline_table(metrics.get("predicted_outputs", {}), predicted_units or {})]
     warnings = _warnings(metrics, summary)
     shown = warnings[:MAX_WARNINGS]
     more = None
@@ -132,7 +137,15 @@ def _stages(summary: Mapping[str, Any]) -> dict[str, Mapping[str, Any]]:
 
 
 def _lines(metrics: Mapping[str, Any], summary: Mapping[str, Any]) -> list[str]:
+    if "calibration" not in metrics:
+        return ["No data sets: emulation only, nothing calibrated; the surrogates predict "
+                + (", ".join(metrics.get("predicted_outputs", {})) or "nothing (settings."
+                   "predict is empty)") + " through the chain." + (
+                    " Quick run: fewer restarts and folds." if metrics.get("quick") else "")]
     cal = metrics.get("calibration", {})
+    if not summary:
+        return [f"Calibration: {cal.get('mode', '?')}; no calibration parameters, so only "
+                "the data sets' discrepancy and unknown noise are calibrated."]
     calibrated = [m for m, s in summary.items() if not s.get("prior_only")]
     prior = [m for m, s in summary.items() if s.get("prior_only")]
     lines = [f"Calibration: {cal.get('mode', '?')}, {len(calibrated)} model(s) with data"

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 from calnet.spec.network import Network
@@ -26,13 +27,17 @@ def describe_network(network: Network, console: Console) -> None:
         for var in model.parameters:
             table.add_row(var.name, "parameter", var.unit,
                           f"[{var.lower:g}, {var.upper:g}]  prior {_prior(var.prior)}")
-        needed = {o.name for o in network.needed_outputs(name)}
+        uses = network.output_uses(name)
         for var in model.outputs:
-            table.add_row(var.name, "output", var.unit, _output_role(network, name, var, needed))
+            table.add_row(var.name, "output", var.unit, _output_role(network, name, var, uses))
         console.print(table)
-        problem = simulator_problem(network, name)
-        if problem:
-            console.print(f"[yellow]warning:[/] {problem}", soft_wrap=True)
+        problems = [simulator_problem(network, name), *unused_outputs(network, name)]
+        for problem in filter(None, problems):
+            console.print(f"[yellow]warning:[/] {escape(problem)}", soft_wrap=True)
+    if not network.data:
+        predicted = ", ".join(network.settings.predict) or "nothing (settings.predict is empty)"
+        console.print(f"no data sets: emulation only (nothing is calibrated); predicts "
+                      f"{predicted}")
     if network.data:
         console.print("[bold]data sets[/]")
         from calnet.spec.data import read_dataset
@@ -42,6 +47,15 @@ def describe_network(network: Network, console: Console) -> None:
             console.print(f"  {ds.name}: {ds.path} observes {ds.observes}; "
                           f"{len(data.y)} points ({int((~data.is_test).sum())} train, "
                           f"{int(data.is_test.sum())} test); inputs {list(data.input_keys)}")
+
+
+def unused_outputs(network: Network, model: str) -> list[str]:
+    """A warning for each output of ``model`` that nothing uses (no data set observes it,
+    no link reads it, ``settings.predict`` does not list it): it gets no surrogate."""
+    return [f"{model}.{out}: no data set observes it, no link reads it and settings.predict "
+            "does not list it, so it gets no surrogate and is never predicted; add it to "
+            "settings.predict to emulate it, or remove it from the spec"
+            for out, use in network.output_uses(model).items() if not use]
 
 
 def simulator_problem(network: Network, model: str) -> str | None:
@@ -113,8 +127,9 @@ def _prior(prior) -> str:
     return f"{prior.dist}({', '.join(f'{k}={v:g}' for k, v in args.items())})"
 
 
-def _output_role(network: Network, model: str, var, needed: set[str]) -> str:
-    parts = []
+def _output_role(network: Network, model: str, var, uses: dict[str, tuple[str, ...]]) -> str:
+    parts = [f"[green]{', '.join(uses[var.name])}[/]" if uses[var.name]
+             else "[yellow]unused[/]"]
     observed = [d.name for d in network.datasets_for(model) if d.observed_output == var.name]
     if var.measurable:
         parts.append("measurable" + (f", observed by {', '.join(observed)}" if observed
@@ -126,6 +141,6 @@ def _output_role(network: Network, model: str, var, needed: set[str]) -> str:
         parts.append(f"-> {', '.join(links)}")
     if var.transform:
         parts.append(f"surrogate on {var.transform} scale")
-    if var.name in needed:
-        parts.append("[green]surrogate[/]")
+    if uses[var.name]:
+        parts.append("surrogate")
     return "; ".join(parts)

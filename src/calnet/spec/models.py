@@ -391,7 +391,10 @@ class Settings(Frozen):
     process map shows the probability of meeting it over the process inputs.
     ``compare`` lists variants of the spec's discrepancy calibrated beside it and
     compared with it by PSIS leave-one-out (``no_discrepancy``, ``non_orthogonal``,
-    ``reference``; :func:`calnet.validation.compare_variants`).
+    ``reference``; :func:`calnet.validation.compare_variants`). ``predict`` lists outputs
+    (``model.output``) to emulate and predict through the chain whether or not a data set
+    observes them: each gets a surrogate, ``calnet predict -d model.output`` predicts it
+    and ``calnet run`` reports it over its process inputs.
     """
 
     seed: int = Field(0, ge=0)
@@ -403,6 +406,17 @@ class Settings(Frozen):
     criteria: dict[str, Criterion] = Field(default_factory=dict)
     compare: tuple[Literal["no_discrepancy", "non_orthogonal", "reference"], ...] = Field(
         (), description="model variants calibrated beside the spec and compared by PSIS-LOO")
+    predict: tuple[str, ...] = Field(
+        (), description="outputs (model.output) predicted through the chain, observed or not")
+
+    @field_validator("predict")
+    @classmethod
+    def _qualified_outputs(cls, value: tuple[str, ...]) -> tuple[str, ...]:
+        for item in value:
+            Link._qualified(item)
+        if len(set(value)) < len(value):
+            raise ValueError(f"{list(value)} names an output twice; list each once")
+        return value
 
 
 def named_mapping_to_list(value: Any) -> Any:

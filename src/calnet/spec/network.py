@@ -72,7 +72,17 @@ class Network(Frozen):
             if name not in {d.name for d in self.data}:
                 raise ValueError(f"settings.criteria: no data set named '{name}'; known: "
                                  f"{[d.name for d in self.data]}")
+        for i, key in enumerate(self.settings.predict):
+            self._check_predicted(i, key)
         return self
+
+    def _check_predicted(self, i: int, key: str) -> None:
+        where = f"settings.predict[{i}]"
+        name, var = key.split(".")
+        model = self._model_or_error(name, where)
+        if var not in model.output_names:
+            raise ValueError(f"{where}: model '{name}' has no output '{var}'; known outputs: "
+                             f"{list(model.output_names)}")
 
     def _check_link(self, i: int, link: Link) -> None:
         where = f"links[{i}]"
@@ -254,11 +264,24 @@ class Network(Frozen):
         """:meth:`process_inputs` as ``"model.input"`` keys."""
         return [f"{m}.{v}" for m, v in self.process_inputs(model)]
 
+    def output_uses(self, model: str) -> dict[str, tuple[str, ...]]:
+        """What each output of ``model`` is for: some of ``"observed"`` (by a data set),
+        ``"linked"`` (feeds a downstream input) and ``"predicted"`` (listed in
+        ``settings.predict``), in that order; an empty tuple for an unused output."""
+        observed = {d.observed_output for d in self.data if d.observed_model == model}
+        linked = {ln.source_var for ln in self.links if ln.source_model == model}
+        predicted = {k.split(".")[1] for k in self.settings.predict
+                     if k.split(".")[0] == model}
+        return {o.name: tuple(use for use, names in (("observed", observed), ("linked", linked),
+                                                      ("predicted", predicted))
+                              if o.name in names)
+                for o in self.model(model).outputs}
+
     def needed_outputs(self, model: str) -> tuple[Output, ...]:
-        """Outputs of ``model`` that need a surrogate: observed by data or feeding a link."""
-        wanted = {d.observed_output for d in self.data if d.observed_model == model}
-        wanted |= {ln.source_var for ln in self.links if ln.source_model == model}
-        return tuple(o for o in self.model(model).outputs if o.name in wanted)
+        """Outputs of ``model`` that need a surrogate: observed by data, feeding a link or
+        requested by ``settings.predict``."""
+        uses = self.output_uses(model)
+        return tuple(o for o in self.model(model).outputs if uses[o.name])
 
     def datasets_for(self, model: str) -> tuple[Dataset, ...]:
         return tuple(d for d in self.data if d.observed_model == model)

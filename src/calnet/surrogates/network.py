@@ -1,8 +1,8 @@
 """Fit every surrogate a network needs from its campaign stores (method.md section 2).
 
-One GP per needed output (observed by a data set or feeding a link), trained on the
-model's ok runs over its inputs and parameters. Inputs declared ``scale: log`` enter the
-GP as ``ln x``.
+One GP per needed output (observed by a data set, feeding a link or listed in
+``settings.predict``), trained on the model's ok runs over its inputs and parameters.
+Inputs declared ``scale: log`` enter the GP as ``ln x``.
 """
 
 from __future__ import annotations

@@ -1,0 +1,107 @@
+"""Prediction through the chain without data: Monte Carlo through the linked GPs against
+Gauss-Hermite quadrature, and posteriors without parameters."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from calnet.calibration.network import calibrate
+from calnet.emulation import predict_output
+from calnet.errors import CalibrationWarning, CalnetError
+from calnet.spec import Input, Link, Model, Network, Output, SimulatorRef
+from calnet.surrogates.fit import fit_gp
+from calnet.surrogates.network import OutputSurrogate, Surrogates
+
+SIM = SimulatorRef(kind="python", target="toy:f")
+
+
+def _two_model_chain() -> tuple[Network, Surrogates]:
+    """a: x -> u = sin(2x) from 4 runs (a GP with real uncertainty between them);
+    b: u -> y = u^2 + u from 8 runs; nothing observed, b.y requested."""
+    net = Network(
+        models=[Model(name="a", simulator=SIM, inputs=[Input(name="x", lower=0, upper=1)],
+                      outputs=[Output(name="u")]),
+                Model(name="b", simulator=SIM, inputs=[Input(name="u", lower=-0.2, upper=1.2)],
+                      outputs=[Output(name="y")])],
+        links=[Link(**{"from": "a.u", "to": "b.u"})], settings={"predict": ["b.y"]})
+    xa = np.linspace(0, 1, 4)[:, None]
+    ub = np.linspace(-0.2, 1.2, 8)[:, None]
+    gp_a = fit_gp(xa, np.sin(2 * xa[:, 0]), lower=[0.0], upper=[1.0], seed=0)
+    gp_b = fit_gp(ub, ub[:, 0] ** 2 + ub[:, 0], lower=[-0.2], upper=[1.2], seed=0)
+    sur = Surrogates({"a.u": OutputSurrogate("a", "u", gp_a, None, 4, 0),
+                      "b.y": OutputSurrogate("b", "y", gp_b, None, 8, 0)})
+    return net, sur
+
+
+def _quadrature(sur: Surrogates, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and variance of b.y at x: u ~ N(m_a, v_a), y | u ~ N(m_b(u), v_b(u))."""
+    t, w = np.polynomial.hermite.hermgauss(80)
+    m_a, v_a = (np.asarray(a) for a in sur["a.u"].gp.predict(x[:, None]))
+    u = m_a[:, None] + np.sqrt(2 * v_a)[:, None] * t[None]  # (n, 80)
+    m_b, v_b = (np.asarray(a).reshape(u.shape) for a in sur["b.y"].gp.predict(u.reshape(-1, 1)))
+    w = w / np.sqrt(np.pi)
+    mean = m_b @ w
+    return mean, (v_b + m_b**2) @ w - mean**2
+
+
+def test_monte_carlo_through_the_chain_matches_quadrature():
+    net, sur = _two_model_chain()
+    post = calibrate(net, sur)  # no data sets: an empty posterior, nothing sampled
+    assert post.n_draws == 0 and not post.calibrated and post.theta == {}
+    x = np.array([0.1, 0.2, 0.5, 0.8, 0.95])
+    n = 20000
+    pred = predict_output(net, sur, post, "b.y", x[:, None], n_samples=n, seed=3)
+    mean, var = _quadrature(sur, x)
+    assert np.all(var > 1e-3)  # the upstream GP's uncertainty matters at these points
+    assert np.allclose(mean, np.sin(2 * x) ** 2 + np.sin(2 * x), atol=0.15)  # GPs are sane
+    # Monte Carlo error of a mean: sd / sqrt(n); of a variance: about var sqrt(2 / n)
+    # (a bit more for the heavier-tailed mixture; 5 standard errors)
+    assert np.all(np.abs(pred.mean - mean) < 4 * np.sqrt(var / n)), (pred.mean, mean)
+    assert np.allclose(pred.samples.var(axis=0), var, rtol=5 * np.sqrt(2 / n) * 1.5)
+    assert np.all((pred.lower < mean) & (mean < pred.upper))
+    assert set(pred.budget) == {"emulator a.u", "emulator b.y"}  # no parameters
+    assert pred.dataset is None and pred.observes == "b.y" and pred.input_keys == ("a.x",)
+
+
+def test_same_seed_same_prediction_and_bad_requests():
+    net, sur = _two_model_chain()
+    post = calibrate(net, sur)
+    x = np.array([[0.3], [0.6]])
+    one, two = (predict_output(net, sur, post, "b.y", x, n_samples=500, seed=5) for _ in "ab")
+    assert np.array_equal(one.samples, two.samples)
+    other = predict_output(net, sur, post, "b.y", x, n_samples=500, seed=6)
+    assert not np.array_equal(one.samples, other.samples)
+    with pytest.raises(CalnetError, match=r"no surrogate for 'b.z'; list it under "
+                                          r"settings.predict"):
+        predict_output(net, sur, post, "b.z", x)
+    with pytest.raises(CalnetError, match=r"expected 1 process inputs \['a.x'\], got 2"):
+        predict_output(net, sur, post, "b.y", np.ones((2, 2)))
+
+
+def test_data_without_parameters_or_anything_to_sample_predicts():
+    """Known noise, no discrepancy, no parameters: nothing is sampled (0 draws), and the
+    data set's prediction is the GP chain plus the noise (no IndexError)."""
+    from calnet.predict import predict
+    from calnet.spec import ExperimentalData
+
+    net, sur = _two_model_chain()
+    raw = net.model_dump(by_alias=True)
+    raw["models"][1]["outputs"][0]["measurable"] = True
+    raw["data"] = [{"name": "d", "path": "d.csv", "observes": "b.y",
+                    "columns": {"x": "x", "y": "y"}, "noise": {"sd": 0.05},
+                    "discrepancy": "none"}]
+    net = Network(**raw)
+    x = np.array([[0.2], [0.5], [0.9]])
+    y = np.sin(2 * x[:, 0]) ** 2 + np.sin(2 * x[:, 0])
+    data = {"d": ExperimentalData("d", "b.y", ("a.x",), x, y, np.zeros(3, bool),
+                                  ("1", "2", "3"), np.full(3, 0.05))}
+    with pytest.warns(CalibrationWarning, match="the surrogate, not the data, sets"):
+        post = calibrate(net, sur, data=data)  # 4 runs of a against sd 0.05: it does
+    assert post.n_draws == 0 and post.calibrated and post.hyper == {"d": {}}
+    pred = predict(net, sur, post, "d", x, n_samples=400, seed=0)
+    mean, var = _quadrature(sur, x[:, 0])
+    sd = np.sqrt(var + 0.05**2)
+    # 200 rows (the default n_draws, from 0 draws), each with its own upstream draw
+    assert np.all(np.abs(pred.mean - mean) < 4 * sd / np.sqrt(200))
+    assert np.all(pred.lower < mean) and np.all(mean < pred.upper)
