@@ -2,7 +2,10 @@
 
 XLA compiles a program on one core, and SciPy's optimisers drive XLA calls from one
 Python thread; both release the GIL while they work, so a stage with independent pieces
-(one GP fit per output, one predictive per data set) runs them in threads.
+(one GP fit per output, one predictive per data set) runs them in threads. BLAS is held
+to one thread meanwhile: XLA's CPU Cholesky and triangular solves call OpenBLAS, whose
+own threads would spin against the stage's (the same reason the samplers hold it, see
+:func:`calnet.calibration.sampling.sample_nuts`).
 """
 
 from __future__ import annotations
@@ -11,6 +14,8 @@ import os
 from collections.abc import Callable, Iterable
 from concurrent.futures import ThreadPoolExecutor
 from typing import TypeVar
+
+from threadpoolctl import threadpool_limits
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -39,5 +44,10 @@ def map_threads(fn: Callable[[T], R], items: Iterable[T]) -> list[R]:
     items = list(items)
     if len(items) <= 1 or usable_cores() == 1:
         return [fn(item) for item in items]
-    with ThreadPoolExecutor(max_workers=min(len(items), usable_cores())) as pool:
+    with one_blas_thread(), ThreadPoolExecutor(min(len(items), usable_cores())) as pool:
         return list(pool.map(fn, items))
+
+
+def one_blas_thread():
+    """A context in which BLAS (OpenBLAS, MKL) runs on one thread."""
+    return threadpool_limits(limits=1, user_api="blas")

@@ -21,7 +21,7 @@ from rich.console import Console
 from rich.progress import BarColumn, Progress, TaskID, TextColumn, TimeElapsedColumn
 
 from calnet.errors import CalibrationWarning, CalnetError
-from calnet.parallel import map_threads
+from calnet.parallel import map_threads, one_blas_thread
 from calnet.spec import Network, load_spec, read_all
 from calnet.spec.models import SamplerSettings
 
@@ -243,10 +243,10 @@ class _Context:
 
         out = {}
         # the naive baselines' GP fits run beside the leave-one-out (one more core)
-        pool = ThreadPoolExecutor(max_workers=1)
-        naive = {name: pool.submit(baselines, self.network, d.train, d.test, seed=self.seed)
-                 for name, d in self.data.items() if d.is_test.any()}
-        with pool:
+        with one_blas_thread(), ThreadPoolExecutor(max_workers=1) as pool:
+            naive = {name: pool.submit(baselines, self.network, d.train, d.test,
+                                       seed=self.seed)
+                     for name, d in self.data.items() if d.is_test.any()}
             self._validate_each(naive, out, note)
         self.metrics["validation"] = out
         if self.network.settings.compare and self.data:
