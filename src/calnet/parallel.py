@@ -30,7 +30,8 @@ def usable_cores() -> int:
 
 
 def map_threads(fn: Callable[[T], R], items: Iterable[T]) -> list[R]:
-    """``[fn(item) for item in items]``, computed in up to :func:`usable_cores` threads.
+    """``[fn(item) for item in items]``, computed in up to :func:`usable_cores` threads,
+    with BLAS on one thread.
 
     Results keep the order of ``items``. The exception of the first failing item (in
     that order) propagates once the calls already running have finished; calls not
@@ -42,10 +43,12 @@ def map_threads(fn: Callable[[T], R], items: Iterable[T]) -> list[R]:
     [1, 4, 9]
     """
     items = list(items)
-    if len(items) <= 1 or usable_cores() == 1:
-        return [fn(item) for item in items]
-    with one_blas_thread(), ThreadPoolExecutor(min(len(items), usable_cores())) as pool:
-        return list(pool.map(fn, items))
+    workers = min(len(items), usable_cores())
+    with one_blas_thread():  # also one by one: the same numbers whatever the core count
+        if workers <= 1:
+            return [fn(item) for item in items]
+        with ThreadPoolExecutor(workers) as pool:
+            return list(pool.map(fn, items))
 
 
 def one_blas_thread():
