@@ -77,6 +77,28 @@ def test_spec_import_key_simulates_nothing_without_runs(tmp_path):
         run_campaign(net, "toy", executor="in-process", progress=False)
 
 
+def test_a_planned_point_an_imported_run_holds_is_not_simulated_again(tmp_path):
+    # the export of a campaign, imported into a new store of the same spec and seed:
+    # the design then plans the very same points
+    net = toy_network(tmp_path, "python:toy_sims:counted", runs=5)
+    count = tmp_path / "count.txt"  # one line per simulator call
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("TOY_COUNT_FILE", str(count))
+        made = run_campaign(net, "toy", executor="in-process", progress=False,
+                            store=tmp_path / "first.sqlite")
+        exported = export_runs(made.store_path, tmp_path / "runs.csv")
+        store = tmp_path / "second.sqlite"
+        assert import_runs(net, "toy", exported, store=store).imported == 5
+        again = run_campaign(net, "toy", executor="in-process", progress=False, store=store)
+    assert len(count.read_text().splitlines()) == 5  # the first campaign's, no more
+    assert again.planned == 5 and again.n_ok == 10  # the design's rows, with copied results
+    runs = load_runs(net, "toy", store=store)
+    assert runs.X.shape == (5, 3) and runs.n_excluded == 5  # each point once
+    np.testing.assert_array_equal(runs.X, load_runs(net, "toy", store=made.store_path).X)
+    messages = runs_frame(store).message.tolist()[5:]
+    assert all("the inputs of imported run" in m for m in messages)
+
+
 @pytest.mark.parametrize("suffix", [".csv", ".parquet"])
 def test_export_then_import_gives_the_same_surrogate(tmp_path, suffix):
     net = toy_network(tmp_path, "python:toy_sims:crashy", runs=12)

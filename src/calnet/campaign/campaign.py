@@ -49,6 +49,7 @@ from calnet.campaign.store import (
     RunStore,
     describe_change,
     fingerprint_hash,
+    input_hash,
     model_fingerprint,
     store_errors,
 )
@@ -194,7 +195,7 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
                      seed)
         if retry_failed:
             db.reset_failed()
-        todo = db.unfinished()
+        todo = _reuse_imported(db, db.unfinished())
         _check_versions(db, sim.name, version, bool(todo))
         skipped = total - len(todo)
         in_flight = sum(was for _, _, was in todo)
@@ -218,6 +219,25 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
     return CampaignSummary(model_name, path, total, skipped, len(todo), in_flight,
                            counts, failures, time.perf_counter() - start, ex.name, ex.workers,
                            seed, imported, label)
+
+
+def _reuse_imported(db: RunStore, todo: list) -> list:
+    """The unfinished design runs ``todo`` less those whose inputs an imported run holds:
+    each of those gets the imported run's result (simulating it again would only repeat
+    a point, and repeated points make cross-validation look better than it is)."""
+    held = {r["input_hash"]: r for r in db.rows()
+            if r.get("origin") == "imported" and r["status"] is not None}
+    left = []
+    for index, inputs, was in todo:
+        row = held.get(input_hash(inputs))
+        if row is None:
+            left.append((index, inputs, was))
+            continue
+        db.record(RunRecord(index, row["status"], row["outputs"] or {},
+                            f"the inputs of imported run {row['idx']} ({row['source']}): its "
+                            "result, not simulated again", {}, 0.0),
+                  simulator=row["simulator"] or "", version=row["simulator_version"] or "")
+    return left
 
 
 def import_runs(network: Network, model_name: str, table: str | Path, *,
