@@ -32,6 +32,7 @@ from calnet.calibration.network import (  # noqa: E402
 from calnet.chain import ChainPlan  # noqa: E402
 from calnet.errors import CalnetError  # noqa: E402
 from calnet.spec import Network  # noqa: E402
+from calnet.surrogates.cv import mape_meaningful  # noqa: E402
 from calnet.surrogates.network import Surrogates  # noqa: E402
 
 Z95 = 1.959963984540054
@@ -338,16 +339,6 @@ def predict_data(network: Network, surrogates: Surrogates, posterior: NetworkPos
     """:func:`predict` at a data set's own rows, with their known noise if any."""
     return predict(network, surrogates, posterior, data.name, data.x,
                    noise_var=known_noise_var(network, data), **kwargs)
-
-
-def mape_meaningful(y: np.ndarray) -> bool:
-    """Whether a percentage error is meaningful for observations ``y``: all of one sign
-    and every |y| at least a tenth of their spread away from zero (else a near-zero
-    value turns a small error into hundreds of percent)."""
-    y = np.asarray(y, float)
-    if not len(y) or not (np.all(y > 0) or np.all(y < 0)):
-        return False
-    return float(np.abs(y).min()) >= 0.1 * float(np.ptp(y))
 
 
 def crps_from_samples(y: np.ndarray, samples: np.ndarray) -> np.ndarray:

@@ -13,8 +13,17 @@ def test_coverage_and_metrics_on_hand_made_numbers():
     hi = np.array([1.2, 3.0, 5.0, -4.5])
     m = cv_metrics(y, yhat, lo, hi)
     assert m["coverage95"] == 0.75
-    assert m["mape"] == pytest.approx(100 * (0.1 / 1 + 0 + 1 / 4 + 0.5 / 5) / 4)
+    assert m["mape"] is None  # outputs of both signs: a percentage error means nothing
     assert m["rmse"] == pytest.approx(np.sqrt((0.01 + 0 + 1 + 0.25) / 4))
+    y, yhat = np.array([1.0, 2.0, 4.0, 5.0]), np.array([1.1, 2.0, 3.0, 5.5])
+    m = cv_metrics(y, yhat, y - 1, y + 1)
+    assert m["mape"] == pytest.approx(100 * (0.1 / 1 + 0 + 1 / 4 + 0.5 / 5) / 4)
+
+
+def test_mape_is_left_out_where_an_output_reaches_zero():
+    y = np.array([0.0, 1.0, 2.0, 3.0])  # a divide by zero: no warning, no infinity
+    m = cv_metrics(y, y + 0.1, y - 1, y + 1)
+    assert m["mape"] is None and m["rmse"] == pytest.approx(0.1)
 
 
 def test_folds_are_seeded_shuffled_and_balanced():

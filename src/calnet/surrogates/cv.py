@@ -35,8 +35,9 @@ class CVResult:
         The same predictions on the modelled scale (``log`` scale if ``transform="log"``).
     fold : ndarray of int, shape (n,)
         Fold index of each point, 0 .. k-1.
-    mape : float
-        ``mean(|y - mean| / |y|) * 100``, percent.
+    mape : float or None
+        ``mean(|y - mean| / |y|) * 100``, percent; None where outputs reach or come near
+        zero (see :func:`cv_metrics`).
     rmse : float
         ``sqrt(mean((y - mean)^2))``, output units.
     coverage95 : float
@@ -55,7 +56,7 @@ class CVResult:
     mean_modelled: np.ndarray
     var_modelled: np.ndarray
     fold: np.ndarray
-    mape: float
+    mape: float | None
     rmse: float
     coverage95: float
     n: int
@@ -69,18 +70,24 @@ class CVResult:
                 "mape": self.mape, "rmse": self.rmse, "coverage95": self.coverage95}
 
 
-def cv_metrics(y, yhat, lower95, upper95) -> dict[str, float]:
+def cv_metrics(y, yhat, lower95, upper95, *, transform: str | None = None) -> dict:
     """MAPE (%), RMSE and 95 % interval coverage of predictions.
 
     Parameters
     ----------
     y, yhat, lower95, upper95 : array, shape (n,)
         Observations, point predictions and interval ends, same units.
+    transform : {None, "log"}
+        With ``"log"`` (a positive output modelled on the log scale, whose errors are
+        relative) MAPE is always given; else only where every ``y`` has one sign and
+        ``|y| >= 0.01 max |y|`` (a value at or near zero turns a small error into hundreds
+        of percent; a simulator output over a whole design box may well span two decades).
 
     Returns
     -------
     dict
-        ``{"mape": float (percent), "rmse": float, "coverage95": float in [0, 1]}``.
+        ``{"mape": float (percent) or None, "rmse": float, "coverage95": float in
+        [0, 1]}``.
 
     Examples
     --------
@@ -90,10 +97,27 @@ def cv_metrics(y, yhat, lower95, upper95) -> dict[str, float]:
     y, yhat = np.asarray(y, float), np.asarray(yhat, float)
     lo, hi = np.asarray(lower95, float), np.asarray(upper95, float)
     return {
-        "mape": float(np.mean(np.abs(y - yhat) / np.abs(y)) * 100.0),
+        "mape": (float(np.mean(np.abs(y - yhat) / np.abs(y)) * 100.0)
+                 if transform == "log" or _away_from_zero(y) else None),
         "rmse": float(np.sqrt(np.mean((y - yhat) ** 2))),
         "coverage95": float(np.mean((lo <= y) & (y <= hi))),
     }
+
+
+def _away_from_zero(y: np.ndarray) -> bool:
+    """All of one sign and every |y| at least 1 % of the largest."""
+    a = np.abs(y)
+    return bool(len(y)) and (np.all(y > 0) or np.all(y < 0)) and a.min() >= 0.01 * a.max()
+
+
+def mape_meaningful(y) -> bool:
+    """Whether a percentage error is meaningful for observations ``y``: all of one sign
+    and every |y| at least a tenth of their spread away from zero (else a near-zero
+    value turns a small error into hundreds of percent)."""
+    y = np.asarray(y, float)
+    if not len(y) or not (np.all(y > 0) or np.all(y < 0)):
+        return False
+    return float(np.abs(y).min()) >= 0.1 * float(np.ptp(y))
 
 
 def kfold_indices(n: int, k: int, seed: int = 0) -> np.ndarray:
@@ -176,7 +200,7 @@ def cross_validate(
         lo, hi = np.exp(mu - Z95 * sd), np.exp(mu + Z95 * sd)
     else:
         mean, nat_var, lo, hi = mu, var, mu - Z95 * sd, mu + Z95 * sd
-    met = cv_metrics(y, mean, lo, hi)
+    met = cv_metrics(y, mean, lo, hi, transform=transform)
     return CVResult(y=y, mean=mean, var=nat_var, lower95=lo, upper95=hi, mean_modelled=mu,
                     var_modelled=var, fold=fold, mape=met["mape"], rmse=met["rmse"],
                     coverage95=met["coverage95"], n=n, k=int(k), name=name,

@@ -54,7 +54,8 @@ def parity_plot(
     FigureCanvasAgg(fig)
     ax = fig.add_subplot()
     yerr = np.vstack([cv.mean - cv.lower95, cv.upper95 - cv.mean])
-    label = (f"MAPE {cv.mape:.2f} %, RMSE {cv.rmse:.3g}\n"
+    mape = f"MAPE {cv.mape:.2f} %, " if cv.mape is not None else ""
+    label = (f"{mape}RMSE {cv.rmse:.3g}\n"
              f"95 % coverage {100 * cv.coverage95:.0f} % (n = {cv.n})")
     ax.errorbar(cv.y, cv.mean, yerr=yerr, fmt="o", ms=3, lw=0.8, capsize=2,
                 color="C0", ecolor="C0", alpha=0.8, label=label)
