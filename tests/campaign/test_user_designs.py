@@ -73,6 +73,12 @@ def test_a_design_file_is_run_as_given_and_grows_at_its_end(tmp_path):
     grown = run(net, "toy", runs=6)  # maximin points after the file's
     assert (grown.planned, grown.ran) == (6, 2)
     assert run(net, "toy").ran == 0
+    assert runs_frame(summary.store_path).source.tolist()[4:] == ["maximin"] * 2
+    more = pd.concat([more, pd.DataFrame({"x": [0.4], "a": [0.7], "b": [0.2]})])
+    more.to_csv(tmp_path / "points.csv", index=False)  # a row at the file's end again
+    after = run(net, "toy")
+    assert (after.planned, after.ran) == (7, 1)
+    assert runs_frame(summary.store_path).source.tolist()[-1] == "file:points.csv"
     more.iloc[[1, 0, 2, 3]].to_csv(tmp_path / "points.csv", index=False)
     with pytest.raises(CampaignError, match=r"design file '.*points.csv' changed: row 1"):
         run(net, "toy")
@@ -172,6 +178,7 @@ def test_chain_design_without_parent_runs_falls_back_to_lhs(tmp_path):
         summary = run(net, "M2")
     assert summary.n_ok == 8
     assert not default_store(net, "M1").exists()
+    assert runs_frame(summary.store_path).source.tolist() == ["lhs"] * 8  # what they are
 
 
 def test_a_points_file_or_import_under_settings_is_refused(tmp_path):

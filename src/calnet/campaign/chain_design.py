@@ -49,8 +49,11 @@ class _NoRuns(Exception):
 
 
 def chain_points(network: Network, model: Model, old: Design, extra: int, *, seed: int,
-                 store: Path, margin: float = MARGIN, cloud: int = CLOUD) -> Design:
-    """``old`` plus ``extra`` chain-aware points (see the module docstring).
+                 store: Path, margin: float = MARGIN,
+                 cloud: int = CLOUD) -> tuple[Design, bool]:
+    """``old`` plus ``extra`` chain-aware points (see the module docstring), and whether
+    they are chain-aware (False: a parent had no runs to tell where its outputs land, and
+    the points are a Latin hypercube, or maximin points beside ``old``, with a warning).
 
     Parameters
     ----------
@@ -72,8 +75,8 @@ def chain_points(network: Network, model: Model, old: Design, extra: int, *, see
 
     Returns
     -------
-    Design
-        ``len(old) + extra`` points.
+    Design, bool
+        ``len(old) + extra`` points; whether the new ones are chain-aware.
     """
     linked = np.array([network.link_into(model.name, v.name) is not None
                        for v in (*model.inputs, *model.parameters)])
@@ -84,8 +87,8 @@ def chain_points(network: Network, model: Model, old: Design, extra: int, *, see
                       "parents first: `calnet campaign SPEC` runs every model, parents first)",
                       CampaignWarning, stacklevel=4)
         if len(old) == 0:
-            return latin_hypercube(model, extra, seed=seed)
-        return augment(old, extra, seed=seed, model_name=model.name)
+            return latin_hypercube(model, extra, seed=seed), False
+        return augment(old, extra, seed=seed, model_name=model.name), False
     rng = design_rng(seed, f"{model.name}:chain", len(old) + extra)
     values = linked_cloud(network, model, gps, cloud, rng)
     lo, hi = old.lower[linked], old.upper[linked]
@@ -99,7 +102,7 @@ def chain_points(network: Network, model: Model, old: Design, extra: int, *, see
     new[:, linked] = picked
     if (~linked).any():
         new[:, ~linked] = qmc.LatinHypercube(d=int((~linked).sum()), rng=rng).random(extra)
-    return Design(old.columns, old.lower, old.upper, np.vstack([old.unit, new]), old.log)
+    return Design(old.columns, old.lower, old.upper, np.vstack([old.unit, new]), old.log), True
 
 
 def greedy_maximin(cand: np.ndarray, base: np.ndarray, n: int, *,

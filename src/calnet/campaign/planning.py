@@ -147,11 +147,13 @@ def plan(db: RunStore, network: Network, model: Model, choice: DesignChoice, run
     new = (_file_rows(choice, design_columns(model), rows, db.path)
            if choice.points is not None else [])
     have = len(rows) + len(new)
+    groups = [(new, choice.label)]  # a design file's new rows, then generated points
     if runs > have:
-        new += _generated(db, network, model, choice, rows, new, runs, seed)
-    if new:
+        groups.append(_generated(db, network, model, choice, rows, new, runs, seed))
+    for points, source in groups:
         start = db.next_index()
-        db.plan(((start + k, row) for k, row in enumerate(new)), seed=seed, source=choice.label)
+        db.plan(((start + k, row) for k, row in enumerate(points)), seed=seed, source=source)
+    new = [row for points, _ in groups for row in points]
     meta = db.meta()
     if not meta.get("design_kind") and (rows or new):
         label = stored_design(meta) or choice.label
@@ -162,9 +164,10 @@ def plan(db: RunStore, network: Network, model: Model, choice: DesignChoice, run
 
 def _file_rows(choice: DesignChoice, columns: tuple[str, ...], rows: list[dict],
                path: Path) -> list[dict[str, float]]:
-    """The design file's rows after those the store plans, which must be its first rows
-    (a store may plan more: points added by ``--runs`` after the file's)."""
+    """The design file's rows after those the store plans from it, which must be its first
+    rows (the store may also hold points that ``--runs`` added; those stay)."""
     points = [{c: float(v) for c, v in zip(columns, p, strict=True)} for p in choice.points]
+    rows = [r for r in rows if r.get("source") in (None, choice.label)]
     for k, row in enumerate(rows[:len(points)]):
         if input_hash(row["inputs"]) != input_hash(points[k]):
             raise CampaignError(f"the design file '{choice.path}' changed: row {k + 1} is not "
@@ -175,9 +178,12 @@ def _file_rows(choice: DesignChoice, columns: tuple[str, ...], rows: list[dict],
 
 
 def _generated(db: RunStore, network: Network, model: Model, choice: DesignChoice,
-               rows: list[dict], new: list[dict], runs: int, seed: int) -> list[dict]:
+               rows: list[dict], new: list[dict], runs: int,
+               seed: int) -> tuple[list[dict], str]:
     """``runs - len(rows) - len(new)`` points of the design ``choice`` that fill the gaps
-    the stored (and the file's) points leave."""
+    the stored (and the file's) points leave, and how they were placed (the runs'
+    ``source``): the design's label, ``lhs`` where a chain design fell back to a Latin
+    hypercube, ``maximin`` for points added to a design."""
     columns, log = design_columns(model), log_columns(model)
     lower, upper = model_box(model)
     have = [[r["inputs"][c] for c in columns] for r in rows] + [[p[c] for c in columns]
@@ -186,17 +192,19 @@ def _generated(db: RunStore, network: Network, model: Model, choice: DesignChoic
                  to_unit(np.array(have, dtype=float).reshape(len(have), len(columns)),
                          lower, upper, log), log)
     extra = runs - len(have)
+    source = choice.label
     if choice.kind == "chain":
         from calnet.campaign.chain_design import chain_points
 
-        design = chain_points(network, model, old, extra, seed=seed, store=db.path)
+        design, aware = chain_points(network, model, old, extra, seed=seed, store=db.path)
+        source = "chain" if aware else ("lhs" if len(have) == 0 else "maximin")
     elif len(have) == 0 and choice.kind == "lhs":
         design = latin_hypercube(model, runs, seed=seed)
     elif len(have) == 0 and choice.kind in ("sobol", "halton"):
         design = qmc_design(model, runs, kind=choice.kind, seed=seed)
     else:
-        design = augment(old, extra, seed=seed, model_name=model.name)
-    return [design.row(i) for i in range(len(have), len(design))]
+        design, source = augment(old, extra, seed=seed, model_name=model.name), "maximin"
+    return [design.row(i) for i in range(len(have), len(design))], source
 
 
 def _only_per_model(network: Network) -> None:
