@@ -304,7 +304,11 @@ def predict(network: Network, surrogates: Surrogates, posterior: NetworkPosterio
                                    st.tdata, xp_new, st.thetas, st.hyper, eps, noise_new)
 
     mean0, var_delta, var_emu, noise = (np.asarray(a) for a in run(()))
-    budget = {"parameters": mean0.var(axis=0)}
+    # the spread of the mean over draws: parameters, and the discrepancy's and noise's
+    # hyperparameters (only those where the network has no calibration parameters)
+    spread = ("parameters" if any(network.model(m).parameters for m in network.order)
+              else "hyperparameters")
+    budget = {spread: mean0.var(axis=0)}
     perturbed = {(): mean0}
     for k in links:  # upstream emulator variance, one surrogate at a time
         perturbed[(k,)] = np.asarray(run((k,))[0])

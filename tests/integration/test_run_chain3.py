@@ -116,4 +116,5 @@ def test_cli_calibrate_and_predict_with_data_but_no_parameters(tmp_path, monkeyp
     for p in preds.values():
         assert p["lower95"][0] <= truth <= p["upper95"][0], p
     assert "noise" in preds["yd"]["variance_shares"]
+    assert "parameters" not in preds["yd"]["variance_shares"]  # the network has none
     assert "noise" not in preds["M3.y"]["variance_shares"]  # the simulator's output
