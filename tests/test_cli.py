@@ -98,3 +98,15 @@ def test_arviz_banner_is_kept_out(tmp_path):
     code = ("from calnet.calibration.diagnostics import import_arviz\n"
             "import_arviz().from_dict(posterior={'x': [[0.0, 1.0]]})\n")
     assert BANNER not in stderr_of(code, "calnet")
+
+
+@pytest.mark.parametrize("argv", [
+    ["simulate", "solidification", "--set", "S=0.3", "--set", "S=0.4"],
+    ["predict", "examples/ninb", "--at", "P=200,P=210,v=0.5"],
+])
+def test_a_name_given_twice_is_a_one_line_error(argv):
+    from typer.testing import CliRunner
+
+    result = CliRunner().invoke(app, argv)
+    assert result.exit_code == 1, result.output
+    assert "twice; give each name once" in result.output

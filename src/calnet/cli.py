@@ -199,6 +199,8 @@ def _parse_sets(values: list[str], flag: str = "--set") -> dict[str, float]:
         key, sep, val = item.partition("=")
         if not sep or not key.strip():
             raise CalnetError(f"{flag} expects NAME=VALUE, got '{item}'")
+        if key.strip() in out:
+            raise CalnetError(f"{flag} gives {key.strip()} twice; give each name once")
         try:
             out[key.strip()] = float(val)
         except ValueError:

@@ -43,6 +43,8 @@ def test_output_uses_and_needed_outputs():
     assert [o.name for o in net.needed_outputs("b")] == ["y", "z"]
     bare = parse_spec(_chain(), root=".", source="t")  # no data, nothing requested
     assert [o.name for o in bare.needed_outputs("b")] == []
+    one = parse_spec(_chain("b.z"), root=".", source="t")  # one output without a list
+    assert one.settings.predict == ("b.z",)
 
 
 def test_check_says_what_each_output_is_for_and_warns_of_unused(tmp_path):

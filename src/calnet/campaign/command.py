@@ -97,7 +97,8 @@ def print_summary(summary: Any, console: Any) -> None:
     counts = ", ".join(f"{k} {n}" for k, n in sorted(summary.status_counts.items()))
     rate = summary.ran / summary.wall_time if summary.wall_time > 0 else 0.0
     if summary.imported:
-        console.print(f"[bold]{summary.model}[/]: imported {summary.imported} runs")
+        runs = "run" if summary.imported == 1 else "runs"
+        console.print(f"[bold]{summary.model}[/]: imported {summary.imported} {runs}")
     if summary.planned == 0:
         pass  # imported runs only: no design to report on
     elif summary.ran == 0 and summary.skipped == summary.planned:

@@ -409,6 +409,12 @@ class Settings(Frozen):
     predict: tuple[str, ...] = Field(
         (), description="outputs (model.output) predicted through the chain, observed or not")
 
+    @field_validator("predict", "compare", mode="before")
+    @classmethod
+    def _one_as_list(cls, value: Any) -> Any:
+        """``predict: M.y`` is ``predict: [M.y]`` (and the same for ``compare``)."""
+        return [value] if isinstance(value, str) else value
+
     @field_validator("predict")
     @classmethod
     def _qualified_outputs(cls, value: tuple[str, ...]) -> tuple[str, ...]:
