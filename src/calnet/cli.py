@@ -518,11 +518,11 @@ def _read_points(path: Path) -> list[dict[str, float]]:
         frame = pd.read_csv(path)
     except Exception as err:  # noqa: BLE001 - any parse failure is the user's file
         raise CalnetError(f"--csv {path}: cannot read it as CSV ({err})") from None
+    if frame.empty:
+        raise CalnetError(f"--csv {path}: no rows; write one point per row under the header")
     bad = [c for c in frame.columns if not pd.api.types.is_numeric_dtype(frame[c])]
     if bad:
         raise CalnetError(f"--csv {path}: column(s) {bad} are not numeric")
-    if frame.empty:
-        raise CalnetError(f"--csv {path}: no rows")
     return [{str(k): float(v) for k, v in row.items()} for row in frame.to_dict("records")]
 
 
