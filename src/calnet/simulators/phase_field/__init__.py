@@ -87,7 +87,7 @@ def simulate(inputs: Mapping[str, float], **options: Any) -> SimResult:
         ``k_V``, ``undercooling`` (K) and ``steady`` (1.0), means over the last
         ``window`` chunks. Status ``"ok"`` for a steady cell array; ``"nonconverged"``
         (outputs of the last window, ``steady`` 0.0) when the step budget ran out first;
-        ``"failed"`` for non-finite fields or a front that stayed flat (no spacing). The
+        ``"failed"`` for diverged fields or a steady front that stayed flat (no spacing). The
         message says which. ``diagnostics``: steps, simulated time (s), time step (s), wall
         time (s), tip speed (m/s), cell count, options.
 
@@ -102,22 +102,23 @@ def simulate(inputs: Mapping[str, float], **options: Any) -> SimResult:
     diag: dict[str, Any] = {"steps": rec.steps, "simulated_time_s": rec.time, "dt_s": rec.dt,
                             "wall_seconds": rec.wall_seconds, "stop": rec.status,
                             "options": opts.to_dict(), "version": VERSION}
-    if rec.status == "nonfinite" or not rec.history:
+    if rec.status == "diverged" or not rec.history:
         return SimResult({k: math.nan for k in OUTPUTS}, "failed",
-                         f"{NAME}: fields became non-finite after {rec.steps} steps "
-                         f"(dt {rec.dt:.3g} s); try a finer resolution", diag)
+                         f"{NAME}: the fields diverged (non-finite or out-of-range "
+                         f"concentrations) after {rec.steps} steps at dt {rec.dt:.3g} s; "
+                         "report it with the inputs and options", diag)
     s = summary(rec.history, opts.window)
     diag.update(tip_speed=s["tip_speed"], cells=s["mode"],
                 amplitude_um=rec.history[-1].amplitude * 1e6)
     out = {"lambda": s["wavelength"] * 1e6, "k_V": s["k_V"],
            "undercooling": s["undercooling"],
            "steady": 1.0 if rec.status == "steady" else 0.0}
-    if s["mode"] == 0:
-        return SimResult(out, "failed", f"{NAME}: the front stayed flat (no cell array, so "
-                         f"no spacing); k_V {s['k_V']:.3f}, undercooling "
-                         f"{s['undercooling']:.2f} K", diag)
     if rec.status != "steady":
         return SimResult(out, "nonconverged", f"{NAME}: not steady within max_steps "
                          f"{opts.max_steps} ({rec.time * 1e6:.2f} us simulated); raise "
                          "max_steps", diag)
+    if s["mode"] == 0:
+        return SimResult(out, "failed", f"{NAME}: the front stayed flat (no cell array, so "
+                         f"no spacing); k_V {s['k_V']:.3f}, undercooling "
+                         f"{s['undercooling']:.2f} K", diag)
     return SimResult(out, "ok", "", diag).checked(OUTPUTS)

@@ -44,7 +44,7 @@ class PhaseFieldOptions:
     coupling : {"profile", "constant"}, default "profile"
         How the driving force enters the phase-field equation
         (:func:`calnet.simulators.phase_field.model.phase_rate`).
-    min_travel : float, default 3.0
+    min_travel : float, default 1.0
         Minimum isotherm travel before a steady state is accepted, in units of the
         freezing-range length ``dT0 / G``.
     """
@@ -59,7 +59,7 @@ class PhaseFieldOptions:
     front_row: float = 0.6
     chunk_cells: float = 8.0
     window: int = 12
-    min_travel: float = 3.0
+    min_travel: float = 1.0
     coupling: str = "profile"
 
     def __post_init__(self) -> None:

@@ -2,7 +2,7 @@
 
 The low level is :func:`advance` (a jitted chunk of steps followed by a frame shift, pure
 JAX); :func:`run` drives chunks until the front is steady, the step budget is spent or
-the fields stop being finite, and returns a :class:`PhaseFieldRun`.
+the fields diverge, and returns a :class:`PhaseFieldRun`.
 """
 
 from __future__ import annotations
@@ -44,7 +44,7 @@ class PhaseFieldRun:
 
     Attributes
     ----------
-    status : {"steady", "budget", "nonfinite"}
+    status : {"steady", "budget", "diverged"}
         Why the run stopped.
     history : tuple of FrontState
         The front measured after every chunk.
@@ -122,13 +122,21 @@ def advance(phi, xs, xl, t, y_off, dt, par, *, n_steps: int, dx: float,
             y_off + shift * dx)
 
 
+def diverged(xs: np.ndarray, xl: np.ndarray) -> bool:
+    """Whether the concentrations are non-finite or pinned at the bounds that
+    :func:`~calnet.simulators.phase_field.model.step` clips them to (1e-8 and 0.5 mole
+    fraction): an unstable step shows up there, as no physical state of this alloy does."""
+    lo, hi = min(xs.min(), xl.min()), max(xs.max(), xl.max())
+    return not (np.isfinite(lo) and np.isfinite(hi) and lo > 1e-8 and hi < 0.5)
+
+
 def run(p: PhysicalParameters, opts: PhaseFieldOptions,
         c: PhaseFieldConstants = CONSTANTS) -> PhaseFieldRun:
     """Integrate until the front is steady or ``opts.max_steps`` is spent.
 
     The step is the stable explicit step of the run's parameters and grid
     (:func:`~calnet.simulators.phase_field.model.stable_time_step`). The run stops early with status
-    ``"nonfinite"`` when a field stops being finite.
+    ``"diverged"`` when :func:`diverged` says so.
     """
     start = time.perf_counter()
     phi, xs, xl, y_front = initial_fields(opts, c, p.S)
@@ -149,10 +157,10 @@ def run(p: PhysicalParameters, opts: PhaseFieldOptions,
         steps += n
         phi, xs, xl = (np.asarray(a) for a in state[:3])
         t, y_off = float(state[3]), float(state[4])
-        if not (np.isfinite(phi).all() and np.isfinite(xs).all() and np.isfinite(xl).all()):
-            status = "nonfinite"
-            break
         y = y_off + (np.arange(opts.ny) + 0.5) * opts.dx
+        if diverged(xs, xl):
+            status = "diverged"
+            break
         history.append(outputs.measure(
             phi, xs, xl, y=y, t=t, dx=opts.dx, T0=c.T0,
             temperature_at=lambda yy, tt: T_ref + p.G * (yy - y_front - p.S * tt)))
