@@ -181,8 +181,11 @@ def test_registered_and_runs_from_the_cli():
 
 @pytest.mark.slow
 def test_default_resolution_gives_a_steady_cell_array():
-    res = phase_field.simulate(WORKED)
+    # at 0.1 m/s the cells are deeper than the interface is wide (at 0.3 m/s the front
+    # settles as a modulation of a few nm: benchmarks/README.md)
+    res = phase_field.simulate({**WORKED, "S": 0.1})
     assert res.status == "ok", res.message
     assert res.outputs["steady"] == 1.0 and res.diagnostics["cells"] >= 2
-    # the same order as the closed form's 0.27 um and the measured 0.29-0.43 um
+    assert res.outputs["amplitude"] > 0.02
+    # the same order as the closed form's 0.36 um and the measured 0.29-0.43 um
     assert 0.1 < res.outputs["lambda"] < 1.0

@@ -32,10 +32,10 @@ NAME = "phase_field"
 VERSION = "0.1.0"
 INPUTS: tuple[str, ...] = ("S", "G")
 PARAMETERS: tuple[str, ...] = ("sigma", "M", "p_int")
-OUTPUTS: tuple[str, ...] = ("lambda", "k_V", "undercooling", "steady")
+OUTPUTS: tuple[str, ...] = ("lambda", "k_V", "undercooling", "amplitude", "steady")
 UNITS: dict[str, str] = {
     "S": "m/s", "G": "K/m", "sigma": "J/cm^2", "M": "cm^4/(J s)", "p_int": "cm^3/(J s)",
-    "lambda": "um", "k_V": "1", "undercooling": "K", "steady": "1",
+    "lambda": "um", "k_V": "1", "undercooling": "K", "amplitude": "um", "steady": "1",
 }
 BOUNDS: dict[str, tuple[float, float]] = dict(_M2_BOUNDS)
 
@@ -84,7 +84,8 @@ def simulate(inputs: Mapping[str, float], **options: Any) -> SimResult:
     -------
     SimResult
         ``outputs``: ``lambda`` (um, the dominant wavelength of the front),
-        ``k_V``, ``undercooling`` (K) and ``steady`` (1.0), means over the last
+        ``k_V``, ``undercooling`` (K), ``amplitude`` (um, of the dominant mode of the front
+        height: how deep the cells are) and ``steady`` (1.0), means over the last
         ``window`` chunks. Status ``"ok"`` for a steady cell array; ``"nonconverged"``
         (outputs of the last window, ``steady`` 0.0) when the step budget ran out first;
         ``"failed"`` for diverged fields or a steady front that stayed flat (no spacing). The
@@ -108,10 +109,9 @@ def simulate(inputs: Mapping[str, float], **options: Any) -> SimResult:
                          f"concentrations) after {rec.steps} steps at dt {rec.dt:.3g} s; "
                          "report it with the inputs and options", diag)
     s = summary(rec.history, opts.window)
-    diag.update(tip_speed=s["tip_speed"], cells=s["mode"],
-                amplitude_um=rec.history[-1].amplitude * 1e6)
+    diag.update(tip_speed=s["tip_speed"], cells=s["mode"])
     out = {"lambda": s["wavelength"] * 1e6, "k_V": s["k_V"],
-           "undercooling": s["undercooling"],
+           "undercooling": s["undercooling"], "amplitude": s["amplitude"] * 1e6,
            "steady": 1.0 if rec.status == "steady" else 0.0}
     if rec.status != "steady":
         return SimResult(out, "nonconverged", f"{NAME}: not steady within max_steps "

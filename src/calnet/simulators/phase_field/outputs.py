@@ -116,10 +116,12 @@ def steady(history: Sequence[FrontState], *, window: int, min_time: float,
 
     Steady means: at least ``min_time`` (s) simulated; the same dominant mode throughout;
     the mean tip undercooling of the two halves of the window differing by at most
-    ``tol = max(rtol * mean, atol)`` (K), so the tip keeps pace with the isotherms; and
-    its standard deviation over the window below ``tol``, which rejects an oscillating
-    front (a flat front at S <= 0.1 m/s oscillates by several K with the default
-    parameters, see benchmarks/README.md).
+    ``tol = max(rtol * mean, atol)`` (K), so the tip keeps pace with the isotherms; its
+    standard deviation over the window below ``tol``, which rejects an oscillating front
+    (a flat front at S <= 0.1 m/s oscillates by several K with the default parameters,
+    see benchmarks/README.md); and the mean amplitude of the dominant mode of the two
+    halves within 5 % of each other, so that a growing perturbation is not taken for a
+    cell array.
     """
     if len(history) < window or history[-1].t < min_time:
         return False
@@ -129,12 +131,15 @@ def steady(history: Sequence[FrontState], *, window: int, min_time: float,
     du = np.array([s.undercooling for s in last])
     first, second = du[: window // 2].mean(), du[window // 2:].mean()
     tol = max(rtol * abs(second), atol)
-    return bool(abs(first - second) <= tol and du.std() <= tol)
+    amp = np.array([s.amplitude for s in last])
+    a1, a2 = amp[: window // 2].mean(), amp[window // 2:].mean()
+    return bool(abs(first - second) <= tol and du.std() <= tol
+                and abs(a1 - a2) <= 0.05 * max(a2, 1e-12))
 
 
 def summary(history: Sequence[FrontState], window: int) -> dict[str, float]:
-    """Means over the last ``window`` states: wavelength (m), ``k_V``, undercooling (K),
-    tip speed (m/s), mode."""
+    """Means over the last ``window`` states: wavelength and amplitude of the dominant
+    mode (m), ``k_V``, undercooling (K), tip speed (m/s); and that mode."""
     last = history[-window:]
     t = np.array([s.t for s in last])
     tip = np.array([s.tip for s in last])
@@ -145,4 +150,5 @@ def summary(history: Sequence[FrontState], window: int) -> dict[str, float]:
     return {"wavelength": float(np.mean(waves)) if mode else math.nan,
             "k_V": float(np.mean([s.k_V for s in last])),
             "undercooling": float(np.mean([s.undercooling for s in last])),
+            "amplitude": float(np.mean([s.amplitude for s in last])),
             "tip_speed": speed, "mode": int(mode)}
