@@ -189,3 +189,18 @@ def test_default_resolution_gives_a_steady_cell_array():
     assert res.outputs["amplitude"] > 0.02
     # the same order as the closed form's 0.36 um and the measured 0.29-0.43 um
     assert 0.1 < res.outputs["lambda"] < 1.0
+
+
+def test_a_modulation_below_one_cell_is_a_flat_front():
+    dx, nx = 5e-9, 64
+    x = np.arange(nx) / nx
+    assert outputs.dominant_mode(0.9 * dx * np.cos(2 * np.pi * 3 * x), dx)[0] == 0
+    assert outputs.dominant_mode(1.1 * dx * np.cos(2 * np.pi * 3 * x), dx)[0] == 3
+
+
+def test_equilibrium_start_is_the_reference_set_up():
+    opts = PhaseFieldOptions(nx=4, ny=32, amplitude=0.0, start="equilibrium")
+    phi, xs, xl, _ = solver.initial_fields(opts, C, 0.3)
+    np.testing.assert_allclose(xl, C.c0)
+    np.testing.assert_allclose(xs, C.k_e * C.c0)
+    assert phi[0, 0] == 1.0 and phi[-1, 0] == 0.0

@@ -41,6 +41,10 @@ class PhaseFieldOptions:
     window : int, default 12
         Steady when the last ``window`` chunks agree (see ``calnet.simulators.phase_field
         .outputs.steady``).
+    start : {"solidus", "equilibrium"}, default "solidus"
+        Initial state: a flat front at the solidus isotherm of ``c0`` with the planar
+        steady boundary layer ahead, or the reference's equilibrium start (front at the
+        liquidus ``T0``, solid ``k_e c0``, liquid ``c0``).
     coupling : {"profile", "constant"}, default "profile"
         How the driving force enters the phase-field equation
         (:func:`calnet.simulators.phase_field.model.phase_rate`).
@@ -61,6 +65,7 @@ class PhaseFieldOptions:
     window: int = 12
     min_travel: float = 1.0
     coupling: str = "profile"
+    start: str = "solidus"
 
     def __post_init__(self) -> None:
         if self.resolution not in RESOLUTIONS:
@@ -75,6 +80,8 @@ class PhaseFieldOptions:
             raise ValueError(f"need dx > 0, nx >= 1, ny >= 16 and max_steps >= 1, got dx="
                              f"{self.dx}, nx={self.nx}, ny={self.ny}, max_steps="
                              f"{self.max_steps}")
+        if self.start not in ("solidus", "equilibrium"):
+            raise ValueError(f"start must be 'solidus' or 'equilibrium', got {self.start!r}")
         if self.coupling not in ("profile", "constant"):
             raise ValueError(f"coupling must be 'profile' or 'constant', got {self.coupling!r}")
         if not 0.3 <= self.front_row <= 0.9:

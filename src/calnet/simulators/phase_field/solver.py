@@ -72,10 +72,11 @@ class PhaseFieldRun:
 def initial_fields(opts: PhaseFieldOptions, c: PhaseFieldConstants, speed: float):
     """Flat front at ``front_row`` with a seeded random height perturbation.
 
-    Behind the front the solid has ``c0``; ahead, the liquid carries the steady planar
-    (Tiller) boundary layer ``c0 [1 + (1 - k_e)/k_e exp(-S z / D_l)]``; the absent phase
-    is the equilibrium partner. Returns ``phi, xs, xl`` of shape ``(ny, nx)`` and the
-    front height (m).
+    ``opts.start == "solidus"``: behind the front the solid has ``c0``; ahead, the liquid
+    carries the steady planar (Tiller) boundary layer
+    ``c0 [1 + (1 - k_e)/k_e exp(-S z / D_l)]``. ``"equilibrium"`` (the reference's set-up):
+    liquid ``c0`` and solid ``k_e c0`` everywhere. The absent phase is the equilibrium
+    partner. Returns ``phi, xs, xl`` of shape ``(ny, nx)`` and the front height (m).
     """
     rng = np.random.default_rng(opts.seed)
     dx, ny, nx = opts.dx, opts.ny, opts.nx
@@ -85,7 +86,11 @@ def initial_fields(opts: PhaseFieldOptions, c: PhaseFieldConstants, speed: float
     z = y - h[None, :]
     arg = np.clip(z / c.eta, -0.5, 0.5) * math.pi
     phi = 0.5 * (1.0 - np.sin(arg))
-    xl = c.c0 * (1.0 + (1.0 - c.k_e) / c.k_e * np.exp(-speed * np.maximum(z, 0.0) / c.D_l))
+    if opts.start == "solidus":
+        layer = (1.0 - c.k_e) / c.k_e * np.exp(-speed * np.maximum(z, 0.0) / c.D_l)
+        xl = c.c0 * (1.0 + layer)
+    else:
+        xl = np.full_like(phi, c.c0)
     return phi, c.k_e * xl, xl, y_front
 
 
@@ -140,7 +145,8 @@ def run(p: PhysicalParameters, opts: PhaseFieldOptions,
     """
     start = time.perf_counter()
     phi, xs, xl, y_front = initial_fields(opts, c, p.S)
-    T_ref = c.T0 - c.freezing_range  # the flat front starts at the solidus of c0
+    # the flat front starts at the solidus (or, from equilibrium, the liquidus) of c0
+    T_ref = c.T0 - (c.freezing_range if opts.start == "solidus" else 0.0)
     par = jnp.array([p.S, p.G, p.sigma, p.mobility, p.permeability, T_ref, y_front])
     target = int(round(opts.front_row * opts.ny))
     state = (jnp.asarray(phi), jnp.asarray(xs), jnp.asarray(xl), 0.0, 0.0)
