@@ -6,7 +6,8 @@ planar   flat front in a 1-cell-wide strip: k_V and undercooling against Aziz's 
          growth model (V_D = P eta f''/8 as in ``solidification``, and its variant B)
 scaling  spacing against G (factor 4) and S (factor 4): log-log slopes
 grid     flat front (1-cell strip) at 5, 2.5 and 1.25 nm cells: k_V and undercooling
-grid2d   spacing, k_V and undercooling at 5 nm and 2.5 nm cells (same 0.96 um domain)
+grid2d   spacing, k_V and undercooling at resolution default (5 nm) and fine (2.5 nm),
+         the same 1.92 x 0.64 um domain
 compare  phase_field against the closed-form ``solidification`` over the ninb box
 """
 
@@ -89,19 +90,22 @@ def grid() -> None:
 
 
 def grid2d() -> None:
-    rows = [_pf(0.1, 1e7, nx=192, ny=128, dx=5e-9),
-            _pf(0.1, 1e7, nx=384, ny=256, dx=2.5e-9, max_steps=200000)]
+    rows = [_pf(0.1, 1e7), _pf(0.1, 1e7, resolution="fine")]
     _table(rows)
 
 
 def compare() -> None:
-    print("| S (m/s) | G (K/m) | status | lambda PF | lambda closed form | k_V PF | "
-          "k_V closed form | wall (s) |\n|---|---|---|---|---|---|---|---|")
-    for S, G in ((0.05, 7e6), (0.05, 1.5e7), (0.3, 1e7), (0.6, 7e6), (0.6, 1.5e7)):
+    print("| S (m/s) | G (K/m) | status | lambda PF (um) | cells | amplitude (um) | "
+          "lambda closed form (um) | k_V PF | k_V closed form | dT PF (K) | steps | wall (s) |"
+          "\n|---|---|---|---|---|---|---|---|---|---|---|---|")
+    # the reference box of solidification.BOUNDS (S 0.05-0.6 m/s, G 7e6-1.5e7 K/m)
+    for S, G in ((0.05, 7e6), (0.05, 1.5e7), (0.15, 1e7), (0.3, 1e7), (0.6, 7e6),
+                 (0.6, 1.5e7)):
         r = _pf(S, G)
         c = solidification.simulate_batch(S, G, **PARAMS)
-        print(f"| {S} | {G:.3g} | {r['status']} | {r['lambda']:.3f} | {c['lambda']:.3f} | "
-              f"{r['k_V']:.3f} | {c['k_V']:.3f} | {r['wall']:.0f} |", flush=True)
+        print(f"| {S} | {G:.3g} | {r['status']} | {r['lambda']:.3f} | {r['cells']} | "
+              f"{r['amp']:.4f} | {c['lambda']:.3f} | {r['k_V']:.3f} | {c['k_V']:.3f} | "
+              f"{r['dT']:.2f} | {r['steps']} | {r['wall']:.0f} |", flush=True)
         print(json.dumps(r), file=sys.stderr)
 
 
