@@ -140,8 +140,8 @@ def run(p: PhysicalParameters, opts: PhaseFieldOptions,
     """Integrate until the front is steady or ``opts.max_steps`` is spent.
 
     The step is the stable explicit step of the run's parameters and grid
-    (:func:`~calnet.simulators.phase_field.model.stable_time_step`). The run stops early with status
-    ``"diverged"`` when :func:`diverged` says so.
+    (:func:`~calnet.simulators.phase_field.model.stable_time_step`). The run stops early
+    with status ``"diverged"`` when :func:`diverged` says so.
     """
     start = time.perf_counter()
     phi, xs, xl, y_front = initial_fields(opts, c, p.S)
@@ -153,10 +153,10 @@ def run(p: PhysicalParameters, opts: PhaseFieldOptions,
     history: list[outputs.FrontState] = []
     min_time = opts.min_travel * c.freezing_range / p.G / p.S
     steps, status = 0, "budget"
+    dt = stable_time_step(p.sigma, p.mobility, opts.dx, c)
+    chunk = min(max(math.ceil(opts.chunk_cells * opts.dx / (p.S * dt)), 10), 4000)
     while steps < opts.max_steps:
-        dt = stable_time_step(p.sigma, p.mobility, opts.dx, c)
-        n = int(min(max(math.ceil(opts.chunk_cells * opts.dx / (p.S * dt)), 10), 4000,
-                    opts.max_steps - steps))
+        n = int(min(chunk, opts.max_steps - steps))
         state = advance(*state[:3], jnp.float64(state[3]), jnp.float64(state[4]), dt, par,
                         n_steps=n, dx=opts.dx, c=c, target=target,
                         coupling=opts.coupling)
