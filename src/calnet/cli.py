@@ -233,7 +233,7 @@ def _parse_options(values: list[str]) -> dict[str, Any]:
 @user_errors
 def simulate(
     name: Annotated[str, typer.Argument(
-        metavar="NAME", help="built-in simulator: melt_pool or solidification")],
+        metavar="NAME", help="built-in simulator: melt_pool, phase_field or solidification")],
     set_: Annotated[list[str], typer.Option(
         "--set", metavar="NAME=VALUE", help="an input or parameter (repeatable)")] = [],  # noqa: B006
     option: Annotated[list[str], typer.Option(

@@ -13,6 +13,7 @@ from calnet.simulators.base import SimResult
 
 _BUILTINS = {
     "melt_pool": "calnet.simulators.melt_pool",
+    "phase_field": "calnet.simulators.phase_field",
     "solidification": "calnet.simulators.solidification",
 }
 

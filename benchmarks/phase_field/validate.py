@@ -1,0 +1,115 @@
+"""Validation of the phase-field M2 (``builtin:phase_field``); prints Markdown tables.
+
+    PYTHONPATH=src nice -n 10 python benchmarks/phase_field/validate.py [SECTION ...]
+
+planar   flat front in a 1-cell-wide strip: k_V and undercooling against Aziz's continuous
+         growth model (V_D = P eta f''/8 as in ``solidification``, and its variant B)
+scaling  spacing against G (factor 4) and S (factor 4): log-log slopes
+grid     flat front (1-cell strip) at 5, 2.5 and 1.25 nm cells: k_V and undercooling
+grid2d   spacing, k_V and undercooling at resolution default (5 nm) and fine (2.5 nm),
+         the same 1.92 x 0.64 um domain
+compare  phase_field against the closed-form ``solidification`` over the ninb box
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+
+import numpy as np
+
+from calnet.simulators import phase_field, solidification
+from calnet.simulators.phase_field.outputs import summary
+from calnet.simulators.phase_field.solver import run
+
+PARAMS = {"sigma": 2e-6, "M": 7.5, "p_int": 15000.0}  # physics.md worked check
+
+
+def _pf(S, G, **opts):
+    t0 = time.perf_counter()
+    res = phase_field.simulate({"S": S, "G": G, **PARAMS}, **opts)
+    o, d = res.outputs, res.diagnostics
+    return {"S": S, "G": G, "status": res.status, "lambda": o.get("lambda"),
+            "k_V": o.get("k_V"), "dT": o.get("undercooling"), "cells": d.get("cells"),
+            "amp": o.get("amplitude"),
+            "steps": d["steps"], "sim_us": d["simulated_time_s"] * 1e6,
+            "wall": time.perf_counter() - t0}
+
+
+def planar() -> None:
+    print("| S (m/s) | k_V PF | k_V Aziz (A) | diff | k_V Aziz (B) | diff | dT PF (K) | steps "
+          "| wall (s) |\n|---|---|---|---|---|---|---|---|---|")
+    for S in (0.05, 0.1, 0.2, 0.3, 0.6, 1.0):
+        opts = phase_field.PhaseFieldOptions(nx=1, ny=128, amplitude=0.0, max_steps=80000,
+                                             window=24, min_travel=2.0)
+        t0 = time.perf_counter()
+        rec = run(phase_field.parameters({"S": S, "G": 1e7, **PARAMS}), opts)
+        s = summary(rec.history, opts.window)
+        a = solidification.simulate_batch(S, 1e7, **PARAMS, variant="A")["k_V"]
+        b = solidification.simulate_batch(S, 1e7, **PARAMS, variant="B")["k_V"]
+        print(f"| {S} | {s['k_V']:.3f} | {a:.3f} | {s['k_V'] / a - 1:+.1%} | {b:.3f} | "
+              f"{s['k_V'] / b - 1:+.1%} | {s['undercooling']:.2f} | {rec.steps} "
+              f"({rec.status}) | {time.perf_counter() - t0:.1f} |", flush=True)
+
+
+def _table(rows) -> None:
+    print("| S (m/s) | G (K/m) | status | lambda (um) | cells | amplitude (um) | k_V | dT (K) "
+          "| steps | simulated (us) | wall (s) |\n|---|---|---|---|---|---|---|---|---|---|---|")
+    for r in rows:
+        print(f"| {r['S']} | {r['G']:.3g} | {r['status']} | {r['lambda']:.3f} | {r['cells']} "
+              f"| {r['amp']:.3f} | {r['k_V']:.3f} | {r['dT']:.2f} | {r['steps']} | "
+              f"{r['sim_us']:.1f} | {r['wall']:.0f} |", flush=True)
+
+
+def _slope(x, y) -> float:
+    return float(np.polyfit(np.log(x), np.log(y), 1)[0])
+
+
+def scaling() -> None:
+    # S = 0.1 m/s: at 0.3 m/s the default-parameter front is a 4 nm modulation, no cells
+    rows = [_pf(0.1, G) for G in (5e6, 1e7, 2e7)] + [_pf(S, 1e7) for S in (0.05, 0.2)]
+    _table(rows)
+    g_rows, s_rows = rows[:3], [rows[3], rows[1], rows[4]]
+    sg = _slope([r["G"] for r in g_rows], [r["lambda"] for r in g_rows])
+    ss = _slope([r["S"] for r in s_rows], [r["lambda"] for r in s_rows])
+    print(f"\nslope d ln lambda / d ln G = {sg:.2f} (expected -0.5); "
+          f"d ln lambda / d ln S = {ss:.2f} (expected -0.25)")
+
+
+def grid() -> None:
+    print("| dx (nm) | k_V | dT (K) | steps | status |\n|---|---|---|---|---|")
+    for dx in (5e-9, 2.5e-9, 1.25e-9):
+        opts = phase_field.PhaseFieldOptions(nx=1, ny=int(round(128 * 5e-9 / dx)), dx=dx,
+                                             amplitude=0.0, max_steps=400000, window=24,
+                                             min_travel=2.0)
+        rec = run(phase_field.parameters({"S": 0.3, "G": 1e7, **PARAMS}), opts)
+        s = summary(rec.history, opts.window)
+        print(f"| {dx * 1e9:g} | {s['k_V']:.4f} | {s['undercooling']:.3f} | {rec.steps} | "
+              f"{rec.status} |", flush=True)
+
+
+def grid2d() -> None:
+    rows = [_pf(0.1, 1e7), _pf(0.1, 1e7, resolution="fine")]
+    _table(rows)
+
+
+def compare() -> None:
+    print("| S (m/s) | G (K/m) | status | lambda PF (um) | cells | amplitude (um) | "
+          "lambda closed form (um) | k_V PF | k_V closed form | dT PF (K) | steps | wall (s) |"
+          "\n|---|---|---|---|---|---|---|---|---|---|---|---|")
+    # the reference box of solidification.BOUNDS (S 0.05-0.6 m/s, G 7e6-1.5e7 K/m)
+    for S, G in ((0.05, 7e6), (0.05, 1.5e7), (0.15, 1e7), (0.3, 1e7), (0.6, 7e6),
+                 (0.6, 1.5e7)):
+        r = _pf(S, G)
+        c = solidification.simulate_batch(S, G, **PARAMS)
+        print(f"| {S} | {G:.3g} | {r['status']} | {r['lambda']:.3f} | {r['cells']} | "
+              f"{r['amp']:.4f} | {c['lambda']:.3f} | {r['k_V']:.3f} | {c['k_V']:.3f} | "
+              f"{r['dT']:.2f} | {r['steps']} | {r['wall']:.0f} |", flush=True)
+        print(json.dumps(r), file=sys.stderr)
+
+
+if __name__ == "__main__":
+    for name in sys.argv[1:] or ["planar", "grid", "scaling", "compare", "grid2d"]:
+        print(f"\n### {name}\n", flush=True)
+        globals()[name]()

@@ -1,0 +1,124 @@
+"""M2 as the reference study's own model: a 2D phase-field solver with finite interface
+dissipation (``phase_field``; docs/physics.md, "M2, phase-field version").
+
+Two phase concentrations and a solid fraction on a periodic-sided grid, explicit finite
+differences in JAX (x64, jitted chunks of steps), frozen temperature
+``T = T0 + G (y - S t)`` and a frame that follows the front. Inputs, parameters and units
+are those of :mod:`calnet.simulators.solidification`; outputs are the spacing of the
+steady cell array, the partition at the tip, the tip undercooling and a steady flag.
+
+Examples
+--------
+>>> from calnet.simulators import phase_field
+>>> res = phase_field.simulate({"S": 0.3, "G": 1e7}, nx=1, ny=64, max_steps=200)
+>>> res.status, res.diagnostics["steps"]
+('nonconverged', 200)
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import Any
+
+from calnet.simulators.base import SimResult
+from calnet.simulators.phase_field.options import RESOLUTIONS, PhaseFieldOptions
+from calnet.simulators.phase_field.outputs import summary
+from calnet.simulators.phase_field.solver import PhysicalParameters, run
+from calnet.simulators.solidification import BOUNDS as _M2_BOUNDS
+from calnet.simulators.solidification import TO_SI
+
+NAME = "phase_field"
+VERSION = "0.1.0"
+INPUTS: tuple[str, ...] = ("S", "G")
+PARAMETERS: tuple[str, ...] = ("sigma", "M", "p_int")
+OUTPUTS: tuple[str, ...] = ("lambda", "k_V", "undercooling", "amplitude", "steady")
+UNITS: dict[str, str] = {
+    "S": "m/s", "G": "K/m", "sigma": "J/cm^2", "M": "cm^4/(J s)", "p_int": "cm^3/(J s)",
+    "lambda": "um", "k_V": "1", "undercooling": "K", "amplitude": "um", "steady": "1",
+}
+BOUNDS: dict[str, tuple[float, float]] = dict(_M2_BOUNDS)
+
+__all__ = ["BOUNDS", "INPUTS", "NAME", "OUTPUTS", "PARAMETERS", "RESOLUTIONS", "UNITS",
+           "VERSION", "PhaseFieldOptions", "parameters", "simulate"]
+
+
+def parameters(inputs: Mapping[str, float]) -> PhysicalParameters:
+    """SI parameters from ``S``, ``G`` and optional ``sigma``, ``M``, ``p_int``
+    (:data:`UNITS`; missing parameters default to the middle of :data:`BOUNDS`).
+
+    Raises
+    ------
+    ValueError
+        On a missing input, an unknown key, or a value that is not finite and > 0.
+    """
+    unknown = sorted(set(inputs) - set(INPUTS) - set(PARAMETERS))
+    if unknown:
+        raise ValueError(f"{NAME}: unknown keys {unknown}; expected {INPUTS} and optionally "
+                         f"{PARAMETERS}")
+    missing = [k for k in INPUTS if k not in inputs]
+    if missing:
+        raise ValueError(f"{NAME}: missing control inputs {missing}; pass S (m/s), G (K/m)")
+    v = {k: float(inputs[k]) if k in inputs else 0.5 * sum(BOUNDS[k])
+         for k in INPUTS + PARAMETERS}
+    bad = {k: x for k, x in v.items() if not (math.isfinite(x) and x > 0)}
+    if bad:
+        raise ValueError(f"{NAME}: {bad} must be finite and > 0 (units {UNITS})")
+    return PhysicalParameters(S=v["S"], G=v["G"], sigma=v["sigma"] * TO_SI["sigma"],
+                              mobility=v["M"] * TO_SI["M"],
+                              permeability=v["p_int"] * TO_SI["p_int"])
+
+
+def simulate(inputs: Mapping[str, float], **options: Any) -> SimResult:
+    """Run the phase-field model once.
+
+    Parameters
+    ----------
+    inputs : mapping of str to float
+        ``S`` (m/s), ``G`` (K/m) and optionally ``sigma``, ``M``, ``p_int``.
+    **options
+        See :class:`PhaseFieldOptions` (``resolution``, ``seed``, ``nx``, ``ny``,
+        ``max_steps``, ...).
+
+    Returns
+    -------
+    SimResult
+        ``outputs``: ``lambda`` (um, the dominant wavelength of the front),
+        ``k_V``, ``undercooling`` (K), ``amplitude`` (um, of the dominant mode of the front
+        height: how deep the cells are) and ``steady`` (1.0), means over the last
+        ``window`` chunks. Status ``"ok"`` for a steady cell array; ``"nonconverged"``
+        (outputs of the last window, ``steady`` 0.0) when the step budget ran out first;
+        ``"failed"`` for diverged fields or a steady front that stayed flat (no spacing). The
+        message says which. ``diagnostics``: steps, simulated time (s), time step (s), wall
+        time (s), tip speed (m/s), cell count, options.
+
+    Raises
+    ------
+    ValueError
+        On bad inputs or options (see :func:`parameters`).
+    """
+    opts = PhaseFieldOptions.from_kwargs(**options)
+    p = parameters(inputs)
+    rec = run(p, opts)
+    diag: dict[str, Any] = {"steps": rec.steps, "simulated_time_s": rec.time, "dt_s": rec.dt,
+                            "wall_seconds": rec.wall_seconds, "stop": rec.status,
+                            "options": opts.to_dict(), "version": VERSION}
+    if rec.status == "diverged" or not rec.history:
+        return SimResult({k: math.nan for k in OUTPUTS}, "failed",
+                         f"{NAME}: the fields diverged (non-finite or out-of-range "
+                         f"concentrations) after {rec.steps} steps at dt {rec.dt:.3g} s; "
+                         "report it with the inputs and options", diag)
+    s = summary(rec.history, opts.window)
+    diag.update(tip_speed=s["tip_speed"], cells=s["mode"])
+    out = {"lambda": s["wavelength"] * 1e6, "k_V": s["k_V"],
+           "undercooling": s["undercooling"], "amplitude": s["amplitude"] * 1e6,
+           "steady": 1.0 if rec.status == "steady" else 0.0}
+    if rec.status != "steady":
+        return SimResult(out, "nonconverged", f"{NAME}: not steady within max_steps "
+                         f"{opts.max_steps} ({rec.time * 1e6:.2f} us simulated); raise "
+                         "max_steps", diag)
+    if s["mode"] == 0:
+        return SimResult(out, "failed", f"{NAME}: the front stayed flat (no cell array, so "
+                         f"no spacing); k_V {s['k_V']:.3f}, undercooling "
+                         f"{s['undercooling']:.2f} K", diag)
+    return SimResult(out, "ok", "", diag).checked(OUTPUTS)

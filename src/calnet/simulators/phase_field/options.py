@@ -1,0 +1,111 @@
+"""Keyword-only options of the phase-field simulator, with documented defaults."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, fields, replace
+from typing import Any
+
+#: Named resolutions: grid spacing (m), domain width and height (cells), step budget.
+RESOLUTIONS: dict[str, dict[str, float]] = {
+    "default": {"dx": 5e-9, "nx": 384, "ny": 128, "max_steps": 40000},
+    "fine": {"dx": 2.5e-9, "nx": 768, "ny": 256, "max_steps": 160000},
+}
+
+
+@dataclass(frozen=True)
+class PhaseFieldOptions:
+    """Numerical options of :func:`calnet.simulators.phase_field.simulate`.
+
+    Parameters
+    ----------
+    resolution : {"default", "fine"}, default "default"
+        ``"default"``: 5 nm cells (4 across the 20 nm interface), a 1.92 x 0.64 um domain,
+        about a minute per run on 2 CPU cores. ``"fine"``: 2.5 nm cells on the same
+        domain, 16 times the work, for an accelerator. The fields below override the
+        preset.
+    dx : float or None
+        Grid spacing, m.
+    nx, ny : int or None
+        Cells across (periodic, x) and along the growth direction (y).
+    max_steps : int or None
+        Step budget; a run not steady by then is reported ``"nonconverged"``.
+    seed : int, default 0
+        Seed of the random interface perturbation (same seed, same result).
+    amplitude : float, default 1.0
+        Amplitude of the perturbation, in cells (0 gives a flat front).
+    front_row : float, default 0.6
+        Fraction of ``ny`` at which the moving frame holds the front tip.
+    chunk_cells : float, default 8.0
+        Steps are taken in jitted chunks during which the isotherms move this many cells;
+        the frame shifts and the front is measured between chunks.
+    window : int, default 12
+        Steady when the last ``window`` chunks agree (see ``calnet.simulators.phase_field
+        .outputs.steady``).
+    start : {"solidus", "equilibrium"}, default "solidus"
+        Initial state: a flat front at the solidus isotherm of ``c0`` with the planar
+        steady boundary layer ahead, or the reference's equilibrium start (front at the
+        liquidus ``T0``, solid ``k_e c0``, liquid ``c0``).
+    coupling : {"profile", "constant"}, default "profile"
+        How the driving force enters the phase-field equation
+        (:func:`calnet.simulators.phase_field.model.phase_rate`).
+    min_travel : float, default 1.0
+        Minimum isotherm travel before a steady state is accepted, in units of the
+        freezing-range length ``dT0 / G``.
+    """
+
+    resolution: str = "default"
+    dx: float | None = None
+    nx: int | None = None
+    ny: int | None = None
+    max_steps: int | None = None
+    seed: int = 0
+    amplitude: float = 1.0
+    front_row: float = 0.6
+    chunk_cells: float = 8.0
+    window: int = 12
+    min_travel: float = 1.0
+    coupling: str = "profile"
+    start: str = "solidus"
+
+    def __post_init__(self) -> None:
+        if self.resolution not in RESOLUTIONS:
+            raise ValueError(f"resolution must be one of {sorted(RESOLUTIONS)}, got "
+                             f"{self.resolution!r}")
+        preset = RESOLUTIONS[self.resolution]
+        for name in ("dx", "nx", "ny", "max_steps"):
+            if getattr(self, name) is None:
+                value = preset[name] if name == "dx" else int(preset[name])
+                object.__setattr__(self, name, value)
+        if not (self.dx > 0 and self.nx >= 1 and self.ny >= 16 and self.max_steps >= 1):
+            raise ValueError(f"need dx > 0, nx >= 1, ny >= 16 and max_steps >= 1, got dx="
+                             f"{self.dx}, nx={self.nx}, ny={self.ny}, max_steps="
+                             f"{self.max_steps}")
+        if self.start not in ("solidus", "equilibrium"):
+            raise ValueError(f"start must be 'solidus' or 'equilibrium', got {self.start!r}")
+        if self.coupling not in ("profile", "constant"):
+            raise ValueError(f"coupling must be 'profile' or 'constant', got {self.coupling!r}")
+        if not 0.3 <= self.front_row <= 0.9:
+            raise ValueError(f"front_row must be in [0.3, 0.9], got {self.front_row}")
+        if self.window < 3 or self.chunk_cells <= 0 or self.amplitude < 0:
+            raise ValueError("need window >= 3, chunk_cells > 0 and amplitude >= 0")
+
+    @classmethod
+    def from_kwargs(cls, **kwargs: Any) -> PhaseFieldOptions:
+        """Build from keyword options, naming any unknown one."""
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(kwargs) - known)
+        if unknown:
+            raise ValueError(f"unknown phase_field options {unknown}; expected some of "
+                             f"{sorted(known)}")
+        ints = {"nx", "ny", "max_steps", "seed", "window"}
+        floats = {"dx", "amplitude", "front_row", "chunk_cells", "min_travel"}
+        conv = {k: int(v) if k in ints else float(v) if k in floats else v
+                for k, v in kwargs.items()}
+        return cls(**conv)
+
+    def with_(self, **changes: Any) -> PhaseFieldOptions:
+        """A copy with ``changes``."""
+        return replace(self, **changes)
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
