@@ -240,11 +240,28 @@ def test_run_104_stays_on_the_conduction_branch():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize(("P", "v"), [(243.0, 1.15), (81.0, 1.5), (240.0, 0.8), (150.0, 0.8)])
+@pytest.mark.parametrize(("P", "v"), [
+    (236.0, 0.23),
+    pytest.param(152.0, 0.32, marks=pytest.mark.xfail(
+        strict=True, reason="the monotone consolidated fraction keeps the path: W 175.8 "
+        "vs 184.0 um from the two starts (resolution 0.5); the field form is start-"
+        "independent but does not converge here (benchmarks/README.md)")),
+    (243.0, 1.15), (81.0, 1.5)])
 def test_outputs_do_not_depend_on_the_starting_field_slow(P, v):
     a = melt_pool.simulate({"P": P, "v": v}, start="rosenthal", **COARSE)
     b = melt_pool.simulate({"P": P, "v": v}, start="ambient", **COARSE)
     _close(a, b)
+
+
+def test_field_consolidation_option_lands_near_the_default():
+    """consolidation="field" (frac = frac(T), no memory) converges at a small pool and
+    lands near the default (monotone) state; unknown values are refused."""
+    a = melt_pool.simulate({"P": 113.0, "v": 1.5}, consolidation="field", **COARSE)
+    b = melt_pool.simulate({"P": 113.0, "v": 1.5}, **COARSE)
+    assert a.status == b.status == "ok", (a.message, b.message)
+    assert a.outputs["W"] == pytest.approx(b.outputs["W"], rel=0.05)
+    with pytest.raises(ValueError, match="consolidation"):
+        melt_pool.simulate({"P": 113.0, "v": 1.5}, consolidation="sticky")
 
 
 def test_time_limit_gives_timeout():

@@ -13,6 +13,7 @@ ABSORPTIVITY_LAWS = ("surface_temperature", "keyhole_depth")
 KVZ_MODES = ("factor", "absolute")
 ANISOTROPY_DIRECTIONS = ("vertical", "lateral")
 STARTS = ("rosenthal", "ambient")
+CONSOLIDATIONS = ("monotone", "field")
 
 
 @dataclass(frozen=True)
@@ -59,6 +60,16 @@ class MeltPoolOptions:
     continuation_ratio : float, default 1.5
         Largest ratio of consecutive laser powers in the continuation from a cold,
         conduction-mode solution (:func:`~.model.power_ladder`); must exceed 1.
+    consolidation : {"monotone", "field"}, default "monotone"
+        How a solve treats the consolidated powder fraction ``frac(T)``
+        (:mod:`~.consolidation`). ``"field"``: ``frac(T)`` of the current iterate, its
+        coupling in the Newton matrix, so the converged state solves
+        ``R(T, frac(T)) = 0`` whatever the path; at most powder settings of the
+        reference box the iteration cycles at the lateral edge of the consolidation
+        front and does not converge (benchmarks/README.md). ``"monotone"``: the largest
+        ``frac(T)`` over the solve's iterates (each continuation stage starts afresh), so
+        the front only advances; it converges, but the state can depend on the
+        iteration path by a few per cent.
     start : {"rosenthal", "ambient"}, default "rosenthal"
         Initial field of the first continuation stage: the beam-smeared Rosenthal field
         at that stage's power and ``A_0``, or the ambient temperature everywhere. The
@@ -81,6 +92,7 @@ class MeltPoolOptions:
     adapt_mesh: bool = True
     continuation_ratio: float = 1.5
     start: str = "rosenthal"
+    consolidation: str = "monotone"
 
     def __post_init__(self) -> None:
         checks = [
@@ -88,6 +100,7 @@ class MeltPoolOptions:
             ("kvz_mode", self.kvz_mode in KVZ_MODES, KVZ_MODES),
             ("anisotropy", self.anisotropy in ANISOTROPY_DIRECTIONS, ANISOTROPY_DIRECTIONS),
             ("start", self.start in STARTS, STARTS),
+            ("consolidation", self.consolidation in CONSOLIDATIONS, CONSOLIDATIONS),
         ]
         for name, ok, allowed in checks:
             if not ok:

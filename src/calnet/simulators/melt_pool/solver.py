@@ -12,10 +12,13 @@ residual may grow while it does. After a cut, dt stays below half the step that 
 relaxes by 20 % per successful step: Newton can cycle at the kinks of the consolidated
 fraction (a max over the upstream line), and the cap tightens with every turn of such a
 cycle until the pseudo-time term damps it. Cells crossing ``T_S`` or ``T_L`` stop
-just past the kink. The consolidated fraction of the powder is a function of the
-current field (:mod:`~.consolidation`): the residual is always that of the steady
-problem with ``frac = frac(T)``, and the Newton matrix includes ``dR/dfrac dfrac/dT``,
-so a converged state solves that one system whatever the iteration path.
+just past the kink. The consolidated fraction of the powder is ``frac(T)``
+(:mod:`~.consolidation`) of the current iterate, with ``dR/dfrac dfrac/dT`` in the
+Newton matrix, so a converged state solves ``R(T, frac(T)) = 0`` whatever the path
+(``monotone=False``); or, by default, the largest ``frac(T)`` of the solve's iterates
+(``monotone=True``): the front only advances, which converges where the field form
+cycles, at the price of a state that can keep powder consolidated that the final field
+would not consolidate.
 """
 
 from __future__ import annotations
@@ -37,6 +40,7 @@ _DEBUG = bool(os.environ.get("CALNET_MELT_POOL_DEBUG"))
 DT0 = 2e-6  # s, first pseudo time step
 DT_MAX = 1.0
 DT_MIN = 1e-9  # s
+FRAC_TOL = 1e-4  # growth of the monotone consolidated fraction allowed at convergence
 RISE = 1.5  # a residual rise by more than this factor cuts the pseudo time step
 CEILING_GROWTH = 1.2  # per step, of the cap on dt (half the step that failed last)
 
@@ -135,12 +139,17 @@ class LinearSolver:
 def newton_solve(disc: Discretization, laws: MaterialLaws, T0: np.ndarray, *,
                  absorptivity: AbsorptivityLaw, k_powder: float, rtol: float, ttol: float,
                  max_iter: int, max_update: float, deadline: float | None,
-                 dt0: float = DT0) -> SolveReport:
-    """Drive the residual to ``max|R| <= rtol * A P / 2`` from the initial field ``T0``."""
+                 dt0: float = DT0, monotone: bool = True) -> SolveReport:
+    """Drive the residual to ``max|R| <= rtol * A P / 2`` from the initial field ``T0``.
+
+    ``monotone``: the consolidated fraction is the largest ``frac(T)`` of the solve's
+    iterates (it never decreases; convergence requires it to have stopped growing);
+    otherwise it is ``frac(T)`` of the current iterate, with its coupling in the
+    Newton matrix."""
     T = T0.copy()
     rho_c = None
     dt, r0_norm, upd, lin_total, calm = dt0, None, np.inf, 0, 10
-    frac = np.ones(disc.n)
+    frac: np.ndarray | None = None
     reason, it, rnorm = "iteration limit reached", 0, np.inf
     A, Ts = np.nan, np.nan
     linear_solve = LinearSolver()
@@ -150,13 +159,19 @@ def newton_solve(disc: Discretization, laws: MaterialLaws, T0: np.ndarray, *,
             reason = "time limit reached"
             break
         A, dA, Ts = absorptivity.evaluate(T)
-        frac, dfrac = consolidated(disc, T, A, k_powder)
+        target, dfrac = consolidated(disc, T, A, k_powder)
+        if monotone:  # the front only advances within a solve; no coupling term
+            grown = target if frac is None else np.maximum(frac, target)
+            front_moved = frac is None or float(np.abs(grown - frac).max()) > FRAC_TOL
+            frac, dfrac = grown, None
+        else:
+            frac, front_moved = target, False
         R, J = disc.evaluate(T, frac, laws, A, dA)
         rnorm = float(np.abs(R).max() / (A * disc.P / 2))
         if not np.isfinite(rnorm):
             reason = "non-finite residual"
             break
-        if rnorm <= rtol and upd <= ttol:
+        if rnorm <= rtol and upd <= ttol and not front_moved:
             return SolveReport(T, True, "", it - 1, rnorm, upd, lin_total, A, Ts, frac)
         r2 = float(np.linalg.norm(R))
         if r0_norm is not None:  # grow dt while the residual falls (SER-like)
@@ -173,7 +188,8 @@ def newton_solve(disc: Discretization, laws: MaterialLaws, T0: np.ndarray, *,
         _, c = laws.enthalpy(T)
         rho_c = disc.density(frac) * c
         M = disc.system(J, disc.volume * rho_c / dt, coupled=dA is not None)
-        full = M - fraction_coupling(disc, T, frac, laws) @ dfrac if dfrac.nnz else M
+        full = M - fraction_coupling(disc, T, frac, laws) @ dfrac if dfrac is not None \
+            and dfrac.nnz else M
         dT, n_lin = linear_solve(full, R, rtol=min(1e-3, max(1e-10, 0.1 * rnorm)),
                                  preconditioner=M)
         lin_total += n_lin
@@ -187,7 +203,7 @@ def newton_solve(disc: Discretization, laws: MaterialLaws, T0: np.ndarray, *,
         upd = min(big, max_update)
         if _DEBUG:
             print(f"it {it} r {rnorm:.3e} dt {dt:.2e} dT {big:.1f} lin {n_lin} A {A:.3f} "
-                  f"Ts {Ts:.0f} Tmax {T.max():.0f} front {dfrac.nnz} "
+                  f"Ts {Ts:.0f} Tmax {T.max():.0f} front moved {front_moved} "
                   f"at {np.unravel_index(np.argmax(np.abs(dT)), disc.mesh.shape)} "
                   f"T {T[np.argmax(np.abs(dT))]:.0f}", flush=True)
     return SolveReport(T, False, reason, it, rnorm, upd, lin_total, A, Ts, frac)
