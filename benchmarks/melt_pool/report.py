@@ -1,9 +1,13 @@
-"""Markdown tables from ``results/*.json`` (written by run_benchmarks.py)."""
+"""Markdown tables from ``results/*.json`` (written by run_benchmarks.py).
+
+Usage: ``report.py [RESULTS_DIR]`` (default ``benchmarks/melt_pool/results``).
+"""
 
 from __future__ import annotations
 
 import json
 import statistics
+import sys
 from pathlib import Path
 
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -55,7 +59,7 @@ def _default_runs() -> tuple[list[dict], list[dict]]:
             key = (r["inputs"]["P"], r["inputs"]["v"])
             five.setdefault(key, r)
             recs.setdefault(key, r)
-    for r in _load("sanity"):
+    for r in _sanity():
         recs.setdefault((r["inputs"]["P"], r["inputs"]["v"]), r)
     return list(recs.values()), list(five.values())
 
@@ -83,7 +87,7 @@ def speed_table() -> str:
 
 
 def sanity_table() -> str:
-    recs = _load("sanity")
+    recs = _sanity()
     lines = ["| sample | split | P (W) | v (m/s) | W measured (um) | W simulated (um) | ratio "
              "| G0 (K/m) | T0 (K) | status |", "|---|---|---|---|---|---|---|---|---|---|"]
     inside = 0
@@ -96,8 +100,16 @@ def sanity_table() -> str:
                      f"| {r['inputs']['v']:g} | {r['measured_W']:.1f} | {w:.1f} | {ratio:.2f} "
                      f"| {o.get('G0', float('nan')):.3g} | {o.get('T0', float('nan')):.0f} "
                      f"| {r['status']} |")
-    lines.append(f"\n{inside} of {len(recs)} simulated widths within +-40 % of measured.")
+    ok = sum(r["status"] == "ok" for r in recs)
+    lines.append(f"\n{len(recs)} settings run, {ok} converged; {inside} of {len(recs)} "
+                 "simulated widths within +-40 % of measured.")
     return "\n".join(lines)
+
+
+def _sanity() -> list[dict]:
+    """The sanity records of both halves, one per sample, in sample order."""
+    by = {r["tag"]: r for r in _load("sanity_reverse") + _load("sanity")}
+    return sorted(by.values(), key=lambda r: int(r["tag"].removeprefix("sample")))
 
 
 def _fmt(r: dict, key: str, spec: str) -> str:
@@ -166,6 +178,8 @@ def corners_table() -> str:
 
 
 if __name__ == "__main__":
+    if len(sys.argv) > 1:
+        RESULTS = Path(sys.argv[1])
     for title, fn in (("Mesh convergence", convergence_table), ("Speed", speed_table),
                       ("Start independence", start_table), ("Powder layer", powder_table),
                       ("Physical sanity", sanity_table), ("Robustness corners", corners_table)):

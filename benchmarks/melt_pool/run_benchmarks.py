@@ -92,18 +92,23 @@ def convergence(resolutions: tuple[float, ...] = (1.0, 2.0)) -> None:
         _save("convergence", kept + recs)
 
 
-def sanity() -> None:
-    """Mid-range parameters at the 40 experimental settings, default resolution."""
+def sanity(reverse: bool = False) -> None:
+    """Mid-range parameters at the 40 experimental settings, default resolution.
+
+    ``reverse`` (phase ``sanity-reverse``): from the last row backwards, into
+    ``results/sanity_reverse.json``, so that a second process can share the work;
+    ``report.py`` merges the two files (one record per sample).
+    """
     recs = []
     with DATA.open() as fh:
         rows = list(csv.DictReader(fh))
-    for r in rows:
+    for r in rows[::-1] if reverse else rows:
         rec = run_one({"P": float(r["power_W"]), "v": float(r["speed_m_per_s"])},
                       tag=f"sample{r['sample']}")
         rec["measured_W"] = float(r["width_um"])
         rec["split"] = r["split"]
         recs.append(rec)
-        _save("sanity", recs)
+        _save("sanity_reverse" if reverse else "sanity", recs)
 
 
 def corners() -> None:
@@ -155,6 +160,6 @@ if __name__ == "__main__":
     else:
         for phase in sys.argv[1:]:
             {"convergence": convergence, "sanity": sanity, "corners": corners,
-             "start": start, "powder": powder,
+             "start": start, "powder": powder, "sanity-reverse": lambda: sanity(True),
              "convergence-res1": lambda: convergence((1.0,)),
              "convergence-res2": lambda: convergence((2.0,))}[phase]()
