@@ -3,9 +3,9 @@
 Steady 3D finite-volume conduction in the laser's frame with phase-dependent
 anisotropic conductivity, temperature-dependent absorptivity, latent heat through
 enthalpy advection and a 30 um powder layer consolidated where the material has
-approached the solidus upstream; Newton with the exact Jacobian (Kirchhoff potentials,
-consolidation coupling), pseudo-transient continuation and AMG-preconditioned GMRES on a
-mesh fine around the pool and stretched outside. Each run continues in laser power from
+approached the solidus upstream; Newton with the exact Jacobian (Kirchhoff potentials),
+pseudo-transient continuation and AMG-preconditioned GMRES on a mesh fine around the
+pool and stretched outside. Each run continues in laser power from
 a cold, conduction-mode solution, so it returns the steady state a track started on
 cold material reaches: the conduction branch wherever it exists.
 

@@ -10,10 +10,12 @@ by an amount that scales with the cell size, so centres alone would move the pow
 with the mesh. With ``s = clip((T_hot - T_S) / CONSOLIDATION_RAMP + 1, 0, 1)`` the fraction
 is the smoothstep ``s^2 (3 - 2 s)``: 0 at ``T_S - CONSOLIDATION_RAMP``, 1 at ``T_S``.
 
-The fraction has no memory of the iteration: the steady problem ``R(T, frac(T)) = 0`` is
-one nonlinear system, and its Newton matrix includes ``dR/dfrac dfrac/dT``
-(:func:`fraction_coupling`); ``dfrac/dT`` is nonzero only at the cell that sets a
-column's upstream maximum, so the term is sparse, though not local.
+With ``consolidation="field"`` the solver uses ``frac(T)`` of each iterate: the steady
+problem ``R(T, frac(T)) = 0`` is one nonlinear system, and its Newton matrix includes
+``dR/dfrac dfrac/dT`` (:func:`fraction_coupling`); ``dfrac/dT`` is nonzero only at the
+cell that sets a column's upstream maximum, so the term is sparse, though not local. The
+default ``"monotone"`` takes the largest ``frac(T)`` over a solve's iterates instead
+(:func:`~.solver.newton_solve`).
 """
 
 from __future__ import annotations
