@@ -48,7 +48,7 @@ class MeltPoolOptions:
         temperature update is below ``ttol``.
     ttol : float, default 0.05
         Temperature-update tolerance (K).
-    max_iter : int, default 300
+    max_iter : int, default 500
         Newton iterations allowed over all stages (the continuation in power, the
         sizing pre-solve and the fine solve).
     max_update : float, default 800.0
@@ -86,7 +86,7 @@ class MeltPoolOptions:
     k_powder: float | None = None
     rtol: float = 1e-6
     ttol: float = 0.05
-    max_iter: int = 300
+    max_iter: int = 500
     max_update: float = 800.0
     time_limit: float | None = None
     adapt_mesh: bool = True
