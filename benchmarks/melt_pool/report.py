@@ -1,9 +1,13 @@
-"""Markdown tables from ``results/*.json`` (written by run_benchmarks.py)."""
+"""Markdown tables from ``results/*.json`` (written by run_benchmarks.py).
+
+Usage: ``report.py [RESULTS_DIR]`` (default ``benchmarks/melt_pool/results``).
+"""
 
 from __future__ import annotations
 
 import json
 import statistics
+import sys
 from pathlib import Path
 
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -41,32 +45,49 @@ def convergence_table() -> str:
     return "\n".join(lines)
 
 
+def _default_runs() -> tuple[list[dict], list[dict]]:
+    """Default-option, default-resolution runs at mid parameters, one per (P, v):
+    the 40 sanity settings and the 5 benchmark settings (from ``start``, ``powder`` and
+    ``convergence`` records). Returns (all, the 5 settings)."""
+    recs: dict[tuple, dict] = {}
+    five: dict[tuple, dict] = {}
+    candidates = ([r for r in _load("convergence") if r["tag"] == "res1"]
+                  + [r for r in _load("start") if r["tag"] == "rosenthal"]
+                  + [r for r in _load("powder") if r["tag"] == "powder"])
+    for r in candidates:
+        if set(r["inputs"]) == {"P", "v"}:
+            key = (r["inputs"]["P"], r["inputs"]["v"])
+            five.setdefault(key, r)
+            recs.setdefault(key, r)
+    for r in _sanity():
+        recs.setdefault((r["inputs"]["P"], r["inputs"]["v"]), r)
+    return list(recs.values()), list(five.values())
+
+
 def speed_table() -> str:
-    recs = [r for r in _load("convergence") if r["tag"] == "res1"]
-    recs += [r for r in _load("sanity")]
+    recs, five_recs = _default_runs()
     if not recs:
         return "(no runs)"
     ok = [r for r in recs if r["status"] == "ok"]
     wall = [r["wall_s"] for r in recs if "wall_s" in r]
-    five = [r["wall_s"] for r in _load("convergence") if r["tag"] == "res1"]
+    five = [r["cpu_s"] for r in five_recs if "cpu_s" in r]
     rss = [r["peak_rss_mib"] for r in recs if "peak_rss_mib" in r]
     cpu = [r["cpu_s"] for r in recs if "cpu_s" in r]
     cells = [r["n_cells"] for r in recs if r.get("n_cells")]
     its = [r["iterations"] for r in recs if r.get("iterations")]
+    nan = float("nan")
     return "\n".join([
-        "| runs | converged | wall median (s) | wall max (s) | CPU median (s) "
-        "| 5-setting wall median / max (s) | peak RSS max (MiB) | cells median "
-        "| Newton its median |",
-        "|---|---|---|---|---|---|---|---|---|",
-        f"| {len(recs)} | {len(ok)} | {statistics.median(wall):.1f} | {max(wall):.1f} "
-        f"| {statistics.median(cpu):.1f} "
-        f"| {statistics.median(five) if five else float('nan'):.1f} / "
-        f"{max(five) if five else float('nan'):.1f} | {max(rss):.0f} "
-        f"| {statistics.median(cells):.0f} | {statistics.median(its):.0f} |"])
+        "| runs | converged | CPU median / max (s) | 5-setting CPU median / max (s) "
+        "| wall median / max (s) | peak RSS max (MiB) | cells median | Newton its median / max |",
+        "|---|---|---|---|---|---|---|---|",
+        f"| {len(recs)} | {len(ok)} | {statistics.median(cpu):.1f} / {max(cpu):.1f} "
+        f"| {statistics.median(five) if five else nan:.1f} / {max(five) if five else nan:.1f} "
+        f"| {statistics.median(wall):.0f} / {max(wall):.0f} | {max(rss):.0f} "
+        f"| {statistics.median(cells):.0f} | {statistics.median(its):.0f} / {max(its)} |"])
 
 
 def sanity_table() -> str:
-    recs = _load("sanity")
+    recs = _sanity()
     lines = ["| sample | split | P (W) | v (m/s) | W measured (um) | W simulated (um) | ratio "
              "| G0 (K/m) | T0 (K) | status |", "|---|---|---|---|---|---|---|---|---|---|"]
     inside = 0
@@ -79,7 +100,66 @@ def sanity_table() -> str:
                      f"| {r['inputs']['v']:g} | {r['measured_W']:.1f} | {w:.1f} | {ratio:.2f} "
                      f"| {o.get('G0', float('nan')):.3g} | {o.get('T0', float('nan')):.0f} "
                      f"| {r['status']} |")
-    lines.append(f"\n{inside} of {len(recs)} simulated widths within +-40 % of measured.")
+    ok = sum(r["status"] == "ok" for r in recs)
+    lines.append(f"\n{len(recs)} settings run, {ok} converged; {inside} of {len(recs)} "
+                 "simulated widths within +-40 % of measured.")
+    return "\n".join(lines)
+
+
+def _sanity() -> list[dict]:
+    """The sanity records of both halves, one per sample, in sample order."""
+    by = {r["tag"]: r for r in _load("sanity_reverse") + _load("sanity")}
+    return sorted(by.values(), key=lambda r: int(r["tag"].removeprefix("sample")))
+
+
+def _fmt(r: dict, key: str, spec: str) -> str:
+    x = r.get("outputs", {}).get(key, float("nan"))
+    return format(x, spec)
+
+
+def start_table() -> str:
+    """Rosenthal vs ambient initial field of the first continuation stage."""
+    recs = _load("start")
+    pairs: dict[tuple, dict] = {}
+    for r in recs:
+        pairs.setdefault(tuple(sorted(r["inputs"].items())), {})[r["tag"]] = r
+    lines = ["| P (W) | v (m/s) | parameters | status R / A | W (um) R / A | D (um) R / A "
+             "| G0 (K/m) R / A | max rel. diff | Newton its R / A | CPU (s) R / A |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    for key, pair in pairs.items():
+        a, b = pair.get("rosenthal"), pair.get("ambient")
+        if a is None or b is None:
+            continue
+        inputs = dict(key)
+        theta = "run 104" if "K_S" in inputs else "mid"
+        diff = float("nan")
+        if a["status"] == b["status"] == "ok":
+            diff = max(abs(a["outputs"][k] / b["outputs"][k] - 1) for k in ("W", "D", "G0"))
+        lines.append(
+            f"| {inputs['P']:g} | {inputs['v']:g} | {theta} | {a['status']} / {b['status']} "
+            f"| {_fmt(a, 'W', '.2f')} / {_fmt(b, 'W', '.2f')} "
+            f"| {_fmt(a, 'D', '.2f')} / {_fmt(b, 'D', '.2f')} "
+            f"| {_fmt(a, 'G0', '.4g')} / {_fmt(b, 'G0', '.4g')} | {diff:.1e} "
+            f"| {a.get('iterations')} / {b.get('iterations')} "
+            f"| {a.get('cpu_s', float('nan')):.1f} / {b.get('cpu_s', float('nan')):.1f} |")
+    return "\n".join(lines)
+
+
+def powder_table() -> str:
+    """W with (the default runs) and without the powder layer."""
+    _, five = _default_runs()
+    with_layer = {(r["inputs"]["P"], r["inputs"]["v"]): r for r in five}
+    lines = ["| P (W) | v (m/s) | status with / without | W (um) with / without "
+             "| D (um) with / without | T0 (K) with / without |", "|---|---|---|---|---|---|"]
+    for b in _load("powder"):
+        key = (b["inputs"]["P"], b["inputs"]["v"])
+        a = with_layer.get(key)
+        if b["tag"] != "no_powder" or a is None:
+            continue
+        lines.append(f"| {key[0]:g} | {key[1]:g} | {a['status']} / {b['status']} "
+                     f"| {_fmt(a, 'W', '.1f')} / {_fmt(b, 'W', '.1f')} "
+                     f"| {_fmt(a, 'D', '.1f')} / {_fmt(b, 'D', '.1f')} "
+                     f"| {_fmt(a, 'T0', '.0f')} / {_fmt(b, 'T0', '.0f')} |")
     return "\n".join(lines)
 
 
@@ -98,6 +178,9 @@ def corners_table() -> str:
 
 
 if __name__ == "__main__":
+    if len(sys.argv) > 1:
+        RESULTS = Path(sys.argv[1])
     for title, fn in (("Mesh convergence", convergence_table), ("Speed", speed_table),
+                      ("Start independence", start_table), ("Powder layer", powder_table),
                       ("Physical sanity", sanity_table), ("Robustness corners", corners_table)):
         print(f"### {title}\n\n{fn()}\n")

@@ -9,7 +9,9 @@ Usage (from the repository root)::
     OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 \\
         .venv/bin/python benchmarks/melt_pool/run_benchmarks.py convergence sanity corners
 
-Phases ``convergence-res1`` and ``convergence-res2`` run one half of ``convergence``.
+Phases ``convergence-res1`` and ``convergence-res2`` run one half of ``convergence``;
+``start`` (start independence) and ``powder`` (W with and without the powder layer)
+are further phases.
 """
 
 from __future__ import annotations
@@ -26,6 +28,9 @@ HERE = Path(__file__).resolve().parent
 RESULTS = HERE / "results"
 DATA = Path("/work/shared/data/ninb_melt_pool_width.csv")
 SETTINGS = [(81.0, 1.5), (152.0, 0.32), (236.0, 0.23), (90.0, 2.3), (243.0, 1.15)]
+# ninb campaign run 104: near the keyhole threshold, two steady states
+RUN_104 = {"P": 113.1, "v": 0.569, "K_S": 77.4, "K_L": 113.0, "K_Lz": 1.04, "K_V": 12.0,
+           "K_Vz": 1989.0, "A_0": 0.266, "A_max": 0.641}
 
 
 def _worker(spec: str) -> None:
@@ -87,18 +92,23 @@ def convergence(resolutions: tuple[float, ...] = (1.0, 2.0)) -> None:
         _save("convergence", kept + recs)
 
 
-def sanity() -> None:
-    """Mid-range parameters at the 40 experimental settings, default resolution."""
+def sanity(reverse: bool = False) -> None:
+    """Mid-range parameters at the 40 experimental settings, default resolution.
+
+    ``reverse`` (phase ``sanity-reverse``): from the last row backwards, into
+    ``results/sanity_reverse.json``, so that a second process can share the work;
+    ``report.py`` merges the two files (one record per sample).
+    """
     recs = []
     with DATA.open() as fh:
         rows = list(csv.DictReader(fh))
-    for r in rows:
+    for r in rows[::-1] if reverse else rows:
         rec = run_one({"P": float(r["power_W"]), "v": float(r["speed_m_per_s"])},
                       tag=f"sample{r['sample']}")
         rec["measured_W"] = float(r["width_um"])
         rec["split"] = r["split"]
         recs.append(rec)
-        _save("sanity", recs)
+        _save("sanity_reverse" if reverse else "sanity", recs)
 
 
 def corners() -> None:
@@ -118,11 +128,38 @@ def corners() -> None:
         _save("corners", recs)
 
 
+def start() -> None:
+    """Both initial fields of the first continuation stage at five settings, default
+    resolution: run 104 and four of the convergence settings."""
+    cases = [RUN_104] + [{"P": P, "v": v} for P, v in SETTINGS if (P, v) != (90.0, 2.3)]
+    recs = []
+    for inputs, first in itertools.product(cases, ("rosenthal", "ambient")):
+        recs.append(run_one(inputs, {"start": first}, tag=first))
+        _save("start", recs)
+
+
+def powder() -> None:
+    """W without the powder layer at the five settings, default resolution; with the
+    layer too where ``results/start.json`` holds no default run of the setting."""
+    path = RESULTS / "start.json"
+    done = {(r["inputs"]["P"], r["inputs"]["v"]) for r in json.loads(path.read_text())
+            if r["tag"] == "rosenthal" and set(r["inputs"]) == {"P", "v"}} \
+        if path.exists() else set()
+    recs = []
+    for (P, v), layer in itertools.product(SETTINGS, (True, False)):
+        if layer and (P, v) in done:
+            continue
+        recs.append(run_one({"P": P, "v": v}, {"powder": layer},
+                            tag="powder" if layer else "no_powder"))
+        _save("powder", recs)
+
+
 if __name__ == "__main__":
     if sys.argv[1] == "--worker":
         _worker(sys.argv[2])
     else:
         for phase in sys.argv[1:]:
             {"convergence": convergence, "sanity": sanity, "corners": corners,
+             "start": start, "powder": powder, "sanity-reverse": lambda: sanity(True),
              "convergence-res1": lambda: convergence((1.0,)),
              "convergence-res2": lambda: convergence((2.0,))}[phase]()

@@ -17,8 +17,10 @@ import pytest
 
 from calnet.simulators import melt_pool
 from calnet.simulators.materials import NI5NB
+from calnet.simulators.melt_pool import model
 from calnet.simulators.melt_pool.assembly import Discretization
-from calnet.simulators.melt_pool.mesh import build_mesh, estimate_pool, pool_box
+from calnet.simulators.melt_pool.consolidation import consolidated, fraction_coupling
+from calnet.simulators.melt_pool.mesh import Mesh, build_mesh, estimate_pool, pool_box
 from calnet.simulators.melt_pool.model import initial_field
 from calnet.simulators.melt_pool.outputs import tail_gradient
 from calnet.simulators.melt_pool.properties import (
@@ -27,6 +29,10 @@ from calnet.simulators.melt_pool.properties import (
 )
 
 MID = {k: 0.5 * sum(melt_pool.BOUNDS[k]) for k in melt_pool.PARAMETERS}
+# ninb campaign run 104 (benchmarks/README.md): near the keyhole threshold, where a hot
+# start and a cold start reached different steady states
+RUN_104 = {"P": 113.1, "v": 0.569, "K_S": 77.4, "K_L": 113.0, "K_Lz": 1.04, "K_V": 12.0,
+           "K_Vz": 1989.0, "A_0": 0.266, "A_max": 0.641}
 COARSE = {"resolution": 0.5}  # about 8x fewer cells than the default mesh
 
 
@@ -102,6 +108,43 @@ def test_jacobian_matches_finite_differences():
     np.testing.assert_allclose(J @ d, fd, atol=1e-6 * np.abs(fd).max())
 
 
+def test_consolidation_coupling_matches_finite_differences():
+    """With the consolidated fraction a function of T, the Newton matrix adds
+    dR/dfrac dfrac/dT; together with the fixed-fraction Jacobian it is the derivative
+    of R(T, frac(T)) wherever the upstream maxima do not switch cells."""
+    box = pool_box(150e-6, 40e-6, 50e-6, 80e-6, resolution=0.35, beam_radius=40e-6)
+    mesh = build_mesh(box, NI5NB, resolution=0.35, powder=True)
+    disc = Discretization(mesh, NI5NB, 150.0, 0.5)
+    laws = _laws()
+    T = initial_field(mesh, 150.0, 0.5, 0.5, 100.0, NI5NB)
+    T3 = T.reshape(mesh.shape)
+    # powder temperatures spread over the ramp below T_S, so many columns are partly
+    # consolidated; a smooth field keeps the upstream maxima where they are
+    X, Y, Z = np.meshgrid(*(Mesh.centres(a) for a in (mesh.xf, mesh.yf, mesh.zf)),
+                          indexing="ij")
+    bump = np.exp(-((X + 30e-6) ** 2 + Y**2) / (60e-6) ** 2 - Z / 100e-6)
+    T3[:, :, : mesh.n_powder] = (NI5NB.T_solidus - 120.0 + 110.0 * bump)[:, :, : mesh.n_powder]
+    T = T3.ravel()
+    A = 0.4
+    k_surface = 1e4  # W/(m K): a surface term of ~10 K, so it sets some columns' maxima
+
+    def residual(T):
+        frac, dfrac = consolidated(disc, T, A, k_surface)
+        R, J = disc.evaluate(T, frac, laws, A, None)
+        return R, J, frac, dfrac
+
+    R, J, frac, dfrac = residual(T)
+    assert dfrac.nnz > 0 and ((frac > 0) & (frac < 1)).sum() > 10
+    full = J + fraction_coupling(disc, T, frac, laws) @ dfrac
+    rng = np.random.default_rng(1)
+    d = rng.standard_normal(mesh.size)
+    eps = 1e-4
+    fd = (residual(T + eps * d)[0] - residual(T - eps * d)[0]) / (2 * eps)
+    coupling = fd - J @ d  # the part of the derivative that comes through frac
+    assert np.abs(coupling).max() > 1e-3 * np.abs(fd).max()  # the term matters here
+    np.testing.assert_allclose(full @ d, fd, atol=1e-3 * np.abs(coupling).max())
+
+
 def test_rosenthal_estimate_scales():
     small = estimate_pool(100.0, 1.0, 0.5, 100.0, NI5NB)
     large = estimate_pool(200.0, 1.0, 0.5, 100.0, NI5NB)
@@ -148,11 +191,77 @@ def test_options_validated():
 def test_nonconvergence_is_reported_not_hidden():
     res = melt_pool.simulate({"P": 150.0, "v": 0.5}, max_iter=3, **COARSE)
     assert res.status == "nonconverged"
-    assert "did not converge" in res.message
+    assert "did not converge" in res.message and "\n" not in res.message
     assert all(math.isnan(x) for x in res.outputs.values())
     assert res.diagnostics["converged"] is False
     assert res.checked(melt_pool.OUTPUTS).status == "nonconverged"
     json.dumps(res.diagnostics)
+
+
+def test_power_ladder_starts_cold_and_ends_at_p():
+    theta = {**MID, "A_max": 0.8}
+    ladder = model.power_ladder(250.0, 0.05, theta, 1.5, NI5NB)
+    assert ladder[-1] == 250.0 and ladder[0] < 0.25 * 250.0
+    steps = np.diff(ladder) / np.array(ladder[:-1]) + 1
+    assert np.all(steps > 1) and np.all(steps <= 1.5 + 1e-12)
+    # the first stage: the smeared Rosenthal peak at A_max and K_S is T_L
+    r, k = 0.5 * NI5NB.beam_radius, theta["K_S"]
+    alpha = k / (NI5NB.rho * NI5NB.cp_solid)
+    peak = (NI5NB.T_ambient + theta["A_max"] * ladder[0] / (2 * math.pi * k * r)
+            * math.exp(-0.05 * r / (2 * alpha)))
+    assert peak == pytest.approx(NI5NB.T_liquidus)
+    assert model.power_ladder(20.0, 2.0, MID, 1.5, NI5NB) == [20.0]  # cold already
+
+
+def _close(a, b, keys=("W", "D", "G0"), rel=0.005):
+    assert a.status == b.status == "ok", (a.message, b.message)
+    for k in keys:
+        assert a.outputs[k] == pytest.approx(b.outputs[k], rel=rel), k
+
+
+def test_outputs_do_not_depend_on_the_starting_field():
+    """The first continuation stage has one solution, so a Rosenthal start and an
+    ambient start reach the same state (to solver tolerance), also near the keyhole
+    threshold (run 104)."""
+    a = melt_pool.simulate(RUN_104, start="rosenthal", **COARSE)
+    b = melt_pool.simulate(RUN_104, start="ambient", **COARSE)
+    _close(a, b)
+
+
+def test_run_104_stays_on_the_conduction_branch():
+    """Continuation from a cold start keeps run 104 in conduction mode (surface below
+    T_b, absorptivity near A_0), whatever the continuation step; the hot start of
+    earlier versions reached the keyhole branch there (W 126 um at the default mesh)."""
+    a = melt_pool.simulate(RUN_104, **COARSE)
+    b = melt_pool.simulate(RUN_104, continuation_ratio=2.5, **COARSE)
+    _close(a, b)
+    assert a.outputs["T0"] < NI5NB.T_boil - 100.0
+    assert a.diagnostics["absorptivity"] < RUN_104["A_0"] + 0.05
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("P", "v"), [
+    (236.0, 0.23),
+    pytest.param(152.0, 0.32, marks=pytest.mark.xfail(
+        strict=True, reason="the monotone consolidated fraction keeps the path: W 175.8 "
+        "vs 184.0 um from the two starts (resolution 0.5); the field form is start-"
+        "independent but does not converge here (benchmarks/README.md)")),
+    (243.0, 1.15), (81.0, 1.5)])
+def test_outputs_do_not_depend_on_the_starting_field_slow(P, v):
+    a = melt_pool.simulate({"P": P, "v": v}, start="rosenthal", **COARSE)
+    b = melt_pool.simulate({"P": P, "v": v}, start="ambient", **COARSE)
+    _close(a, b)
+
+
+def test_field_consolidation_option_lands_near_the_default():
+    """consolidation="field" (frac = frac(T), no memory) converges at a small pool and
+    lands near the default (monotone) state; unknown values are refused."""
+    a = melt_pool.simulate({"P": 113.0, "v": 1.5}, consolidation="field", **COARSE)
+    b = melt_pool.simulate({"P": 113.0, "v": 1.5}, **COARSE)
+    assert a.status == b.status == "ok", (a.message, b.message)
+    assert a.outputs["W"] == pytest.approx(b.outputs["W"], rel=0.05)
+    with pytest.raises(ValueError, match="consolidation"):
+        melt_pool.simulate({"P": 113.0, "v": 1.5}, consolidation="sticky")
 
 
 def test_time_limit_gives_timeout():
@@ -213,7 +322,8 @@ def test_keyhole_depth_absorptivity_option_runs():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize(("P", "v", "side"), [(250.0, 0.05, 1), (80.0, 2.3, 0)])
+@pytest.mark.parametrize(("P", "v", "side"), [(250.0, 0.05, 1), (80.0, 2.3, 0), (80.0, 0.05, 0),
+                                              (250.0, 2.0, 1)])
 def test_corners_converge_or_say_why(P, v, side):
     """Corners of the design box with every parameter at a bound (coarse mesh)."""
     theta = {k: melt_pool.BOUNDS[k][side] for k in melt_pool.PARAMETERS}

@@ -15,6 +15,7 @@ its own ``k(T)``.
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 
 import numpy as np
@@ -22,10 +23,9 @@ import scipy.sparse as sp
 from scipy.special import erf
 
 from calnet.simulators.materials import STEFAN_BOLTZMANN, AlloyProperties
+from calnet.simulators.melt_pool.consolidation import consolidated
 from calnet.simulators.melt_pool.mesh import Mesh
 from calnet.simulators.melt_pool.properties import MaterialLaws
-
-CONSOLIDATION_RAMP = 100.0  # K, width of the loose -> consolidated powder ramp below T_S
 
 
 def _blend(T: np.ndarray, f: np.ndarray, tabs, ev, idx: np.ndarray
@@ -128,6 +128,12 @@ class Discretization:
         self.ts_cells, self.ts_weights = self._surface_stencil()
         self._patterns: dict[bool, _Pattern] = {}
 
+    def with_power(self, P: float) -> Discretization:
+        """The same discretization with laser power ``P`` (W); geometry shared."""
+        out = copy.copy(self)
+        out.P, out.q_top = P, self.q_top * (P / self.P)
+        return out
+
     def _pattern(self, coupled: bool) -> _Pattern:
         """The Jacobian's sparsity (fixed per mesh), built on first use.
 
@@ -193,29 +199,9 @@ class Discretization:
 
     def consolidated(self, T: np.ndarray, absorb: float = 0.0, k_powder: float = 1.0
                      ) -> np.ndarray:
-        """Consolidated fraction of every cell (n_cells,), 1 for the substrate.
-
-        A powder column counts as melted to the degree its hottest point approached
-        ``T_S`` (the 30 um layer, about one particle diameter, collapses as a whole),
-        the hottest point being a cell centre or the top surface, whose temperature
-        ``T_top + q dz / (2 k_p)`` follows from the absorbed flux ``q``: in the
-        insulating powder the centre of a top cell lags the surface by an amount that
-        scales with the cell size, so centres alone would move the powder edge with
-        the mesh; and stays so downstream: the max over ``x' >= x`` of physics.md, taken
-        over the layer thickness. The fraction ramps smoothly from 0 at
-        ``T_S - CONSOLIDATION_RAMP`` to 1 at ``T_S``.
-        """
-        T3 = T.reshape(self.mesh.shape)[:, :, : self.mesh.n_powder]
-        hot = T3.max(axis=2, initial=-np.inf)
-        if self.mesh.n_powder:
-            dz0 = self.mesh.zf[1] - self.mesh.zf[0]
-            q = (absorb * self.q_top / self.area_top).reshape(hot.shape)
-            hot = np.maximum(hot, T3[:, :, 0] + q * dz0 / (2 * k_powder))
-        hot = np.maximum.accumulate(hot[::-1], axis=0)[::-1]
-        x = np.clip((hot - self.mat.T_solidus) / CONSOLIDATION_RAMP + 1.0, 0.0, 1.0)
-        out = np.ones(self.mesh.shape)
-        out[:, :, : self.mesh.n_powder] = (x * x * (3 - 2 * x))[:, :, None]
-        return out.ravel()
+        """Consolidated fraction of every cell (n_cells,), 1 for the substrate
+        (:func:`~.consolidation.consolidated`)."""
+        return consolidated(self, T, absorb, k_powder)[0]
 
     def surface_temperature(self, T: np.ndarray, laws: MaterialLaws
                             ) -> tuple[float, np.ndarray]:
@@ -311,8 +297,10 @@ class Discretization:
         pack = self.mat.powder_packing
         return (pack + (1.0 - pack) * frac) * self.mat.rho
 
-    def _advection(self, T, frac, laws, R, vals) -> None:
-        """Enthalpy advection towards ``-x`` through every x face.
+    def advective_flux(self, T: np.ndarray, frac: np.ndarray, laws: MaterialLaws
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Enthalpy flux (W) through every interior x face towards ``-x``, shape
+        (n_x_faces,), and its derivatives by the upstream and downstream temperatures.
 
         Latent part upwind; sensible part blended between central and upwind with the
         face weight ``beta = min(1, 1.8 / Pe_face)`` (hybrid scheme), where
@@ -323,8 +311,7 @@ class Discretization:
         """
         S, cp = laws.sensible(T)
         Lh, dl = laws.latent(T)
-        rho = self.density(frac)
-        m = self.v * self.area_yz * rho  # kg/s through a cell's cross-section
+        m = self.v * self.area_yz * self.density(frac)  # kg/s through a cross-section
         P, E = self.x_down, self.x_upstream
         mE = m[E]
         k_d, k_l = laws.phi_x(self._t_ref)[1][0], laws.powder_x(self._t_ref)[1][0]
@@ -333,12 +320,19 @@ class Discretization:
         beta = np.minimum(1.0, 1.8 * self.gx * k_ref / (mE * self.mat.cp_liquid))
         wE, wP = beta * self.w_up, beta * (1 - self.w_up)
         F = mE * ((1 - beta) * S[E] + wE * S[E] + wP * S[P] + Lh[E])
+        return F, mE * ((1 - beta + wE) * cp[E] + dl[E]), mE * wP * cp[P]
+
+    def _advection(self, T, frac, laws, R, vals) -> None:
+        """Enthalpy advection towards ``-x`` (:meth:`advective_flux`) and the outflow."""
+        F, dFE, dFP = self.advective_flux(T, frac, laws)
+        P, E = self.x_down, self.x_upstream
         R += np.bincount(P, F, self.n) - np.bincount(E, F, self.n)
-        dFE = mE * ((1 - beta + wE) * cp[E] + dl[E])
-        dFP = mE * wP * cp[P]
+        S, cp = laws.sensible(T)
+        Lh, dl = laws.latent(T)
         o = self.outflow
-        R[o] -= m[o] * (S[o] + Lh[o])
-        vals += [dFE, dFP, -dFE, -dFP, -m[o] * (cp[o] + dl[o])]  # order of _entries
+        m_o = self.v * self.area_yz[o] * self.density(frac[o])
+        R[o] -= m_o * (S[o] + Lh[o])
+        vals += [dFE, dFP, -dFE, -dFP, -m_o * (cp[o] + dl[o])]  # order of _entries
 
     def _surface(self, T, absorb, dabsorb, R, vals) -> None:
         mat = self.mat

@@ -1,9 +1,10 @@
 """One melt-pool run: parameters -> mesh -> Newton solve -> outputs (the driver).
 
-Pipeline: Rosenthal estimate -> :class:`~.mesh.Mesh` -> analytic initial field ->
-:func:`~.solver.newton_solve` -> :func:`~.outputs.extract`; if the computed pool left
-the finely meshed box (or is much smaller than assumed) the mesh is rebuilt around it
-once and the solve is warm-started from the interpolated field.
+Pipeline: Rosenthal estimate -> sizing :class:`~.mesh.Mesh` -> continuation in laser
+power from a cold start (:func:`power_ladder`, each stage a
+:func:`~.solver.newton_solve`) -> fine mesh around the computed pool -> fine solve from
+the interpolated field -> :func:`~.outputs.extract`; if the fine pool left the finely
+meshed box the mesh is rebuilt around it once more.
 """
 
 from __future__ import annotations
@@ -95,13 +96,44 @@ WARM_DT0 = 2e-5  # s, first pseudo time step of a warm-started solve
 COARSE_RTOL = 1e-4  # the sizing pre-solve only needs to place the pool
 
 
+def power_ladder(P: float, v: float, theta: dict[str, float], ratio: float,
+                 mat: AlloyProperties) -> list[float]:
+    """Laser powers (W) of the continuation, increasing geometrically to ``P``.
+
+    The first is the power at which the beam-smeared Rosenthal field with the largest
+    absorptivity ``A_max`` and the solid conductivity ``K_S`` peaks at ``T_L``: far from
+    the vapour switch, so the absorptivity stays at ``A_0`` and the steady problem has a
+    single (conduction-mode) solution. Consecutive powers differ by at most ``ratio``.
+    """
+    k = theta["K_S"]
+    alpha = k / (mat.rho * mat.cp_solid)
+    r = 0.5 * mat.beam_radius
+    rise = theta["A_max"] * P / (2 * math.pi * k * r) * math.exp(-v * r / (2 * alpha))
+    s0 = min(1.0, (mat.T_liquidus - mat.T_ambient) / rise)
+    n = math.ceil(math.log(1.0 / s0) / math.log(ratio) - 1e-9) if s0 < 1 else 0
+    return [P * s0 ** (1.0 - j / n) for j in range(n)] + [P]
+
+
+def _start(mesh: Mesh, P: float, v: float, theta: dict[str, float], opts: MeltPoolOptions,
+           mat: AlloyProperties) -> np.ndarray:
+    """Initial field of the first continuation stage (``opts.start``)."""
+    if opts.start == "ambient":
+        return np.full(mesh.size, mat.T_ambient)
+    return initial_field(mesh, P, v, theta["A_0"], math.sqrt(theta["K_S"] * theta["K_L"]), mat)
+
+
 def run(P: float, v: float, theta: dict[str, float], opts: MeltPoolOptions,
         mat: AlloyProperties = NI5NB) -> RunRecord:
     """Solve one case; see :func:`calnet.simulators.melt_pool.simulate`.
 
-    Coarse-to-fine: a pre-solve at half the resolution on a mesh sized by the Rosenthal
-    estimate sizes the fine mesh and warm-starts the fine solve; a further re-mesh
-    happens only if the fine pool still leaves its finely meshed box.
+    Continuation in laser power on the sizing mesh (half the resolution, sized by the
+    Rosenthal estimate): from a cold, conduction-mode solution at the first power of
+    :func:`power_ladder`, each stage warm-started from the previous one, so the run
+    follows the conduction branch up to ``P`` wherever it exists and reaches the
+    keyhole branch only where it stops existing (the state a track started on cold
+    material reaches). The pool found at ``P`` sizes the fine mesh, and the fine solve
+    starts from the interpolated field; a further re-mesh happens only if the fine pool
+    still leaves its finely meshed box.
     """
     start = time.monotonic()
     deadline = None if opts.time_limit is None else start + opts.time_limit
@@ -115,19 +147,27 @@ def run(P: float, v: float, theta: dict[str, float], opts: MeltPoolOptions,
     box = pool_box(tail, front, half, half + mat.powder_thickness * opts.powder,
                    resolution=res, beam_radius=mat.beam_radius)
     mesh = build_mesh(box, mat, resolution=res, powder=opts.powder)
-    T0 = initial_field(mesh, P, v, a_mid, k_est, mat)
-    iterations, dt0, geometry, frac0 = 0, None, None, None
+    powers = power_ladder(P, v, theta, opts.continuation_ratio, mat)
+    T0 = _start(mesh, powers[0], v, theta, opts, mat)
+    iterations, dt0, geometry = 0, None, None
     for stage in range(3):
         final_stage = res == opts.resolution
         disc = Discretization(mesh, mat, P, v)
-        report = newton_solve(disc, laws, T0, absorptivity=_absorptivity(disc, laws, theta,
-                              opts, mat), k_powder=k_p,
-                              rtol=opts.rtol if final_stage else max(opts.rtol, COARSE_RTOL),
-                              ttol=opts.ttol if final_stage else max(opts.ttol, 1.0),
-                              max_iter=opts.max_iter - iterations,
-                              max_update=opts.max_update, deadline=deadline,
-                              frac0=frac0, **({} if dt0 is None else {"dt0": dt0}))
-        iterations += report.iterations
+        for p_stage in powers if stage == 0 else [P]:
+            last = p_stage == P and final_stage
+            d = disc.with_power(p_stage)
+            report = newton_solve(d, laws, T0, absorptivity=_absorptivity(d, laws, theta,
+                                  opts, mat), k_powder=k_p,
+                                  rtol=opts.rtol if last else max(opts.rtol, COARSE_RTOL),
+                                  ttol=opts.ttol if last else max(opts.ttol, 1.0),
+                                  max_iter=opts.max_iter - iterations,
+                                  max_update=opts.max_update, deadline=deadline,
+                                  monotone=opts.consolidation == "monotone",
+                                  **({} if dt0 is None else {"dt0": dt0}))
+            iterations += report.iterations
+            if not report.converged:
+                break
+            T0, dt0 = report.T, WARM_DT0
         if not report.converged:
             break
         geometry = extract(report.T, report.frac, mesh, laws, v=v, T_liquidus=mat.T_liquidus,

@@ -12,6 +12,8 @@ from typing import Any
 ABSORPTIVITY_LAWS = ("surface_temperature", "keyhole_depth")
 KVZ_MODES = ("factor", "absolute")
 ANISOTROPY_DIRECTIONS = ("vertical", "lateral")
+STARTS = ("rosenthal", "ambient")
+CONSOLIDATIONS = ("monotone", "field")
 
 
 @dataclass(frozen=True)
@@ -46,15 +48,32 @@ class MeltPoolOptions:
         temperature update is below ``ttol``.
     ttol : float, default 0.05
         Temperature-update tolerance (K).
-    max_iter : int, default 200
-        Newton iterations allowed over all continuation stages (120 before 0.5.0, which
-        cut off slow high-power runs 1-14 iterations short of convergence).
+    max_iter : int, default 500
+        Newton iterations allowed over all stages (the continuation in power, the
+        sizing pre-solve and the fine solve).
     max_update : float, default 800.0
         Cap on the largest temperature update per Newton step (K).
     time_limit : float or None, default None
         Wall-clock limit (s); exceeding it returns status ``"timeout"``.
     adapt_mesh : bool, default True
         Re-mesh once around the computed pool if it left the fine region.
+    continuation_ratio : float, default 1.5
+        Largest ratio of consecutive laser powers in the continuation from a cold,
+        conduction-mode solution (:func:`~.model.power_ladder`); must exceed 1.
+    consolidation : {"monotone", "field"}, default "monotone"
+        How a solve treats the consolidated powder fraction ``frac(T)``
+        (:mod:`~.consolidation`). ``"field"``: ``frac(T)`` of the current iterate, its
+        coupling in the Newton matrix, so the converged state solves
+        ``R(T, frac(T)) = 0`` whatever the path; at most powder settings of the
+        reference box the iteration cycles at the lateral edge of the consolidation
+        front and does not converge (benchmarks/README.md). ``"monotone"``: the largest
+        ``frac(T)`` over the solve's iterates (each continuation stage starts afresh), so
+        the front only advances; it converges, but the state can depend on the
+        iteration path by a few per cent.
+    start : {"rosenthal", "ambient"}, default "rosenthal"
+        Initial field of the first continuation stage: the beam-smeared Rosenthal field
+        at that stage's power and ``A_0``, or the ambient temperature everywhere. The
+        first stage has a single solution, so the outputs do not depend on it.
     """
 
     resolution: float = 1.0
@@ -67,16 +86,21 @@ class MeltPoolOptions:
     k_powder: float | None = None
     rtol: float = 1e-6
     ttol: float = 0.05
-    max_iter: int = 200
+    max_iter: int = 500
     max_update: float = 800.0
     time_limit: float | None = None
     adapt_mesh: bool = True
+    continuation_ratio: float = 1.5
+    start: str = "rosenthal"
+    consolidation: str = "monotone"
 
     def __post_init__(self) -> None:
         checks = [
             ("absorptivity", self.absorptivity in ABSORPTIVITY_LAWS, ABSORPTIVITY_LAWS),
             ("kvz_mode", self.kvz_mode in KVZ_MODES, KVZ_MODES),
             ("anisotropy", self.anisotropy in ANISOTROPY_DIRECTIONS, ANISOTROPY_DIRECTIONS),
+            ("start", self.start in STARTS, STARTS),
+            ("consolidation", self.consolidation in CONSOLIDATIONS, CONSOLIDATIONS),
         ]
         for name, ok, allowed in checks:
             if not ok:
@@ -87,6 +111,9 @@ class MeltPoolOptions:
             if not float(getattr(self, name)) > 0:
                 raise ValueError(f"option {name}: expected a positive number, "
                                  f"got {getattr(self, name)!r}")
+        if not float(self.continuation_ratio) > 1:
+            raise ValueError("option continuation_ratio: expected a number > 1, "
+                             f"got {self.continuation_ratio!r}")
         if int(self.max_iter) < 1:
             raise ValueError(f"option max_iter: expected >= 1, got {self.max_iter!r}")
 

@@ -4,13 +4,21 @@ Each step solves ``(V rho c_eff / dt - J) dT = R`` (physics.md: exact Jacobian t
 Kirchhoff potentials, pseudo-transient continuation, temperature updates capped at
 ``max_update``). The pseudo time step follows switched evolution relaxation,
 ``dt_k = dt_(k-1) clip(1.5 |R_(k-1)| / |R_k|, 2, 3)`` unless the residual rises by
-more than 5 %, then ``dt_(k-1) / 4`` and at most 1.5x growth on the next step (so
-a Newton 2-cycle shrinks dt until the pseudo-time term damps it), so the iteration
-turns into plain Newton as the residual falls. Cells crossing ``T_S`` or ``T_L`` stop
-just past the kink. The consolidated fraction of the powder (a max over the upstream
-line) is lagged by one step and never decreases (powder, once sintered, stays so, as in a
-physical transient; a reverting fraction makes the iteration 2-cycle); convergence
-requires it to have stopped changing.
+more than ``RISE`` (50 %), then ``dt_(k-1) / 4`` and at most 1.5x growth on the next
+step (so a Newton 2-cycle shrinks dt until the pseudo-time term damps it), so the
+iteration turns into plain Newton as the residual falls. Smaller rises are let pass: a
+pseudo-transient carries heat down the long tail of the pool, and the largest
+residual may grow while it does. After a cut, dt stays below half the step that failed, a cap that
+relaxes by 20 % per successful step: Newton can cycle at the kinks of the consolidated
+fraction (a max over the upstream line), and the cap tightens with every turn of such a
+cycle until the pseudo-time term damps it. Cells crossing ``T_S`` or ``T_L`` stop
+just past the kink. The consolidated fraction of the powder is ``frac(T)``
+(:mod:`~.consolidation`) of the current iterate, with ``dR/dfrac dfrac/dT`` in the
+Newton matrix, so a converged state solves ``R(T, frac(T)) = 0`` whatever the path
+(``monotone=False``); or, by default, the largest ``frac(T)`` of the solve's iterates
+(``monotone=True``): the front only advances, which converges where the field form
+cycles, at the price of a state that can keep powder consolidated that the final field
+would not consolidate.
 """
 
 from __future__ import annotations
@@ -25,13 +33,16 @@ import pyamg
 import scipy.sparse as sp
 
 from calnet.simulators.melt_pool.assembly import Discretization
+from calnet.simulators.melt_pool.consolidation import consolidated, fraction_coupling
 from calnet.simulators.melt_pool.properties import MaterialLaws
 
 _DEBUG = bool(os.environ.get("CALNET_MELT_POOL_DEBUG"))
 DT0 = 2e-6  # s, first pseudo time step
 DT_MAX = 1.0
 DT_MIN = 1e-9  # s
-FRAC_TOL = 1e-4  # largest change of the consolidated fraction allowed at convergence
+FRAC_TOL = 1e-4  # growth of the monotone consolidated fraction allowed at convergence
+RISE = 1.5  # a residual rise by more than this factor cuts the pseudo time step
+CEILING_GROWTH = 1.2  # per step, of the cap on dt (half the step that failed last)
 
 
 @dataclass(frozen=True)
@@ -98,22 +109,25 @@ class LinearSolver:
         self._age = 0
         self._last_its = 0
 
-    def __call__(self, M: sp.csr_matrix, b: np.ndarray, *, rtol: float
-                 ) -> tuple[np.ndarray, int]:
+    def __call__(self, M: sp.csr_matrix, b: np.ndarray, *, rtol: float,
+                 preconditioner: sp.csr_matrix | None = None) -> tuple[np.ndarray, int]:
+        """Solve ``M x = b``; the AMG hierarchy is built on ``preconditioner`` (an
+        M-matrix close to ``M``; default ``M`` itself)."""
+        Pm = M if preconditioner is None else preconditioner
         stale = (self._ml is None or self._last_its > self.REBUILD_ITS
                  or self._age >= self.MAX_AGE or self._ml.levels[0].A.shape != M.shape)
-        x, its = self._solve(M, b, rtol, rebuild=stale)
+        x, its = self._solve(M, Pm, b, rtol, rebuild=stale)
         # GMRES stops on the preconditioned residual; check the true one
         if not stale and np.linalg.norm(b - M @ x) > 10 * rtol * np.linalg.norm(b):
-            x, more = self._solve(M, b, rtol, rebuild=True)
+            x, more = self._solve(M, Pm, b, rtol, rebuild=True)
             its += more
         self._last_its = its
         return x, its
 
-    def _solve(self, M: sp.csr_matrix, b: np.ndarray, rtol: float, *, rebuild: bool
-               ) -> tuple[np.ndarray, int]:
+    def _solve(self, M: sp.csr_matrix, Pm: sp.csr_matrix, b: np.ndarray, rtol: float, *,
+               rebuild: bool) -> tuple[np.ndarray, int]:
         if rebuild:
-            self._ml = pyamg.ruge_stuben_solver(M, max_coarse=400, **self.SMOOTHERS)
+            self._ml = pyamg.ruge_stuben_solver(Pm, max_coarse=400, **self.SMOOTHERS)
             self._age = 0
         self._age += 1
         res: list[float] = []
@@ -125,45 +139,59 @@ class LinearSolver:
 def newton_solve(disc: Discretization, laws: MaterialLaws, T0: np.ndarray, *,
                  absorptivity: AbsorptivityLaw, k_powder: float, rtol: float, ttol: float,
                  max_iter: int, max_update: float, deadline: float | None,
-                 dt0: float = DT0, frac0: np.ndarray | None = None) -> SolveReport:
-    """Drive the residual to ``max|R| <= rtol * A P / 2`` from the initial field ``T0``
-    (and consolidated fraction ``frac0``, e.g. from a coarser solve)."""
+                 dt0: float = DT0, monotone: bool = True) -> SolveReport:
+    """Drive the residual to ``max|R| <= rtol * A P / 2`` from the initial field ``T0``.
+
+    ``monotone``: the consolidated fraction is the largest ``frac(T)`` of the solve's
+    iterates (it never decreases; convergence requires it to have stopped growing);
+    otherwise it is ``frac(T)`` of the current iterate, with its coupling in the
+    Newton matrix."""
     T = T0.copy()
     rho_c = None
     dt, r0_norm, upd, lin_total, calm = dt0, None, np.inf, 0, 10
-    frac = disc.consolidated(T, 0.0, k_powder)
-    if frac0 is not None:
-        frac = np.maximum(frac, frac0)
+    frac: np.ndarray | None = None
     reason, it, rnorm = "iteration limit reached", 0, np.inf
     A, Ts = np.nan, np.nan
     linear_solve = LinearSolver()
+    ceiling = DT_MAX
     for it in range(1, max_iter + 1):
         if deadline is not None and time.monotonic() > deadline:
             reason = "time limit reached"
             break
         A, dA, Ts = absorptivity.evaluate(T)
-        new_frac = np.maximum(frac, disc.consolidated(T, A, k_powder))  # never reverts
-        frac_change = float(np.abs(new_frac - frac).max())
-        mask_changed = frac_change > FRAC_TOL
-        frac = new_frac
+        target, dfrac = consolidated(disc, T, A, k_powder)
+        if monotone:  # the front only advances within a solve; no coupling term
+            grown = target if frac is None else np.maximum(frac, target)
+            front_moved = frac is None or float(np.abs(grown - frac).max()) > FRAC_TOL
+            frac, dfrac = grown, None
+        else:
+            frac, front_moved = target, False
         R, J = disc.evaluate(T, frac, laws, A, dA)
         rnorm = float(np.abs(R).max() / (A * disc.P / 2))
         if not np.isfinite(rnorm):
             reason = "non-finite residual"
             break
-        if rnorm <= rtol and upd <= ttol and not mask_changed:
+        if rnorm <= rtol and upd <= ttol and not front_moved:
             return SolveReport(T, True, "", it - 1, rnorm, upd, lin_total, A, Ts, frac)
+        r2 = float(np.linalg.norm(R))
         if r0_norm is not None:  # grow dt while the residual falls (SER-like)
-            rising = rnorm > 1.05 * r0_norm
+            rising = r2 > RISE * r0_norm
             calm = 0 if rising else calm + 1
+            if rising:  # the step just taken was too long: remember it
+                ceiling = max(DT_MIN, 0.5 * dt)
+            else:
+                ceiling = min(DT_MAX, CEILING_GROWTH * ceiling)
             top = 3.0 if calm > 1 else 1.5  # slow regrowth after a rise: no 2-cycles
-            grow = 0.25 if rising else float(np.clip(1.5 * r0_norm / rnorm, min(2.0, top), top))
-            dt = float(np.clip(dt * grow, DT_MIN, DT_MAX))
-        r0_norm = rnorm
+            grow = 0.25 if rising else float(np.clip(1.5 * r0_norm / r2, min(2.0, top), top))
+            dt = float(np.clip(dt * grow, DT_MIN, ceiling))
+        r0_norm = r2
         _, c = laws.enthalpy(T)
         rho_c = disc.density(frac) * c
         M = disc.system(J, disc.volume * rho_c / dt, coupled=dA is not None)
-        dT, n_lin = linear_solve(M, R, rtol=min(1e-3, max(1e-10, 0.1 * rnorm)))
+        full = M - fraction_coupling(disc, T, frac, laws) @ dfrac if dfrac is not None \
+            and dfrac.nnz else M
+        dT, n_lin = linear_solve(full, R, rtol=min(1e-3, max(1e-10, 0.1 * rnorm)),
+                                 preconditioner=M)
         lin_total += n_lin
         big = float(np.abs(dT).max())
         if not np.isfinite(big):
@@ -175,7 +203,7 @@ def newton_solve(disc: Discretization, laws: MaterialLaws, T0: np.ndarray, *,
         upd = min(big, max_update)
         if _DEBUG:
             print(f"it {it} r {rnorm:.3e} dt {dt:.2e} dT {big:.1f} lin {n_lin} A {A:.3f} "
-                  f"Ts {Ts:.0f} Tmax {T.max():.0f} mask {mask_changed} "
+                  f"Ts {Ts:.0f} Tmax {T.max():.0f} front moved {front_moved} "
                   f"at {np.unravel_index(np.argmax(np.abs(dT)), disc.mesh.shape)} "
                   f"T {T[np.argmax(np.abs(dT))]:.0f}", flush=True)
     return SolveReport(T, False, reason, it, rnorm, upd, lin_total, A, Ts, frac)
