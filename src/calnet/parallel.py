@@ -2,10 +2,8 @@
 
 XLA compiles a program on one core, and SciPy's optimisers drive XLA calls from one
 Python thread; both release the GIL while they work, so a stage with independent pieces
-(one GP fit per output, one predictive per data set) runs them in threads. BLAS is held
-to one thread meanwhile: XLA's CPU Cholesky and triangular solves call OpenBLAS, whose
-own threads would spin against the stage's (the same reason the samplers hold it, see
-:func:`calnet.calibration.sampling.sample_nuts`).
+(one GP fit per output, one predictive per data set) runs them in threads, with BLAS on
+one thread (:func:`one_blas_thread`).
 """
 
 from __future__ import annotations
@@ -52,5 +50,13 @@ def map_threads(fn: Callable[[T], R], items: Iterable[T]) -> list[R]:
 
 
 def one_blas_thread():
-    """A context in which BLAS (OpenBLAS, MKL) runs on one thread."""
+    """A context in which BLAS (OpenBLAS, MKL) runs on one thread.
+
+    JAX's CPU Cholesky and triangular solves call LAPACK through SciPy's OpenBLAS; with
+    several threads of XLA work at once (chains on several XLA host devices, or the
+    threads of :func:`map_threads`) each call would start its own BLAS threads and they
+    spin against each other. On 2 cores, 4 parallel chains of the ninb thermal stage took
+    150 s with default BLAS threads and 15 s with one (benchmarks/README.md, "Chains on
+    CPU").
+    """
     return threadpool_limits(limits=1, user_api="blas")

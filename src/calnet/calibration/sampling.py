@@ -34,7 +34,6 @@ from functools import partial
 from typing import Any
 
 import jax
-from threadpoolctl import threadpool_limits
 
 jax.config.update("jax_enable_x64", True)
 
@@ -47,6 +46,7 @@ from blackjax.mcmc import nuts  # noqa: E402
 from calnet.calibration.diagnostics import import_arviz  # noqa: E402
 from calnet.calibration.koh import check_initial  # noqa: E402
 from calnet.errors import CalibrationError  # noqa: E402
+from calnet.parallel import one_blas_thread  # noqa: E402
 from calnet.progress import Lines  # noqa: E402
 
 __all__ = ["sample_nuts", "clear_cache", "cache_info", "CHAIN_METHODS"]
@@ -262,18 +262,6 @@ def _compiled(cfg: _Config, args) -> tuple[Any, float]:
     return exe, seconds
 
 
-def _one_blas_thread():
-    """Limit BLAS (OpenBLAS/MKL) to one thread while chains run.
-
-    JAX's CPU Cholesky and triangular solves call LAPACK through SciPy's OpenBLAS; with
-    chains on several XLA host devices each call would start its own BLAS threads and
-    they spin against each other (koh_anchor README, pitfall 1). On 2 cores, 4 parallel
-    chains of the ninb thermal stage took 150 s with default BLAS threads and 15 s with
-    one (benchmarks/README.md, "Chains on CPU").
-    """
-    return threadpool_limits(limits=1, user_api="blas")
-
-
 def _resolve_method(chain_method: str, num_chains: int) -> tuple[str, int]:
     if chain_method not in CHAIN_METHODS:
         raise CalibrationError(f"chain_method must be one of {CHAIN_METHODS}, "
@@ -352,7 +340,7 @@ def sample_nuts(
     chain_method : {"auto", "parallel", "sequential", "vectorized"}
         ``auto``: ``parallel`` (pmap over XLA host devices) when at least two devices can
         share the chains, else ``sequential``. BLAS is held to one thread while the
-        chains run (see :func:`_one_blas_thread`).
+        chains run (see :func:`calnet.parallel.one_blas_thread`).
     progress : bool, Lines or callable
         ``True``: a bar on stderr when it is a terminal, else plain lines (a line at
         every 10 % of the iterations, and one every 10 s during the warm-up);
@@ -403,7 +391,7 @@ def sample_nuts(
                                          num_draws, t_compile)
     try:
         t0 = time.perf_counter()
-        with running, _one_blas_thread():  # XLA's LAPACK calls go to OpenBLAS: see below
+        with running, one_blas_thread():  # XLA's LAPACK calls go to OpenBLAS
             out = jax.block_until_ready(exe(*args))
         t_sample = time.perf_counter() - t0
     finally:
