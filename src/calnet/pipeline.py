@@ -172,6 +172,7 @@ class _Context:
         self.stores: dict[str, Path] = {}
         self.figures: dict[str, Path] = {}
         self.emulated: dict = {}  # settings.predict outputs, from the prediction stage
+        self.variants: dict = {}  # settings.compare: {variant: (network, posterior)}
         self.sampler = (_quick_sampler(network.settings.sampler) if quick
                         else network.settings.sampler)
 
@@ -213,10 +214,21 @@ class _Context:
 
     def calibration(self, note) -> None:
         from calnet.calibration.network import calibrate
+        from calnet.validation import calibrate_variants, secondary_sampler
 
         train = {k: v.train for k, v in self.data.items()}
-        self.post = calibrate(self.network, self.sur, data=train, seed=self.seed,
-                              sampler=self.sampler, progress=note)
+        variants = self.network.settings.compare if train else ()
+        # the variants of settings.compare are calibrated beside the spec's model, in a
+        # thread: their compilation runs while the other core is idle (XLA compiles a
+        # program on one core), their sampling shares the cores with the spec's
+        with one_blas_thread(), ThreadPoolExecutor(max_workers=1) as pool:
+            if variants:
+                note("calibrating " + ", ".join(variants) + " beside the spec's model")
+            beside = pool.submit(calibrate_variants, self.network, self.sur, train, variants,
+                                 sampler=secondary_sampler(self.sampler), seed=self.seed)
+            self.post = calibrate(self.network, self.sur, data=train, seed=self.seed,
+                                  sampler=self.sampler, progress=note)
+            self.variants = beside.result()
         from calnet.calibration.persist import save_posterior
 
         save_posterior(self.post, self.out / "posterior")  # stage netCDFs + what predict needs
@@ -249,17 +261,17 @@ class _Context:
                      for name, d in self.data.items() if d.is_test.any()}
             self._validate_each(naive, out, note)
         self.metrics["validation"] = out
-        if self.network.settings.compare and self.data:
+        if self.variants:
             from calnet.validation import compare_variants
 
+            note("comparison with " + ", ".join(self.variants))
             self.metrics["comparison"] = compare_variants(
-                self.network, self.sur, self.post, self.network.settings.compare,
-                sampler=self.sampler, seed=self.seed,
-                progress=lambda v: note(f"calibrating variant {v}"))
+                self.network, self.sur, self.post, tuple(self.variants),
+                sampler=self.sampler, seed=self.seed, calibrated=self.variants)
 
     def _validate_each(self, naive, out, note) -> None:
         from calnet.predict import metrics
-        from calnet.validation import psis_loo
+        from calnet.validation import psis_loo, secondary_sampler
 
         for name, d in self.data.items():
             pred = self.predictions[name]
@@ -275,12 +287,8 @@ class _Context:
                                         pit=pit[d.is_test])
             note(f"leave-one-out {name}")
             # PSIS on the posterior; a point with Pareto k > 0.7 re-samples the observing
-            # model's stage without it (2 x 500 draws after 300 warm-up: plenty for a
-            # predictive mean and band)
-            loo_sampler = self.sampler.model_copy(update={
-                "chains": min(self.sampler.chains, 2),
-                "warmup": min(self.sampler.warmup, 300),
-                "draws": min(self.sampler.draws, 500)})
+            # model's stage without it
+            loo_sampler = secondary_sampler(self.sampler)
             entry["loo"] = psis_loo(
                 self.network, self.sur, self.post, name, sampler=loo_sampler,
                 seed=self.seed, refit_max=self.loo_max,

@@ -207,28 +207,58 @@ def variant(network: Network, name: str) -> Network:
     return network.model_copy(update={"data": data})
 
 
-def compare_variants(network: Network, surrogates: Surrogates, posterior: NetworkPosterior,
-                     variants: tuple[str, ...], *, sampler: SamplerSettings, seed: int = 0,
-                     progress=None) -> dict:
-    """Calibrate each variant of ``network`` (:func:`variant`) on the posterior's data
-    and compare it with the spec's own model by PSIS-LOO, per data set (ArviZ's
-    ``compare``: ELPD, difference to the best and its standard error, stacking weight).
+def secondary_sampler(sampler: SamplerSettings) -> SamplerSettings:
+    """The sampler of the calibrations made beside the spec's own (exact leave-one-out
+    refits, the variants of :func:`compare_variants`): at most 2 chains of 300 warm-up and
+    500 draws, plenty for a predictive mean and band or a leave-one-out ELPD."""
+    return sampler.model_copy(update={"chains": min(sampler.chains, 2),
+                                      "warmup": min(sampler.warmup, 300),
+                                      "draws": min(sampler.draws, 500)})
 
-    Returns ``{data set: {model name: {elpd_loo, p_loo, elpd_diff, dse, weight,
-    max_pareto_k}}}`` where the spec's own model is named ``spec``.
+
+def calibrate_variants(network: Network, surrogates: Surrogates, data, variants, *,
+                       sampler: SamplerSettings, seed: int = 0,
+                       progress=None) -> dict[str, tuple[Network, NetworkPosterior]]:
+    """Calibrate each variant of ``network`` (:func:`variant`) on ``data`` (data set ->
+    training :class:`ExperimentalData`): ``{variant: (network, posterior)}``.
+
+    Nothing is warned: each posterior's convergence and surrogate checks are in its
+    ``notes``, so this can run in a thread beside the spec's own calibration.
     """
-    from calnet.calibration.diagnostics import import_arviz
     from calnet.calibration.network import calibrate
-    from calnet.predict import loo_conditionals
 
-    az = import_arviz()
-    posts = {"spec": (network, posterior)}
+    out = {}
     for name in variants:
         if progress:
             progress(name)
         net = variant(network, name)
-        posts[name] = (net, calibrate(net, surrogates, data=dict(posterior.data), seed=seed,
-                                      sampler=sampler))
+        out[name] = (net, calibrate(net, surrogates, data=dict(data), seed=seed,
+                                    sampler=sampler, warn=False))
+    return out
+
+
+def compare_variants(network: Network, surrogates: Surrogates, posterior: NetworkPosterior,
+                     variants: tuple[str, ...], *, sampler: SamplerSettings, seed: int = 0,
+                     progress=None, calibrated=None) -> dict:
+    """Calibrate each variant of ``network`` (:func:`variant`) on the posterior's data
+    and compare it with the spec's own model by PSIS-LOO, per data set (ArviZ's
+    ``compare``: ELPD, difference to the best and its standard error, stacking weight).
+
+    ``calibrated``: the variants' ``{name: (network, posterior)}`` from
+    :func:`calibrate_variants`, when they were calibrated already.
+
+    Returns ``{data set: {model name: {elpd_loo, p_loo, elpd_diff, dse, weight,
+    max_pareto_k, draws, notes}}}`` where the spec's own model is named ``spec``; ``notes``
+    are a variant's failed convergence or surrogate checks (the spec's own are reported
+    with its calibration).
+    """
+    from calnet.calibration.diagnostics import import_arviz
+
+    az = import_arviz()
+    if calibrated is None:
+        calibrated = calibrate_variants(network, surrogates, posterior.data, variants,
+                                        sampler=sampler, seed=seed, progress=progress)
+    posts = {"spec": (network, posterior), **calibrated}
     out = {}
     for ds in posterior.data:
         loos = {}
@@ -242,7 +272,9 @@ def compare_variants(network: Network, surrogates: Surrogates, posterior: Networ
         out[ds] = {name: {"elpd_loo": float(row["elpd_loo"]), "p_loo": float(row["p_loo"]),
                           "elpd_diff": float(row["elpd_diff"]), "dse": float(row["dse"]),
                           "weight": float(row["weight"]),
-                          "max_pareto_k": float(np.max(loos[name].pareto_k))}
+                          "max_pareto_k": float(np.max(loos[name].pareto_k)),
+                          "draws": int(posts[name][1].n_draws),
+                          "notes": [] if name == "spec" else list(posts[name][1].notes)}
                    for name, row in table.iterrows()}
     return out
 

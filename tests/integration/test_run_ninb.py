@@ -52,6 +52,12 @@ def test_quick_run_on_the_case_study(tmp_path):
         loo = m["validation"][ds]["loo"]
         assert loo["method"] == "psis" and len(loo["pareto_k"]) == loo["calnet"]["n"]
         assert {"elpd_loo", "elpd_se", "pit", "pit_check"} <= set(loo)
+    for ds in ("width", "pdas"):  # the shipped spec compares with no discrepancy
+        rows = m["comparison"][ds]
+        assert set(rows) == {"spec", "no_discrepancy"}
+        assert sum(r["weight"] for r in rows.values()) == pytest.approx(1.0)
+        assert min(r["elpd_diff"] for r in rows.values()) == 0.0
+    assert "discrepancy against variants, by leave-one-out" in (out / "report.html").read_text()
     assert set(m["sensitivity"]["pdas"]["indices"]["names"]) == {"P", "v"}
     res = CliRunner().invoke(app, ["predict", str(work), "--run", str(out), "--at",
                                    "P=200,v=0.5", "--json"])

@@ -31,7 +31,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from calnet.calibration.diagnostics import kde_mode, summarize
+from calnet.calibration.diagnostics import convergence_problems, kde_mode, summarize
 from calnet.calibration.koh import KOHDensity, KOHModel, Term, standardise
 from calnet.calibration.priors import InverseGamma, LogNormal, parameter_prior, scale_prior
 from calnet.chain import ChainPlan
@@ -316,7 +316,8 @@ def _sample(ld: KOHDensity, sampler: SamplerSettings, seed: int,
 def calibrate(network: Network, surrogates: Surrogates, *, data=None, mode: str | None = None,
               plug: str | None = None, seed: int | None = None,
               sampler: SamplerSettings | None = None, emulator_variance: bool | None = None,
-              progress: Callable[[str], None] | None = None) -> NetworkPosterior:
+              progress: Callable[[str], None] | None = None, warn: bool = True
+              ) -> NetworkPosterior:
     """Calibrate every model of ``network`` against its data sets.
 
     Parameters
@@ -336,6 +337,11 @@ def calibrate(network: Network, surrogates: Surrogates, *, data=None, mode: str 
     progress : callable, optional
         Called with a message before each stage, and with sampling progress lines (its
         start, one every 10 s, its end).
+    warn : bool, default True
+        Emit :class:`~calnet.errors.CalibrationWarning` for failed convergence checks
+        (R-hat, ESS, divergences) and surrogate checks. ``False`` puts the same messages
+        in the posterior's ``notes`` instead (a calibration run beside another one in a
+        thread, whose warnings would mix with the other's).
 
     Returns
     -------
@@ -355,10 +361,11 @@ def calibrate(network: Network, surrogates: Surrogates, *, data=None, mode: str 
         return uncalibrated(network, sampler=sampler, seed=seed)
     plan = ChainPlan.from_network(network)
     if mode == "joint":
-        post = _joint(network, surrogates, data, plan, seed, sampler, emu, progress)
+        post = _joint(network, surrogates, data, plan, seed, sampler, emu, progress, warn)
     else:
-        post = _segmented(network, surrogates, data, plan, seed, sampler, emu, plug, progress)
-    return _checked(network, surrogates, post)
+        post = _segmented(network, surrogates, data, plan, seed, sampler, emu, plug, progress,
+                          warn)
+    return _checked(network, surrogates, post, warn)
 
 
 def uncalibrated(network: Network, *, sampler: SamplerSettings | None = None,
@@ -374,13 +381,17 @@ def uncalibrated(network: Network, *, sampler: SamplerSettings | None = None,
     return _posterior(network, "none", "-", (), draws, {}, prior_only, {}, ())
 
 
-def _checked(network, surrogates, post: NetworkPosterior) -> NetworkPosterior:
-    """``post`` with its surrogate checks, warning where a surrogate sets the answer."""
+def _checked(network, surrogates, post: NetworkPosterior, warn: bool) -> NetworkPosterior:
+    """``post`` with its surrogate checks; warns (or, without ``warn``, notes) where a
+    surrogate sets the answer, a posterior piles up at a bound, or a convergence check
+    failed."""
     from calnet.calibration.guard import check_bounds, check_surrogates
 
     checks = tuple(check_surrogates(network, surrogates, post))
     messages = [c.message() for c in checks if c.message()]
     messages += check_bounds(network, post) + list(post.notes)
+    if not warn:
+        return replace(post, checks=checks, notes=tuple(messages))
     for message in messages:
         warnings.warn(message, CalibrationWarning, stacklevel=3)
     return replace(post, checks=checks)
@@ -390,7 +401,19 @@ def _all_keys(network: Network) -> list[str]:
     return list(dict.fromkeys(k for m in network.order for k in parameter_keys(network, m)))
 
 
-def _joint(network, surrogates, data, plan, seed, sampler, emu, progress) -> NetworkPosterior:
+def _convergence(idata, warn: bool) -> list[str]:
+    """R-hat, ESS and divergence checks of one sampled stage: warned, or (without
+    ``warn``) returned as notes."""
+    problems = convergence_problems(summarize(idata, warn=False))
+    if not warn:
+        return problems
+    for message in problems:
+        warnings.warn(message, CalibrationWarning, stacklevel=4)
+    return []
+
+
+def _joint(network, surrogates, data, plan, seed, sampler, emu, progress,
+           warn) -> NetworkPosterior:
     free = _all_keys(network)
     models = tuple(m for m in network.order if network.model(m).parameters)
     if progress:
@@ -400,9 +423,10 @@ def _joint(network, surrogates, data, plan, seed, sampler, emu, progress) -> Net
     if ld.dim == 0:  # no parameters, known noise, no discrepancy: nothing to sample
         return _posterior(network, "joint", "-", (), {}, data, (), {}, ())
     idata = _sample(ld, sampler, seed, progress)
-    summarize(idata, warn=True, stacklevel=4)  # R-hat, ESS and divergence warnings
+    problems = _convergence(idata, warn)
     stage = StageResult(models, tuple(data), idata, ld)
-    return _posterior(network, "joint", "-", (stage,), key_draws(stage), data, (), {}, ())
+    return _posterior(network, "joint", "-", (stage,), key_draws(stage), data, (), {},
+                      tuple(problems))
 
 
 def _owners(network: Network, data) -> dict[str, str]:
@@ -416,7 +440,7 @@ def _owners(network: Network, data) -> dict[str, str]:
     return owners
 
 
-def _segmented(network, surrogates, data, plan, seed, sampler, emu, plug, progress):
+def _segmented(network, surrogates, data, plan, seed, sampler, emu, plug, progress, warn):
     stages, draws, prior_only, notes = [], {}, [], []
     n = sampler.chains * (sampler.draws // sampler.thin)
     owners = _owners(network, data)
@@ -448,7 +472,7 @@ def _segmented(network, surrogates, data, plan, seed, sampler, emu, plug, progre
         if ld.dim == 0:  # no parameters, known noise, no discrepancy: nothing to sample
             continue
         idata = _sample(ld, sampler, seed + i, progress)
-        summarize(idata, warn=True, stacklevel=4)
+        notes += _convergence(idata, warn)
         moved = [k for k in fixed_keys if np.ptp(draws[k]) > 0]
         if plug == "posterior" and moved and ld.dim:
             idata = cut_by_linear_response(ld, idata, {k: draws[k] for k in moved},

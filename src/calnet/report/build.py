@@ -428,12 +428,16 @@ def _sections(ctx, summary) -> list[Section]:
             ["data set", "points", "ELPD ± se", "p_loo", "max k", "k > 0.7 / refitted / "
              "unreliable", "LOO coverage 50 / 80 / 95 %", "calibration (PIT)"], lrows))
     for name, cmp in m.get("comparison", {}).items():
+        notes = [f"{variant}: {n}" for variant, r in cmp.items() for n in r.get("notes", [])]
         tables.append(Table(
             f"{name}: the spec's discrepancy against variants, by leave-one-out (ELPD "
-            "difference to the best, its standard error, stacking weight)",
-            ["model", "ELPD", "difference", "se of difference", "weight", "max k"],
+            "difference to the best, its standard error, stacking weight; the variants are "
+            "calibrated beside the spec with fewer draws)"
+            + ("".join(f"; {n}" for n in notes)),
+            ["model", "ELPD", "difference", "se of difference", "weight", "max k", "draws"],
             [[variant, fmt(r["elpd_loo"]), fmt(r["elpd_diff"]), fmt(r["dse"]),
-              fmt(r["weight"]), fmt(r["max_pareto_k"])] for variant, r in cmp.items()]))
+              fmt(r["weight"]), fmt(r["max_pareto_k"]), str(r.get("draws", ""))]
+             for variant, r in cmp.items()]))
     tables.append(Table(
         "Uncertainty budget (share of predictive variance, averaged over points; the "
         "discrepancy's share is what the model itself does not explain)",
