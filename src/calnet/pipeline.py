@@ -173,6 +173,7 @@ class _Context:
         self.figures: dict[str, Path] = {}
         self.emulated: dict = {}  # settings.predict outputs, from the prediction stage
         self.variants: dict = {}  # settings.compare: {variant: (network, posterior)}
+        self.explored: dict = {}  # data set -> calnet.explore.Exploration
         self.sampler = (_quick_sampler(network.settings.sampler) if quick
                         else network.settings.sampler)
 
@@ -305,9 +306,10 @@ class _Context:
             out[name] = entry
 
     def sensitivity(self, note) -> None:
-        from calnet.report.build import sensitivity_and_maps
+        from calnet.explore import explore
 
-        sensitivity_and_maps(self, note)
+        self.explored = explore(self.network, self.sur, self.post, self.data, seed=self.seed,
+                                quick=self.quick, progress=note)
 
     def report(self, note) -> None:
         from calnet.report.build import write_outputs

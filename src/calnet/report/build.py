@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from calnet.parallel import map_threads
 from calnet.report.emulation import caption as emulation_caption
 from calnet.report.emulation import emulation_section, slices_figure
 from calnet.report.figures import with_unit
@@ -14,16 +13,6 @@ from calnet.report.metrics import write_metrics
 from calnet.report.posterior_csv import write_posterior_csv
 from calnet.report.reference import reference_rows
 
-GRID = 30
-
-
-def _process_box(ctx, name):
-    """Bounds of the data set's process inputs over its data (the working region)."""
-    d = ctx.data[name]
-    lo, hi = d.x.min(axis=0), d.x.max(axis=0)
-    span = np.where(hi > lo, hi - lo, np.abs(hi) * 0.1 + 1e-9)
-    return np.column_stack([lo - 0.02 * span, hi + 0.02 * span])
-
 
 def _axis_labels(network, input_keys) -> list[str]:
     """Axis labels of a data set's process inputs: ``"x1"``, or ``"P (W)"`` with a unit."""
@@ -31,88 +20,32 @@ def _axis_labels(network, input_keys) -> list[str]:
             for model, name in (key.split(".", 1) for key in input_keys)]
 
 
-def _mean_fn(ctx, name, idx, per_draw=False):
-    """Vectorised posterior predictive mean over draws ``idx`` (natural scale), or each
-    draw's with ``per_draw``."""
-    from calnet.predict import mean_function
-
-    return mean_function(ctx.network, ctx.sur, ctx.post, name, idx, per_draw=per_draw)
-
-
-def _sensitivity_of(ctx, name, note):
-    """Sobol indices, their spread over draws and (for two process inputs) the predictive
-    map of data set ``name``: ``(indices, spread, box, map)``, map ``(g0, g1, pred)`` or
-    None."""
-    from calnet.calibration.network import draw_index
-    from calnet.predict import predict
-    from calnet.sensitivity import sobol_indices, sobol_spread
-
-    n_base = 128 if ctx.quick else 512
-    total = ctx.post.n_draws
-    d = ctx.data[name]
-    note(f"Sobol {name}")
-    box = _process_box(ctx, name)
-    names = [k.split(".")[1] for k in d.input_keys]
-    idx = draw_index(total, 50)
-    res = sobol_indices(_mean_fn(ctx, name, idx), box, names=names, n_base=n_base,
-                        n_bootstrap=100, seed=ctx.seed)
-    draws = draw_index(total, 3 if ctx.quick else 20)
-    spread = sobol_spread(_mean_fn(ctx, name, draws, per_draw=True), box, names=names,
-                          n_base=n_base // 2, seed=ctx.seed)
-    if d.x.shape[1] != 2:
-        return res, spread, box, None
-    note(f"map {name}")
-    g0, g1 = (np.linspace(box[j, 0], box[j, 1], GRID) for j in range(2))
-    mesh = np.array(np.meshgrid(g0, g1)).reshape(2, -1).T
-    crit = ctx.network.settings.criteria.get(name)
-    within = (crit.lower, crit.upper) if crit else None
-    pred = predict(ctx.network, ctx.sur, ctx.post, name, mesh, n_draws=60, seed=ctx.seed,
-                   n_samples=10, within=within)
-    return res, spread, box, (g0, g1, pred)
-
-
-def sensitivity_and_maps(ctx, note) -> None:
-    """Sobol indices (with spread over posterior draws) and (P, v) maps per data set.
-
-    The data sets are computed side by side, one thread per core (XLA compiles each
-    program on one core); the figures are drawn afterwards, in order.
-    """
+def _sensitivity_figures(ctx) -> None:
+    """Sobol bars, predictive and process maps of the sensitivity stage's results."""
     from calnet.report import figures
 
-    order = list(ctx.data)
-    computed = map_threads(lambda n: _sensitivity_of(ctx, n, note), order)
-    sens, maps = {}, {}
-    for name, (res, spread, box, grid) in zip(order, computed, strict=True):
+    for name, e in ctx.explored.items():
         d = ctx.data[name]
-        names = list(res.names)
-        sens[name] = {"indices": res.to_dict(), "over_draws": spread.to_dict(),
-                      "box": box.tolist()}
+        res = e.indices
         ctx.figures[f"sobol {name}"] = figures.sobol_bars(
-            names, res.S1, res.S1_conf, res.ST, res.ST_conf,
+            list(res.names), res.S1, res.S1_conf, res.ST, res.ST_conf,
             ctx.out / "figures" / f"sobol_{name}.png", f"Sobol indices: {d.observes}")
-        if grid is None:
+        if e.map is None:
             continue
-        g0, g1, pred = grid
-        crit = ctx.network.settings.criteria.get(name)
+        grid = e.map
         out = ctx.network.model(d.observes.split(".")[0]).output(d.observes.split(".")[1])
         points = np.column_stack([d.x[:, 0], d.x[:, 1]])
         labels = dict(zip(("p_label", "v_label"), _axis_labels(ctx.network, d.input_keys),
                           strict=True))
         ctx.figures[f"map {name}"] = figures.predictive_map(
-            g0, g1, pred.mean.reshape(GRID, GRID), ctx.out / "figures" / f"map_{name}.png",
+            grid.axis0, grid.axis1, grid.mean, ctx.out / "figures" / f"map_{name}.png",
             d.observes, out.unit, points=points, **labels)
-        # the axes under the inputs' names (P and v for the case study)
-        maps[name] = {"inputs": names, names[0]: g0.tolist(), names[1]: g1.tolist(),
-                      "mean": pred.mean.reshape(GRID, GRID).tolist()}
-        if pred.prob is not None:
-            label = f"P({crit.lower} <= {d.observes} <= {crit.upper})"
+        if grid.probability is not None:
+            lower, upper = grid.criterion
             ctx.figures[f"process {name}"] = figures.process_map(
-                g0, g1, pred.prob.reshape(GRID, GRID),
-                ctx.out / "figures" / f"process_{name}.png", label, points=points, **labels)
-            maps[name].update(criterion={"lower": crit.lower, "upper": crit.upper},
-                              probability=pred.prob.reshape(GRID, GRID).tolist())
-    ctx.metrics["sensitivity"] = sens
-    ctx.metrics["maps"] = maps
+                grid.axis0, grid.axis1, grid.probability,
+                ctx.out / "figures" / f"process_{name}.png",
+                f"P({lower} <= {d.observes} <= {upper})", points=points, **labels)
 
 
 def _statuses(counts: dict[str, int]) -> str:
@@ -230,6 +163,11 @@ def write_outputs(ctx) -> None:
     if ctx.emulated:
         ctx.metrics["predicted_outputs"] = {k: s.to_dict() for k, s in ctx.emulated.items()}
     ctx.metrics["warnings"] = sorted(set(ctx.warnings))
+    ctx.metrics["sensitivity"] = {k: e.to_dict() for k, e in ctx.explored.items()}
+    # the axes under the inputs' names (P and v for the case study)
+    ctx.metrics["maps"] = {k: e.map.to_dict() for k, e in ctx.explored.items()
+                           if e.map is not None}
+    _sensitivity_figures(ctx)
     fig = ctx.figures
     fig["network"] = figures.network_diagram(
         [{"name": m.name, "inputs": list(m.input_names), "outputs": list(m.output_names),

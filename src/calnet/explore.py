@@ -1,0 +1,145 @@
+"""The sensitivity stage: Sobol indices of the calibrated chain and predictive maps over
+each data set's process box (method.md section 6).
+
+For every data set: first-order and total Sobol indices of the posterior predictive mean
+over its process inputs (SALib, :mod:`calnet.sensitivity`), their spread over posterior
+draws, and, for two process inputs, the predictive mean (and the probability of the
+spec's criterion) on a grid. The result is a frozen :class:`Exploration` per data set;
+the report draws and writes it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from calnet.calibration.network import NetworkPosterior, draw_index
+from calnet.parallel import map_threads
+from calnet.predict import mean_function, predict
+from calnet.sensitivity import SobolResult, SobolSpread, sobol_indices, sobol_spread
+from calnet.spec import ExperimentalData, Network
+from calnet.surrogates.network import Surrogates
+
+GRID = 30  # points along each axis of a predictive map
+
+
+@dataclass(frozen=True)
+class ProcessMap:
+    """Posterior predictive over a grid of two process inputs.
+
+    Attributes
+    ----------
+    names : (str, str)
+        The two inputs (the data set's process inputs, in order).
+    axis0, axis1 : ndarray, shape (GRID,)
+        Grid values of each input, physical units.
+    mean : ndarray, shape (GRID, GRID)
+        Predictive mean, natural scale; ``mean[i, j]`` at ``(axis0[j], axis1[i])``.
+    probability : ndarray, shape (GRID, GRID), or None
+        Posterior predictive probability that the output meets ``criterion``.
+    criterion : (float, float) or None
+        ``(lower, upper)`` of the spec's criterion for the data set.
+    """
+
+    names: tuple[str, str]
+    axis0: np.ndarray
+    axis1: np.ndarray
+    mean: np.ndarray
+    probability: np.ndarray | None = None
+    criterion: tuple[float, float] | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        out = {"inputs": list(self.names), self.names[0]: self.axis0.tolist(),
+               self.names[1]: self.axis1.tolist(), "mean": self.mean.tolist()}
+        if self.probability is not None and self.criterion is not None:
+            out.update(criterion={"lower": self.criterion[0], "upper": self.criterion[1]},
+                       probability=self.probability.tolist())
+        return out
+
+
+@dataclass(frozen=True)
+class Exploration:
+    """Sobol indices of one data set's predictive mean and its map.
+
+    Attributes
+    ----------
+    dataset : str
+    indices : SobolResult
+        Indices of the posterior predictive mean (over 50 draws) on ``box``.
+    over_draws : SobolSpread
+        Total indices of single posterior draws' means: their spread.
+    box : ndarray, shape (n_inputs, 2)
+        The process box: the data's range of each input, widened by 2 %.
+    map : ProcessMap or None
+        For two process inputs.
+    """
+
+    dataset: str
+    indices: SobolResult
+    over_draws: SobolSpread
+    box: np.ndarray
+    map: ProcessMap | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        """The ``sensitivity`` entry of metrics.json (the map is under ``maps``)."""
+        return {"indices": self.indices.to_dict(), "over_draws": self.over_draws.to_dict(),
+                "box": self.box.tolist()}
+
+
+def process_box(data: ExperimentalData) -> np.ndarray:
+    """Bounds (n_inputs, 2) of a data set's process inputs over its data (the working
+    region), widened by 2 % of the span on each side."""
+    lo, hi = data.x.min(axis=0), data.x.max(axis=0)
+    span = np.where(hi > lo, hi - lo, np.abs(hi) * 0.1 + 1e-9)
+    return np.column_stack([lo - 0.02 * span, hi + 0.02 * span])
+
+
+def explore_dataset(network: Network, surrogates: Surrogates, posterior: NetworkPosterior,
+                    data: ExperimentalData, *, seed: int = 0, quick: bool = False,
+                    progress: Callable[[str], None] | None = None) -> Exploration:
+    """Sobol indices, their spread over draws and (two process inputs) the predictive
+    map of one data set (``quick``: fewer Sobol base points and draws)."""
+    note = progress or (lambda _: None)
+    name = data.name
+    n_base = 128 if quick else 512
+    total = posterior.n_draws
+    note(f"Sobol {name}")
+    box = process_box(data)
+    names = [k.split(".")[1] for k in data.input_keys]
+    mean_of = mean_function(network, surrogates, posterior, name, draw_index(total, 50))
+    res = sobol_indices(mean_of, box, names=names, n_base=n_base, n_bootstrap=100,
+                        seed=seed)
+    per_draw = mean_function(network, surrogates, posterior, name,
+                             draw_index(total, 3 if quick else 20), per_draw=True)
+    spread = sobol_spread(per_draw, box, names=names, n_base=n_base // 2, seed=seed)
+    if data.x.shape[1] != 2:
+        return Exploration(name, res, spread, box)
+    note(f"map {name}")
+    g0, g1 = (np.linspace(box[j, 0], box[j, 1], GRID) for j in range(2))
+    mesh = np.array(np.meshgrid(g0, g1)).reshape(2, -1).T
+    crit = network.settings.criteria.get(name)
+    within = (crit.lower, crit.upper) if crit else None
+    pred = predict(network, surrogates, posterior, name, mesh, n_draws=60, seed=seed,
+                   n_samples=10, within=within)
+    prob = None if pred.prob is None else pred.prob.reshape(GRID, GRID)
+    grid = ProcessMap((names[0], names[1]), g0, g1, pred.mean.reshape(GRID, GRID), prob,
+                      within if prob is not None else None)
+    return Exploration(name, res, spread, box, grid)
+
+
+def explore(network: Network, surrogates: Surrogates, posterior: NetworkPosterior,
+            data: Mapping[str, ExperimentalData], *, seed: int = 0, quick: bool = False,
+            progress: Callable[[str], None] | None = None) -> dict[str, Exploration]:
+    """:func:`explore_dataset` for every data set, side by side (one thread per core: XLA
+    compiles each program on one core), in the order of ``data``."""
+    order = list(data)
+    done = map_threads(lambda n: explore_dataset(network, surrogates, posterior, data[n],
+                                                 seed=seed, quick=quick, progress=progress),
+                       order)
+    return dict(zip(order, done, strict=True))
+
+
+__all__ = ["GRID", "Exploration", "ProcessMap", "explore", "explore_dataset", "process_box"]
