@@ -27,9 +27,6 @@ from calnet import __version__
 from calnet.calibration.devices import configure_host_devices, enable_compilation_cache
 from calnet.errors import CalnetError, SpecError
 
-configure_host_devices(4)  # before jax is imported: chains run in parallel (pmap)
-enable_compilation_cache()  # compiled samplers and predictors reused across runs
-
 
 def _reflow(text: str | None) -> str | None:
     """Docstring paragraphs as single lines, so that help wraps them to the terminal."""
@@ -104,6 +101,8 @@ def _main(
         help="print the version and exit")] = False,
 ) -> None:
     """Bayesian calibration of networks of coupled simulation models."""
+    configure_host_devices(4)  # before jax starts: chains run in parallel (pmap)
+    enable_compilation_cache()  # compiled samplers and predictors reused across runs
 
 
 def user_errors(func: Callable[..., Any]) -> Callable[..., Any]:

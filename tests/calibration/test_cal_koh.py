@@ -17,8 +17,6 @@ from calnet.spec import load_spec, read_all
 from calnet.surrogates.gp import FittedGP, condition
 from calnet.surrogates.network import OutputSurrogate, Surrogates
 
-jax.config.update("jax_enable_x64", True)
-
 DATA = Path(__file__).parent / "data" / "koh_anchor.npz"
 # koh_anchor: u = [logit theta (7), log ell (2), log sd2, log se2] and the NumPy reference
 U_TEST = np.array([0.1, -0.3, 0.5, -1.0, 0.2, 0.7, 0.0, -0.2, 0.3, -1.5, -2.0])

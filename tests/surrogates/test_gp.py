@@ -8,8 +8,6 @@ import pytest
 from calnet.surrogates import FittedGP, condition, fit_gp, load_gp
 from calnet.surrogates.kernels import matern32
 
-jax.config.update("jax_enable_x64", True)
-
 LOWER = np.array([80.0, 0.05, 60.0, 0.25])  # physical units: (P, v, K_S, A_0)
 UPPER = np.array([250.0, 2.0, 100.0, 0.4])
 

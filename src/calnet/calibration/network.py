@@ -34,6 +34,7 @@ import numpy as np
 from calnet.calibration.diagnostics import kde_mode, summarize
 from calnet.calibration.koh import KOHDensity, KOHModel, Term, standardise
 from calnet.calibration.priors import InverseGamma, LogNormal, parameter_prior, scale_prior
+from calnet.calibration.sampling import sample_nuts
 from calnet.chain import ChainPlan
 from calnet.errors import CalibrationError, CalibrationWarning
 from calnet.progress import Lines
@@ -305,8 +306,6 @@ def key_draws(stage: StageResult) -> dict[str, np.ndarray]:
 def _sample(ld: KOHDensity, sampler: SamplerSettings, seed: int,
             progress: Callable[[str], None] | None = None):
     """NUTS on ``ld``; ``progress`` gets plain progress lines (:class:`Lines`)."""
-    from calnet.calibration.sampling import sample_nuts
-
     return sample_nuts(ld, seed=seed, num_chains=sampler.chains, num_warmup=sampler.warmup,
                        num_draws=sampler.draws, thin=sampler.thin,
                        target_accept=sampler.target_accept, chain_method=sampler.chain_method,

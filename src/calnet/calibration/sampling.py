@@ -33,21 +33,18 @@ from dataclasses import dataclass
 from functools import partial
 from typing import Any
 
+import blackjax
 import jax
+import jax.numpy as jnp
+import numpy as np
+from blackjax.adaptation.base import get_filter_adapt_info_fn
+from blackjax.mcmc import nuts
 
-jax.config.update("jax_enable_x64", True)
-
-import blackjax  # noqa: E402
-import jax.numpy as jnp  # noqa: E402
-import numpy as np  # noqa: E402
-from blackjax.adaptation.base import get_filter_adapt_info_fn  # noqa: E402
-from blackjax.mcmc import nuts  # noqa: E402
-
-from calnet.calibration.diagnostics import import_arviz  # noqa: E402
-from calnet.calibration.koh import check_initial  # noqa: E402
-from calnet.errors import CalibrationError  # noqa: E402
-from calnet.parallel import one_blas_thread  # noqa: E402
-from calnet.progress import Lines  # noqa: E402
+from calnet.calibration.diagnostics import import_arviz
+from calnet.calibration.koh import check_initial
+from calnet.errors import CalibrationError
+from calnet.parallel import one_blas_thread
+from calnet.progress import Lines
 
 __all__ = ["sample_nuts", "clear_cache", "cache_info", "CHAIN_METHODS"]
 

@@ -17,20 +17,17 @@ from functools import partial
 from pathlib import Path
 
 import jax
+import jax.numpy as jnp
+import numpy as np
 
-jax.config.update("jax_enable_x64", True)
-
-import jax.numpy as jnp  # noqa: E402
-import numpy as np  # noqa: E402
-
-from calnet.errors import SurrogateError  # noqa: E402
-from calnet.surrogates.kernels import (  # noqa: E402
+from calnet.errors import SurrogateError
+from calnet.surrogates.kernels import (
     _matern32_corr,
     matern32,
     matern32_from_sqdist,
     scaled_sqdist,
 )
-from calnet.surrogates.likelihood import neg_log_marginal_likelihood, predictive_solve  # noqa: E402
+from calnet.surrogates.likelihood import neg_log_marginal_likelihood, predictive_solve
 
 ARRAY_FIELDS = ("x_train", "alpha", "chol", "lengthscales", "signal_var", "nugget",
                 "lower", "upper", "y_mean", "y_std", "nlml")

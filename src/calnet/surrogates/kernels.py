@@ -12,10 +12,7 @@ is L2 (tinygp's ``Matern32`` defaults to L1: see koh_anchor pitfall 6).
 from __future__ import annotations
 
 import jax
-
-jax.config.update("jax_enable_x64", True)
-
-import jax.numpy as jnp  # noqa: E402
+import jax.numpy as jnp
 
 SQRT3 = 3.0**0.5
 

@@ -14,13 +14,10 @@ from __future__ import annotations
 import math
 
 import jax
+import jax.numpy as jnp
+from jax.scipy.linalg import cho_solve, solve_triangular
 
-jax.config.update("jax_enable_x64", True)
-
-import jax.numpy as jnp  # noqa: E402
-from jax.scipy.linalg import cho_solve, solve_triangular  # noqa: E402
-
-from calnet.surrogates.kernels import SQRT3, scaled_sqdist  # noqa: E402
+from calnet.surrogates.kernels import SQRT3, scaled_sqdist
 
 LOG_2PI = math.log(2.0 * math.pi)
 
