@@ -184,8 +184,8 @@ def _show_warnings(caught: list[warnings.WarningMessage]) -> None:
 @user_errors
 def check(spec: SpecArg) -> None:
     """Load and validate a spec, then print the network."""
+    from calnet.describe import describe_network
     from calnet.spec import load_spec
-    from calnet.spec.describe import describe_network
 
     network = load_spec(spec)
     describe_network(network, console)

@@ -14,7 +14,6 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import partial
-from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -261,19 +260,6 @@ class FittedGP:
         """``[log ell (d), log s2, log nugget]``, shape (d + 2,)."""
         return jnp.log(jnp.concatenate(
             [self.lengthscales, jnp.stack([self.signal_var, self.nugget])]))
-
-    def save(self, path: str | Path) -> Path:
-        """Write to ``path`` (``.npz``) plus a ``.json`` sidecar (:func:`save_gp`)."""
-        from calnet.surrogates.io import save_gp
-
-        return save_gp(self, path)
-
-    @classmethod
-    def load(cls, path: str | Path) -> FittedGP:
-        """Read a surrogate written by :meth:`save`."""
-        from calnet.surrogates.io import load_gp
-
-        return load_gp(path)
 
     # -- internals ---------------------------------------------------------------------
 
