@@ -19,12 +19,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from calnet.calibration.network import NetworkPosterior, draw_index, links_into
+from calnet.calibration.calibrate_network import NetworkPosterior, draw_index, links_into
 from calnet.chain import ChainPlan
 from calnet.errors import CalnetError
 from calnet.predict import Prediction
 from calnet.spec import Network
-from calnet.surrogates.network import Surrogates
+from calnet.surrogates.fit_network import Surrogates
 
 
 @partial(jax.jit, static_argnums=(0, 1, 2))

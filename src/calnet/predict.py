@@ -19,18 +19,18 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from calnet.calibration.koh import KOHModel
-from calnet.calibration.network import (
+from calnet.calibration.calibrate_network import (
     NetworkPosterior,
     draw_index,
     known_noise_var,
     make_term,
 )
+from calnet.calibration.koh import KOHModel
 from calnet.chain import ChainPlan
 from calnet.errors import CalnetError
 from calnet.spec import Network
 from calnet.surrogates.cv import mape_meaningful
-from calnet.surrogates.network import Surrogates
+from calnet.surrogates.fit_network import Surrogates
 
 Z95 = 1.959963984540054
 

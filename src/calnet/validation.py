@@ -8,7 +8,7 @@ import warnings
 
 import numpy as np
 
-from calnet.calibration.network import (
+from calnet.calibration.calibrate_network import (
     NetworkPosterior,
     StageResult,
     _sample,
@@ -21,7 +21,7 @@ from calnet.chain import ChainPlan
 from calnet.predict import loo_conditionals, metrics, predict
 from calnet.spec import ExperimentalData, Network
 from calnet.spec.models import SamplerSettings
-from calnet.surrogates.network import Surrogates
+from calnet.surrogates.fit_network import Surrogates
 
 
 def baselines(network: Network, train: ExperimentalData, test: ExperimentalData,
@@ -217,8 +217,8 @@ def compare_variants(network: Network, surrogates: Surrogates, posterior: Networ
     Returns ``{data set: {model name: {elpd_loo, p_loo, elpd_diff, dse, weight,
     max_pareto_k}}}`` where the spec's own model is named ``spec``.
     """
+    from calnet.calibration.calibrate_network import calibrate
     from calnet.calibration.diagnostics import import_arviz
-    from calnet.calibration.network import calibrate
     from calnet.predict import loo_conditionals
 
     az = import_arviz()
@@ -286,7 +286,7 @@ class _Refitter:
 
 
 def _noise_var(network: Network, data: ExperimentalData, i: int):
-    from calnet.calibration.network import known_noise_var
+    from calnet.calibration.calibrate_network import known_noise_var
 
     var = known_noise_var(network, data)
     return None if var is None else var[i:i + 1]

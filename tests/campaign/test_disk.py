@@ -89,7 +89,7 @@ def test_predictions_and_surrogates_on_a_full_disk(disk):
 
     from calnet.cli import _write_predictions
     from calnet.surrogates.fit import fit_gp
-    from calnet.surrogates.io import save_gp
+    from calnet.surrogates.persist import save_gp
 
     _fill(disk)
     results = [{"dataset": "d", "observes": "m.y", "inputs": ["m.x"], "x": [[1.0]],

@@ -129,7 +129,7 @@ def _one_model_campaign(folder, monkeypatch, module: str, returns: str, model: s
 
 
 def test_a_campaign_without_an_ok_run_says_how_to_run_it_again(tmp_path, monkeypatch):
-    from calnet.surrogates.network import fit_surrogates
+    from calnet.surrogates.fit_network import fit_surrogates
 
     net = _one_model_campaign(tmp_path, monkeypatch, "nan_sims", "float('nan')",
                               "campaign: {runs: 3}")

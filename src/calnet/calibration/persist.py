@@ -1,4 +1,4 @@
-"""Save and load a :class:`~calnet.calibration.network.NetworkPosterior` without pickle.
+"""Save and load a :class:`~calnet.calibration.calibrate_network.NetworkPosterior` without pickle.
 
 What prediction needs is kept: the parameter draws per model, the discrepancy and noise
 hyperparameter draws per data set, and the training data each data set was calibrated
@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from calnet.calibration.network import NetworkPosterior
+from calnet.calibration.calibrate_network import NetworkPosterior
 from calnet.errors import CalibrationError
 from calnet.spec import ExperimentalData, Network
 

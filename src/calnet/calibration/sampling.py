@@ -17,7 +17,7 @@ Any object with a hashable ``spec`` (pure ``spec.logdensity(data, u)`` and
 ``spec.constrain(data, u)``), ``data``, ``dim``, ``name``, ``init(seed, n_chains)``,
 ``sampled_vars``, ``dims`` and ``coords`` can be sampled; the network's KOH model
 (:class:`calnet.calibration.koh.KOHDensity`, built by
-:func:`calnet.calibration.network.build_koh`) is the one calnet uses.
+:func:`calnet.calibration.calibrate_network.build_koh`) is the one calnet uses.
 """
 
 from __future__ import annotations

@@ -43,7 +43,7 @@ def _sensitivity_of(ctx, name, note):
     """Sobol indices, their spread over draws and (for two process inputs) the predictive
     map of data set ``name``: ``(indices, spread, box, map)``, map ``(g0, g1, pred)`` or
     None."""
-    from calnet.calibration.network import draw_index
+    from calnet.calibration.calibrate_network import draw_index
     from calnet.predict import predict
     from calnet.sensitivity import sobol_indices, sobol_spread
 
@@ -137,8 +137,8 @@ def posterior_summary(network, post) -> dict:
     error of each (ArviZ), R-hat, ESS, divergences."""
     import arviz as az
 
+    from calnet.calibration.calibrate_network import parameter_keys
     from calnet.calibration.diagnostics import kde_mode
-    from calnet.calibration.network import parameter_keys
 
     cache: dict = {}
 

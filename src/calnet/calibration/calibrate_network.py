@@ -41,7 +41,7 @@ from calnet.progress import Lines
 from calnet.spec import ExperimentalData, Network, read_all
 from calnet.spec.models import SamplerSettings
 from calnet.spec.variables import HalfNormalPrior
-from calnet.surrogates.network import Surrogates
+from calnet.surrogates.fit_network import Surrogates
 
 
 @dataclass(frozen=True)

@@ -21,7 +21,7 @@ from calnet.spec import Network
 from calnet.surrogates.cv import CVResult, cross_validate
 from calnet.surrogates.fit import fit_gp
 from calnet.surrogates.gp import FittedGP
-from calnet.surrogates.io import load_gp, save_gp
+from calnet.surrogates.persist import load_gp, save_gp
 from calnet.surrogates.space import gp_bounds, gp_space
 
 
