@@ -241,7 +241,7 @@ def test_simulate_missing_input_is_an_error():
 
 
 def test_simulate_unknown_key_is_an_error():
-    with pytest.raises(ValueError, match="unknown keys"):
+    with pytest.raises(ValueError, match="unknown inputs"):
         m2.simulate({**WORKED, "Sigma": 1e-6})
 
 
