@@ -27,7 +27,7 @@ SRC = Path(__file__).resolve().parents[1] / "src"
 
 LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("utilities", ("calnet", "calnet._jax", "calnet.errors", "calnet.files",
-                   "calnet.parallel", "calnet.progress", "calnet.typer_app")),
+                   "calnet.parallel", "calnet.progress")),
     ("simulators", ("calnet.simulators",)),
     ("spec", ("calnet.spec",)),
     ("gp", ("calnet.surrogates.kernels", "calnet.surrogates.likelihood",

@@ -6,7 +6,8 @@ Hyperparameters travel as one unconstrained vector ``log_params`` of length ``d 
 
 with length scales in unit-cube units and both variances in standardised-output units.
 Everything here is a pure JAX function; a numerical failure (a Cholesky factor with NaN)
-gives ``+inf`` for the negative log likelihood instead of an exception (style rule 5).
+gives ``+inf`` for the negative log likelihood instead of an exception, so that inside
+jitted code an optimizer or sampler rejects the step rather than stopping.
 """
 
 from __future__ import annotations
