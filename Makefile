@@ -1,6 +1,7 @@
 # Two entry points for a fresh clone (only Python >= 3.11 and pip needed):
 #   make demo   install into .venv and run the reference case study (calnet run examples/ninb)
 #   make test   install into .venv (with test extras) and run the test suite
+#   make lint   ruff over src, tests and benchmarks (CI runs it before make test)
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
@@ -8,7 +9,7 @@ export OPENBLAS_NUM_THREADS ?= 1
 export OMP_NUM_THREADS ?= 1
 export MKL_NUM_THREADS ?= 1
 
-.PHONY: demo test install clean
+.PHONY: demo test lint install clean
 
 $(BIN)/.calnet-installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -23,6 +24,9 @@ demo: install
 
 test: install
 	$(BIN)/python -m pytest
+
+lint: install
+	$(BIN)/ruff check src tests benchmarks
 
 clean:
 	rm -rf $(VENV) out .pytest_cache

@@ -1,4 +1,4 @@
-"""Shared test configuration: single-threaded BLAS, float64 JAX, 4 host devices."""
+"""Shared test configuration: single-threaded BLAS, 4 host devices (calnet turns on 64-bit JAX)."""
 
 import os
 

@@ -34,7 +34,7 @@ def fitted_network(root: Path, *, seed: int = 1):
     (``root`` must be on ``sys.path``, see :func:`on_path`) and its GPs fitted."""
     from calnet.campaign import run_campaign
     from calnet.spec import load_spec
-    from calnet.surrogates.network import fit_surrogates
+    from calnet.surrogates.fit_network import fit_surrogates
 
     network = load_spec(root)
     for m in network.order:

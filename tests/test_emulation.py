@@ -6,12 +6,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from calnet.calibration.network import calibrate
+from calnet.calibration.calibrate_network import calibrate
 from calnet.emulation import predict_output
 from calnet.errors import CalibrationWarning, CalnetError
 from calnet.spec import Input, Link, Model, Network, Output, SimulatorRef
 from calnet.surrogates.fit import fit_gp
-from calnet.surrogates.network import OutputSurrogate, Surrogates
+from calnet.surrogates.fit_network import OutputSurrogate, Surrogates
 
 SIM = SimulatorRef(kind="python", target="toy:f")
 

@@ -17,13 +17,13 @@ import numpy as np
 import pytest
 from network_helpers import fitted_network, on_path, write_csv
 
-from calnet.calibration.network import NetworkPosterior, calibrate
+from calnet.calibration.calibrate_network import NetworkPosterior, calibrate
 from calnet.calibration.persist import save_posterior
 from calnet.campaign import run_campaign
 from calnet.errors import CalibrationWarning
 from calnet.spec import load_spec, read_all
 from calnet.spec.models import SamplerSettings
-from calnet.surrogates.network import fit_surrogates
+from calnet.surrogates.fit_network import fit_surrogates
 from calnet.verify import VerifyResult, verify
 
 SIMS = '''

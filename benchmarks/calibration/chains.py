@@ -48,9 +48,10 @@ def child(problem: str, method: str, devices: int) -> None:
 
         ld = build(load_problem())
     else:
-        from calnet.calibration.network import build_koh, parameter_keys
+        from calnet.calibration.calibrate_network import build_koh
+        from calnet.calibration.terms import parameter_keys
         from calnet.spec import load_spec, read_all
-        from calnet.surrogates.network import Surrogates
+        from calnet.surrogates.fit_network import Surrogates
 
         net = load_spec(ROOT / "examples" / "ninb")
         sur = Surrogates.load(ROOT / "out" / "ninb" / "surrogates")

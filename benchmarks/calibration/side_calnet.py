@@ -56,10 +56,10 @@ def build(P):
 
     import jax.numpy as jnp
 
-    from calnet.calibration.network import build_koh
+    from calnet.calibration.calibrate_network import build_koh
     from calnet.spec import load_spec, read_all
+    from calnet.surrogates.fit_network import OutputSurrogate, Surrogates
     from calnet.surrogates.gp import FittedGP
-    from calnet.surrogates.network import OutputSurrogate, Surrogates
 
     folder = Path(tempfile.mkdtemp())
     (folder / "network.yaml").write_text(ANCHOR_SPEC)

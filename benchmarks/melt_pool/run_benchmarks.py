@@ -26,7 +26,7 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 RESULTS = HERE / "results"
-DATA = Path("/work/shared/data/ninb_melt_pool_width.csv")
+DATA = HERE.parents[1] / "examples" / "ninb" / "data" / "ninb_melt_pool_width.csv"
 SETTINGS = [(81.0, 1.5), (152.0, 0.32), (236.0, 0.23), (90.0, 2.3), (243.0, 1.15)]
 # ninb campaign run 104: near the keyhole threshold, two steady states
 RUN_104 = {"P": 113.1, "v": 0.569, "K_S": 77.4, "K_L": 113.0, "K_Lz": 1.04, "K_V": 12.0,

@@ -21,7 +21,7 @@ import numpy as np
 
 from calnet.simulators import solidification as m2
 
-DEFAULT_DATA = Path(__file__).resolve().parents[3] / "shared" / "data" / "ninb_pdas.csv"
+DEFAULT_DATA = Path(__file__).resolve().parents[2] / "examples" / "ninb" / "data" / "ninb_pdas.csv"
 G_VALUES = (1e7, 4e6)  # K/m
 PARAMS = {"sigma": 2e-6, "M": 7.5, "p_int": 15000.0}
 

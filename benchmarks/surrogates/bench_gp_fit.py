@@ -7,7 +7,8 @@ hyperparameter bounds and a default start plus 5 random restarts. Each fit's qua
 scored with calnet's own negative log marginal likelihood (standardised outputs, unit
 cube) at that fit's hyperparameters, so the numbers are on one scale.
 
-Run with single-threaded BLAS for both libraries (koh_anchor pitfall 1)::
+Run with single-threaded BLAS for both libraries (threaded BLAS on a shared box makes
+the timings depend on the load, not on the code)::
 
     OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 MKL_NUM_THREADS=1 \
         python benchmarks/surrogates/bench_gp_fit.py --sizes 240 1000

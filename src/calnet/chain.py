@@ -16,12 +16,9 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 
 import jax
+import jax.numpy as jnp
 
-jax.config.update("jax_enable_x64", True)
-
-import jax.numpy as jnp  # noqa: E402
-
-from calnet.spec import Network  # noqa: E402
+from calnet.spec import Network
 
 Array = jax.Array
 

@@ -27,9 +27,6 @@ from calnet import __version__
 from calnet.calibration.devices import configure_host_devices, enable_compilation_cache
 from calnet.errors import CalnetError, SpecError
 
-configure_host_devices(4)  # before jax is imported: chains run in parallel (pmap)
-enable_compilation_cache()  # compiled samplers and predictors reused across runs
-
 
 def _reflow(text: str | None) -> str | None:
     """Docstring paragraphs as single lines, so that help wraps them to the terminal."""
@@ -104,6 +101,8 @@ def _main(
         help="print the version and exit")] = False,
 ) -> None:
     """Bayesian calibration of networks of coupled simulation models."""
+    configure_host_devices(4)  # before jax starts: chains run in parallel (pmap)
+    enable_compilation_cache()  # compiled samplers and predictors reused across runs
 
 
 def user_errors(func: Callable[..., Any]) -> Callable[..., Any]:
@@ -185,8 +184,8 @@ def _show_warnings(caught: list[warnings.WarningMessage]) -> None:
 @user_errors
 def check(spec: SpecArg) -> None:
     """Load and validate a spec, then print the network."""
+    from calnet.describe import describe_network
     from calnet.spec import load_spec
-    from calnet.spec.describe import describe_network
 
     network = load_spec(spec)
     describe_network(network, console)
@@ -296,7 +295,7 @@ def surrogates(
     from rich.table import Table
 
     from calnet.spec import load_spec
-    from calnet.surrogates.network import fit_surrogates
+    from calnet.surrogates.fit_network import fit_surrogates
     from calnet.surrogates.plots import parity_plot
 
     network = load_spec(spec)
@@ -338,12 +337,12 @@ def calibrate(
     """
     from rich.table import Table
 
-    from calnet.calibration.network import calibrate as run_calibration
+    from calnet.calibration.calibrate_network import calibrate as run_calibration
     from calnet.calibration.persist import save_posterior
     from calnet.report import figures
     from calnet.report.build import posterior_summary, prior_panels
     from calnet.spec import load_spec
-    from calnet.surrogates.network import Surrogates
+    from calnet.surrogates.fit_network import Surrogates
 
     network = load_spec(spec)
     sur = Surrogates.load(surrogates_dir)
@@ -404,7 +403,7 @@ def _takes(network, target: str, name: str) -> bool:
 def _predict_posterior(network, run_dir: Path):
     """The run's posterior; for a network without parameters that was never calibrated
     (``calnet surrogates`` only), the empty one."""
-    from calnet.calibration.network import uncalibrated
+    from calnet.calibration.calibrate_network import uncalibrated
     from calnet.calibration.persist import FILE, load_posterior
 
     folder = run_dir / "posterior"
@@ -449,7 +448,7 @@ def predict(
     from calnet.predict import predict as run_predict
     from calnet.predict import settings_matrix
     from calnet.spec import load_spec
-    from calnet.surrogates.network import Surrogates
+    from calnet.surrogates.fit_network import Surrogates
 
     network = load_spec(spec)
     rows = [_parse_at(a) for a in at] + (_read_points(csv) if csv else [])
@@ -566,7 +565,7 @@ def verify(
 
     from calnet.calibration.persist import load_posterior
     from calnet.spec import load_spec
-    from calnet.surrogates.network import Surrogates
+    from calnet.surrogates.fit_network import Surrogates
     from calnet.verify import Z_LIMIT
     from calnet.verify import verify as run_verify
 

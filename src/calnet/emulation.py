@@ -16,18 +16,16 @@ from dataclasses import dataclass, field
 from functools import partial
 
 import jax
+import jax.numpy as jnp
+import numpy as np
 
-jax.config.update("jax_enable_x64", True)
-
-import jax.numpy as jnp  # noqa: E402
-import numpy as np  # noqa: E402
-
-from calnet.calibration.network import NetworkPosterior, draw_index, links_into  # noqa: E402
-from calnet.chain import ChainPlan  # noqa: E402
-from calnet.errors import CalnetError  # noqa: E402
-from calnet.predict import Prediction  # noqa: E402
-from calnet.spec import Network  # noqa: E402
-from calnet.surrogates.network import Surrogates  # noqa: E402
+from calnet.calibration.calibrate_network import NetworkPosterior
+from calnet.calibration.terms import draw_index, links_into
+from calnet.chain import ChainPlan
+from calnet.errors import CalnetError
+from calnet.predict import Prediction
+from calnet.spec import Network
+from calnet.surrogates.fit_network import Surrogates
 
 
 @partial(jax.jit, static_argnums=(0, 1, 2))

@@ -16,12 +16,13 @@ from typing import Any
 
 import numpy as np
 
-from calnet.calibration.network import NetworkPosterior, draw_index
+from calnet.calibration.calibrate_network import NetworkPosterior
+from calnet.calibration.terms import draw_index
 from calnet.parallel import map_threads
 from calnet.predict import mean_function, predict
 from calnet.sensitivity import SobolResult, SobolSpread, sobol_indices, sobol_spread
 from calnet.spec import ExperimentalData, Network
-from calnet.surrogates.network import Surrogates
+from calnet.surrogates.fit_network import Surrogates
 
 GRID = 30  # points along each axis of a predictive map
 

@@ -199,7 +199,7 @@ class _Context:
         self.metrics["campaigns"] = summary
 
     def surrogates(self, note) -> None:
-        from calnet.surrogates.network import fit_surrogates
+        from calnet.surrogates.fit_network import fit_surrogates
         from calnet.surrogates.plots import parity_plot
 
         self.sur = fit_surrogates(self.network, stores=self.stores, seed=self.seed,
@@ -214,7 +214,7 @@ class _Context:
         self.metrics["surrogates"] = self.sur.summary()
 
     def calibration(self, note) -> None:
-        from calnet.calibration.network import calibrate
+        from calnet.calibration.calibrate_network import calibrate
         from calnet.validation import calibrate_variants, secondary_sampler
 
         train = {k: v.train for k, v in self.data.items()}

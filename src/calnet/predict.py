@@ -16,24 +16,17 @@ from dataclasses import dataclass, field
 from functools import partial
 
 import jax
+import jax.numpy as jnp
+import numpy as np
 
-jax.config.update("jax_enable_x64", True)
-
-import jax.numpy as jnp  # noqa: E402
-import numpy as np  # noqa: E402
-
-from calnet.calibration.koh import KOHModel  # noqa: E402
-from calnet.calibration.network import (  # noqa: E402
-    NetworkPosterior,
-    draw_index,
-    known_noise_var,
-    make_term,
-)
-from calnet.chain import ChainPlan  # noqa: E402
-from calnet.errors import CalnetError  # noqa: E402
-from calnet.spec import Network  # noqa: E402
-from calnet.surrogates.cv import mape_meaningful  # noqa: E402
-from calnet.surrogates.network import Surrogates  # noqa: E402
+from calnet.calibration.calibrate_network import NetworkPosterior
+from calnet.calibration.koh import KOHModel
+from calnet.calibration.terms import draw_index, known_noise_var, make_term
+from calnet.chain import ChainPlan
+from calnet.errors import CalnetError
+from calnet.spec import Network
+from calnet.surrogates.cv import mape_meaningful
+from calnet.surrogates.fit_network import Surrogates
 
 Z95 = 1.959963984540054
 

@@ -8,20 +8,19 @@ import warnings
 
 import numpy as np
 
-from calnet.calibration.network import (
+from calnet.calibration.calibrate_network import (
     NetworkPosterior,
     StageResult,
     _sample,
     build_koh,
-    data_scale,
-    parameter_keys,
     with_stage,
 )
+from calnet.calibration.terms import data_scale, parameter_keys
 from calnet.chain import ChainPlan
 from calnet.predict import loo_conditionals, metrics, predict
 from calnet.spec import ExperimentalData, Network
 from calnet.spec.models import SamplerSettings
-from calnet.surrogates.network import Surrogates
+from calnet.surrogates.fit_network import Surrogates
 
 
 def baselines(network: Network, train: ExperimentalData, test: ExperimentalData,
@@ -225,7 +224,7 @@ def calibrate_variants(network: Network, surrogates: Surrogates, data, variants,
     Nothing is warned: each posterior's convergence and surrogate checks are in its
     ``notes``, so this can run in a thread beside the spec's own calibration.
     """
-    from calnet.calibration.network import calibrate
+    from calnet.calibration.calibrate_network import calibrate
 
     out = {}
     for name in variants:
@@ -318,7 +317,7 @@ class _Refitter:
 
 
 def _noise_var(network: Network, data: ExperimentalData, i: int):
-    from calnet.calibration.network import known_noise_var
+    from calnet.calibration.terms import known_noise_var
 
     var = known_noise_var(network, data)
     return None if var is None else var[i:i + 1]

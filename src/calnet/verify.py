@@ -24,12 +24,12 @@ from pathlib import Path
 import jax.numpy as jnp
 import numpy as np
 
-from calnet.calibration.network import NetworkPosterior
+from calnet.calibration.calibrate_network import NetworkPosterior
 from calnet.campaign.runners import execute_run, make_simulator, run_timeout
 from calnet.chain import ChainPlan
 from calnet.errors import CalnetError
 from calnet.spec import Network
-from calnet.surrogates.network import Surrogates
+from calnet.surrogates.fit_network import Surrogates
 
 Z_LIMIT = 3.0
 

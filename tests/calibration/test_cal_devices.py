@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
+
 from calnet.calibration.devices import enable_compilation_cache
 
 
@@ -23,3 +27,25 @@ def test_compilation_cache_off_and_user_setting_wins(monkeypatch, tmp_path):
     monkeypatch.setenv("CALNET_JAX_CACHE", "")
     monkeypatch.setenv("JAX_COMPILATION_CACHE_DIR", str(tmp_path / "theirs"))
     assert enable_compilation_cache() == str(tmp_path / "theirs")
+
+
+def test_the_command_configures_host_devices_and_importing_it_does_not():
+    """Importing calnet.cli starts nothing; running a command asks XLA for 4 host devices
+    before jax starts (``calnet run`` samples its chains in parallel on them)."""
+    code = (
+        "import os, sys\n"
+        "os.environ.pop('XLA_FLAGS', None)\n"
+        "import calnet.cli\n"
+        "assert 'jax' not in sys.modules and 'XLA_FLAGS' not in os.environ\n"
+        "from typer.testing import CliRunner\n"
+        "args = ['simulate', 'solidification', '--set', 'S=0.3', '--set', 'G=1e7']\n"
+        "result = CliRunner().invoke(calnet.cli.app, args)\n"
+        "assert result.exit_code == 0, result.output\n"
+        "import jax\n"
+        "print(jax.local_device_count(), jax.numpy.ones(1).dtype)\n"
+    )
+    env = {**os.environ, "CALNET_JAX_CACHE": "off"}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         env=env, timeout=300)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == ["4", "float64"]

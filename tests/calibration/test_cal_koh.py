@@ -10,14 +10,13 @@ import pandas as pd
 import pytest
 from scipy import stats
 
+from calnet.calibration.calibrate_network import build_koh
 from calnet.calibration.koh import JITTER
-from calnet.calibration.network import build_koh, make_term
+from calnet.calibration.terms import make_term
 from calnet.chain import ChainPlan
 from calnet.spec import load_spec, read_all
+from calnet.surrogates.fit_network import OutputSurrogate, Surrogates
 from calnet.surrogates.gp import FittedGP, condition
-from calnet.surrogates.network import OutputSurrogate, Surrogates
-
-jax.config.update("jax_enable_x64", True)
 
 DATA = Path(__file__).parent / "data" / "koh_anchor.npz"
 # koh_anchor: u = [logit theta (7), log ell (2), log sd2, log se2] and the NumPy reference

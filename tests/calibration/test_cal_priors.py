@@ -39,8 +39,6 @@ from calnet.spec.variables import (
     TruncNormalPrior,
 )
 
-jax.config.update("jax_enable_x64", True)
-
 
 class _Truncated:
     """SciPy reference: ``base`` restricted to ``[lower, upper]``, logpdf - log(mass)."""

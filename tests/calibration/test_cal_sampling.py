@@ -3,7 +3,6 @@ reuse, InferenceData layout, diagnostics and their warnings."""
 
 from dataclasses import dataclass, field
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -12,8 +11,6 @@ from calnet.calibration.diagnostics import summarize
 from calnet.calibration.sampling import cache_info, sample_nuts
 from calnet.errors import CalibrationError, CalibrationWarning
 from calnet.progress import Lines
-
-jax.config.update("jax_enable_x64", True)
 
 FIXED = {"ell": 0.3, "sd2": 0.05, "se2": 0.04}
 PRIOR_SD = 1.5

@@ -44,12 +44,12 @@ import pytest
 import yaml
 from scipy import stats
 
-from calnet.calibration.network import calibrate
+from calnet.calibration.calibrate_network import calibrate
 from calnet.campaign import run_campaign
 from calnet.errors import CalibrationWarning
 from calnet.spec import load_spec
 from calnet.spec.models import SamplerSettings
-from calnet.surrogates.network import fit_surrogates
+from calnet.surrogates.fit_network import fit_surrogates
 
 SAMPLER = SamplerSettings(chains=4, warmup=500, draws=1000)
 MEAN_MCSE = 3.0  # posterior mean within 3 Monte Carlo standard errors

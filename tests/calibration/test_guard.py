@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from network_helpers import fitted_network, on_path, write_csv
 
-from calnet.calibration.network import calibrate
+from calnet.calibration.calibrate_network import calibrate
 from calnet.errors import CalibrationWarning
 from calnet.spec.models import SamplerSettings
 

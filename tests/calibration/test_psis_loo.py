@@ -16,7 +16,7 @@ import pytest
 from scipy import stats
 from test_exact_posterior import SAMPLER, build, defaults_spec, true_pq, write_case
 
-from calnet.calibration.network import calibrate
+from calnet.calibration.calibrate_network import calibrate
 from calnet.spec.models import SamplerSettings
 from calnet.validation import psis_loo
 

@@ -96,7 +96,7 @@ def test_a_simulator_ending_its_process_is_a_failed_run(tmp_path, workers):
     from calnet.campaign.store import RunStore
 
     spec = toy_spec(tmp_path, "python:toy_sims:dies", runs=12)
-    out = subprocess.run([sys.executable, "-m", "calnet.campaign", str(spec), "--workers",
+    out = subprocess.run([sys.executable, "-m", "calnet", "campaign", str(spec), "--workers",
                           str(workers), "--no-progress"], capture_output=True, text=True,
                          timeout=120)
     assert out.returncode == 0, out.stdout + out.stderr

@@ -32,12 +32,12 @@ def _finished(path) -> dict[int, float]:
 
 _WITH_SIGINT = ("import runpy, signal, sys; "
                 "signal.signal(signal.SIGINT, signal.default_int_handler); "
-                "sys.argv = ['calnet.campaign', *sys.argv[1:]]; "
-                "runpy.run_module('calnet.campaign', run_name='__main__', alter_sys=True)")
+                "sys.argv = ['calnet', *sys.argv[1:]]; "
+                "runpy.run_module('calnet', run_name='__main__', alter_sys=True)")
 
 
 def _campaign(spec, store) -> list[str]:
-    return [sys.executable, "-m", "calnet.campaign", str(spec), "--model", "toy",
+    return [sys.executable, "-m", "calnet", "campaign", str(spec), "--model", "toy",
             "--store", str(store), "--no-progress"]
 
 

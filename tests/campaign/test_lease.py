@@ -39,7 +39,7 @@ def test_two_campaigns_at_once_run_every_run_once(tmp_path, monkeypatch):
     monkeypatch.setenv("TOY_RELEASE_FILE", str(release))
     spec = toy_spec(tmp_path, "python:toy_sims:counted", runs=RUNS)
     store = tmp_path / "campaigns" / "toy.sqlite"
-    argv = [sys.executable, "-m", "calnet.campaign", str(spec), "--no-progress"]
+    argv = [sys.executable, "-m", "calnet", "campaign", str(spec), "--no-progress"]
     first = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
         deadline = time.monotonic() + 60

@@ -58,7 +58,7 @@ def _alive(processes: dict[int, str]) -> list[str]:
 def test_kill_9_leaves_no_process_running(tmp_path, simulator, options):
     timeout = 120 if isinstance(simulator, str) else None
     spec = toy_spec(tmp_path, simulator, timeout=timeout)
-    proc = subprocess.Popen([sys.executable, "-m", "calnet.campaign", str(spec),
+    proc = subprocess.Popen([sys.executable, "-m", "calnet", "campaign", str(spec),
                              "--no-progress", *options], stdout=subprocess.DEVNULL,
                             stderr=subprocess.DEVNULL)
     started: dict[int, str] = {}

@@ -152,7 +152,7 @@ def test_budget_exhausted_is_nonconverged_with_a_reason():
 
 @pytest.mark.parametrize("inputs, match", [
     ({"S": 0.3}, "missing control inputs"),
-    ({"S": 0.3, "G": 1e7, "sigmaa": 1.0}, "unknown keys"),
+    ({"S": 0.3, "G": 1e7, "sigmaa": 1.0}, "unknown inputs"),
     ({"S": -0.3, "G": 1e7}, "finite and > 0"),
     ({"S": 0.3, "G": float("nan")}, "finite and > 0"),
 ])

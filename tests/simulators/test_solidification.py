@@ -17,7 +17,7 @@ C = m2.CONSTANTS
 WORKED = {"S": 0.3, "G": 1e7, "sigma": 2e-6, "M": 7.5, "p_int": 15000.0}
 NAMES = m2.INPUTS + m2.PARAMETERS
 REFERENCE_BOX = dict(m2.BOUNDS)
-# What an M1 campaign over the experimental settings may produce (issue 4).
+# What an M1 (melt pool) campaign over the experimental settings may feed M2: wider S, G.
 WIDE_BOX = {**m2.BOUNDS, "S": (0.04, 2.4), "G": (1e5, 5e7)}
 
 
@@ -241,7 +241,7 @@ def test_simulate_missing_input_is_an_error():
 
 
 def test_simulate_unknown_key_is_an_error():
-    with pytest.raises(ValueError, match="unknown keys"):
+    with pytest.raises(ValueError, match="unknown inputs"):
         m2.simulate({**WORKED, "Sigma": 1e-6})
 
 

@@ -1,4 +1,4 @@
-"""A small valid spec written to a temporary folder, for the validation tests to break."""
+"""A small valid spec written to a temporary folder, for the spec error tests to break."""
 
 from __future__ import annotations
 

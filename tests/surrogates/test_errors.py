@@ -129,7 +129,7 @@ def _one_model_campaign(folder, monkeypatch, module: str, returns: str, model: s
 
 
 def test_a_campaign_without_an_ok_run_says_how_to_run_it_again(tmp_path, monkeypatch):
-    from calnet.surrogates.network import fit_surrogates
+    from calnet.surrogates.fit_network import fit_surrogates
 
     net = _one_model_campaign(tmp_path, monkeypatch, "nan_sims", "float('nan')",
                               "campaign: {runs: 3}")
@@ -141,7 +141,7 @@ def test_a_campaign_without_an_ok_run_says_how_to_run_it_again(tmp_path, monkeyp
 def test_caps_never_raise_the_spec_settings(tmp_path, monkeypatch):
     """``restarts``/``cv_folds`` (``calnet run --quick``) cap the spec's settings; a spec
     that asks for less work keeps its own numbers."""
-    from calnet.surrogates import network as sn
+    from calnet.surrogates import fit_network as sn
 
     net = _one_model_campaign(tmp_path, monkeypatch, "lin_sims", "1 + inputs['x']",
                               "campaign: {runs: 12}, surrogate: {cv_folds: 3, restarts: 1}")

@@ -7,8 +7,6 @@ import pytest
 
 from calnet.surrogates import matern32, neg_log_marginal_likelihood, nlml_value_and_grad
 
-jax.config.update("jax_enable_x64", True)
-
 
 def _data(n=30, d=3, seed=0):
     rng = np.random.default_rng(seed)

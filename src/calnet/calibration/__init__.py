@@ -5,7 +5,7 @@ can run before jax is imported.
 
 Typical use::
 
-    post = calibrate(network, surrogates)          # calnet.calibration.network
+    post = calibrate(network, surrogates)          # calnet.calibration.calibrate_network
     summary = summarize(post.stages[0].idata)
 """
 
@@ -14,7 +14,8 @@ from __future__ import annotations
 import importlib
 
 _EXPORTS = {
-    "calibrate": "network", "NetworkPosterior": "network", "build_koh": "network",
+    "calibrate": "calibrate_network", "NetworkPosterior": "calibrate_network",
+    "build_koh": "calibrate_network",
     "KOHModel": "koh", "KOHDensity": "koh", "Term": "koh", "check_initial": "koh",
     "Beta": "priors", "Uniform": "priors", "Normal": "priors", "TruncatedNormal": "priors",
     "LogNormal": "priors", "InverseGamma": "priors", "Prior": "priors",

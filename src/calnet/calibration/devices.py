@@ -2,8 +2,8 @@
 
 JAX on CPU shows one device unless told otherwise, and the device count is fixed when the
 backend starts: ``XLA_FLAGS=--xla_force_host_platform_device_count=N`` must be set before
-``jax`` is imported (koh_anchor README, pitfall 3). Call
-:func:`configure_host_devices` first thing in a program (the CLI does it at start-up).
+the backend starts. Call :func:`configure_host_devices` first thing in a program, before
+anything runs on jax (the ``calnet`` command does it before it runs a command).
 """
 
 from __future__ import annotations
@@ -52,7 +52,8 @@ def configure_host_devices(n: int | None = None) -> HostDevices:
     Sets ``XLA_FLAGS`` if jax is not imported yet (also inherited by subprocesses); if jax
     is imported but its backend has not started, sets ``jax_num_cpu_devices``; otherwise
     nothing can be done and the report says so (chains then run one after another).
-    4 devices for 4 chains was fastest even on 2 cores (koh_anchor README).
+    4 devices for 4 chains is fastest even on 2 cores (benchmarks/README.md,
+    "Chains on CPU").
 
     Examples
     --------

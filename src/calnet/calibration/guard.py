@@ -118,7 +118,7 @@ def _over_draws(spec: KOHModel, gps, tdata, thetas, hyper):
 def check_surrogates(network, surrogates, posterior, *, n_draws: int = 50
                      ) -> list[SurrogateCheck]:
     """:class:`SurrogateCheck` of every calibrated data set."""
-    from calnet.calibration.network import draw_index, make_term
+    from calnet.calibration.terms import draw_index, make_term
 
     plan = ChainPlan.from_network(network)
     gps = {k: s.gp for k, s in surrogates.items.items()}
@@ -163,7 +163,7 @@ BOUND_NARROW = 0.6
 def check_bounds(network, posterior) -> list[str]:
     """A message for every calibrated parameter whose posterior presses against one of
     its bounds: the data ask for values the bounds (and the campaign) exclude."""
-    from calnet.calibration.network import parameter_keys
+    from calnet.calibration.terms import parameter_keys
 
     out, seen = [], set()
     for model, draws in posterior.theta.items():

@@ -39,21 +39,18 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 
 import jax
+import jax.numpy as jnp
+import jax.scipy.linalg as jsl
+import numpy as np
 
-jax.config.update("jax_enable_x64", True)
-
-import jax.numpy as jnp  # noqa: E402
-import jax.scipy.linalg as jsl  # noqa: E402
-import numpy as np  # noqa: E402
-
-from calnet.calibration.priors import (  # noqa: E402
+from calnet.calibration.priors import (
     LogNormal,
     Prior,
     init_from_priors,
     stack_priors,
 )
-from calnet.chain import ChainPlan  # noqa: E402
-from calnet.errors import CalibrationError  # noqa: E402
+from calnet.chain import ChainPlan
+from calnet.errors import CalibrationError
 
 __all__ = ["Term", "KOHModel", "KOHDensity", "se_kernel", "mvn_logpdf_chol", "check_initial",
            "standardise", "HYPERPARAMETERS"]

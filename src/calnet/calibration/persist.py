@@ -1,4 +1,4 @@
-"""Save and load a :class:`~calnet.calibration.network.NetworkPosterior` without pickle.
+"""Save and load a :class:`~calnet.calibration.calibrate_network.NetworkPosterior` without pickle.
 
 What prediction needs is kept: the parameter draws per model, the discrepancy and noise
 hyperparameter draws per data set, and the training data each data set was calibrated
@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from calnet.calibration.calibrate_network import NetworkPosterior
 from calnet.errors import CalibrationError
 from calnet.spec import ExperimentalData, Network
 
@@ -62,8 +63,6 @@ def load_posterior(folder: str | Path, network: Network | None = None):
     ``network``, when given, is checked against it: every model and data set of the
     posterior must exist with the same number of parameters and inputs.
     """
-    from calnet.calibration.network import NetworkPosterior
-
     folder = Path(folder)
     meta_path, npz_path = folder / f"{FILE}.json", folder / f"{FILE}.npz"
     if not meta_path.is_file() or not npz_path.is_file():

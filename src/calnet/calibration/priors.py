@@ -46,17 +46,14 @@ import math
 from dataclasses import dataclass, fields
 
 import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.scipy.special import betaln, gammaln
+from scipy import stats
+from scipy.special import ndtr
+from scipy.stats import truncnorm
 
-jax.config.update("jax_enable_x64", True)
-
-import jax.numpy as jnp  # noqa: E402
-import numpy as np  # noqa: E402
-from jax.scipy.special import betaln, gammaln  # noqa: E402
-from scipy import stats  # noqa: E402
-from scipy.special import ndtr  # noqa: E402
-from scipy.stats import truncnorm  # noqa: E402
-
-from calnet.errors import CalibrationError  # noqa: E402
+from calnet.errors import CalibrationError
 
 __all__ = [
     "Prior",

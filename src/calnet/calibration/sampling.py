@@ -11,13 +11,13 @@ otherwise one after another inside one program (``sequential``) or in lock-step
 The compiled program takes the log-density's data as an *argument*: it is cached under
 the log-density's hashable ``spec``, the sampler settings and the data shapes, so that a
 second calibration with new data of the same shapes (leave-one-out folds, repeated runs)
-does not recompile (koh_anchor README, pitfall 4).
+does not recompile (a program traced again per fold would cost its compile time each time).
 
 Any object with a hashable ``spec`` (pure ``spec.logdensity(data, u)`` and
 ``spec.constrain(data, u)``), ``data``, ``dim``, ``name``, ``init(seed, n_chains)``,
 ``sampled_vars``, ``dims`` and ``coords`` can be sampled; the network's KOH model
 (:class:`calnet.calibration.koh.KOHDensity`, built by
-:func:`calnet.calibration.network.build_koh`) is the one calnet uses.
+:func:`calnet.calibration.calibrate_network.build_koh`) is the one calnet uses.
 """
 
 from __future__ import annotations
@@ -33,21 +33,18 @@ from dataclasses import dataclass
 from functools import partial
 from typing import Any
 
+import blackjax
 import jax
+import jax.numpy as jnp
+import numpy as np
+from blackjax.adaptation.base import get_filter_adapt_info_fn
+from blackjax.mcmc import nuts
 
-jax.config.update("jax_enable_x64", True)
-
-import blackjax  # noqa: E402
-import jax.numpy as jnp  # noqa: E402
-import numpy as np  # noqa: E402
-from blackjax.adaptation.base import get_filter_adapt_info_fn  # noqa: E402
-from blackjax.mcmc import nuts  # noqa: E402
-
-from calnet.calibration.diagnostics import import_arviz  # noqa: E402
-from calnet.calibration.koh import check_initial  # noqa: E402
-from calnet.errors import CalibrationError  # noqa: E402
-from calnet.parallel import one_blas_thread  # noqa: E402
-from calnet.progress import Lines  # noqa: E402
+from calnet.calibration.diagnostics import import_arviz
+from calnet.calibration.koh import check_initial
+from calnet.errors import CalibrationError
+from calnet.parallel import one_blas_thread
+from calnet.progress import Lines
 
 __all__ = ["sample_nuts", "clear_cache", "cache_info", "CHAIN_METHODS"]
 

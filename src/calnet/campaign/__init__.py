@@ -15,21 +15,20 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:  # for type checkers only; at run time the names load lazily
     from calnet.campaign.campaign import (
         CampaignSummary,
-        default_store,
         import_runs,
         run_campaign,
     )
     from calnet.campaign.design import Design, augment, latin_hypercube
     from calnet.campaign.executors import make_executor
     from calnet.campaign.runners import RunRecord, execute_run, make_simulator
-    from calnet.campaign.store import RunStore
+    from calnet.campaign.store import RunStore, default_store
     from calnet.campaign.table import RunTable, export_runs, load_runs, runs_frame
 
 _EXPORTS = {
     "CampaignSummary": "calnet.campaign.campaign",
     "run_campaign": "calnet.campaign.campaign",
     "import_runs": "calnet.campaign.campaign",
-    "default_store": "calnet.campaign.campaign",
+    "default_store": "calnet.campaign.store",
     "RunTable": "calnet.campaign.table",
     "load_runs": "calnet.campaign.table",
     "export_runs": "calnet.campaign.table",

@@ -47,6 +47,7 @@ from calnet.campaign.runners import (
 )
 from calnet.campaign.store import (
     RunStore,
+    default_store,
     describe_change,
     fingerprint_hash,
     input_hash,
@@ -114,11 +115,6 @@ class CampaignSummary:
         return "unfinished" not in self.status_counts
 
 
-def default_store(network: Network, model_name: str) -> Path:
-    """``<spec folder>/campaigns/<model>.sqlite``, the store a campaign uses by default."""
-    return network.path(Path("campaigns") / f"{model_name}.sqlite")
-
-
 def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
                  workers: int | None = None, scheduler: str | None = None,
                  store: str | Path | None = None, executor: str = "auto",
@@ -139,7 +135,7 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
     scheduler : str, optional
         Address of a running Dask scheduler (``tcp://host:8786``); implies Dask.
     store : path, optional
-        The SQLite store; default :func:`default_store`.
+        The SQLite store; default :func:`~calnet.campaign.default_store`.
     executor : {"auto", "in-process", "processes", "dask"}
         ``dask`` without ``scheduler`` starts a ``LocalCluster`` of ``workers`` workers.
     seed : int, optional
@@ -252,7 +248,7 @@ def import_runs(network: Network, model_name: str, table: str | Path, *,
         ``.csv`` or ``.parquet``: one column per input, parameter and output, an optional
         ``status`` (``ok`` where absent); see :mod:`calnet.campaign.importing`.
     store : path, optional
-        Default :func:`default_store`.
+        Default :func:`~calnet.campaign.default_store`.
     seed : int, optional
         The store's seed (default ``network.settings.seed``), checked like a campaign's.
 

@@ -36,6 +36,7 @@ from calnet.campaign.design import (
     latin_hypercube,
     to_unit,
 )
+from calnet.campaign.table import load_runs
 from calnet.errors import CampaignError, CampaignWarning, SurrogateError
 from calnet.spec.models import Model
 from calnet.spec.network import Network
@@ -127,9 +128,8 @@ def greedy_maximin(cand: np.ndarray, base: np.ndarray, n: int, *,
 def parent_surrogates(network: Network, model: Model, store: Path, *, seed: int) -> dict:
     """A quick GP (``"model.output" -> FittedGP``) of every output feeding a link into
     ``model`` or its ancestors, fitted on its model's ``ok`` runs."""
-    from calnet.campaign.table import load_runs
-    from calnet.surrogates.fit import fit_gp
-    from calnet.surrogates.network import gp_bounds, gp_space
+    from calnet.surrogates.fit import fit_gp  # jax, only for chain-aware designs
+    from calnet.surrogates.space import gp_bounds, gp_space
 
     upstream = {*network.ancestors(model.name), model.name}
     gps = {}
@@ -178,7 +178,7 @@ def linked_cloud(network: Network, model: Model, gps: dict, n: int,
     """Values of ``model``'s linked inputs, shape ``(n, n_linked)`` in declared units,
     at a Latin hypercube over the upstream free inputs and parameter boxes, propagated
     with the GP means."""
-    from calnet.chain import ChainPlan
+    from calnet.chain import ChainPlan  # jax, only for chain-aware designs
 
     free = [network.model(m).variable(v) for m, v in network.process_inputs(model.name)]
     keys = [f"{m}.{v}" for m, v in network.process_inputs(model.name)]

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from calnet.campaign.chain_design import chain_points
 from calnet.campaign.design import (
     Design,
     augment,
@@ -194,8 +195,6 @@ def _generated(db: RunStore, network: Network, model: Model, choice: DesignChoic
     extra = runs - len(have)
     source = choice.label
     if choice.kind == "chain":
-        from calnet.campaign.chain_design import chain_points
-
         design, aware = chain_points(network, model, old, extra, seed=seed, store=db.path)
         source = "chain" if aware else ("lhs" if len(have) == 0 else "maximin")
     elif len(have) == 0 and choice.kind == "lhs":

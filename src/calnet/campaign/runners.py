@@ -40,6 +40,7 @@ from typing import Any
 from calnet.campaign import reaper
 from calnet.errors import CampaignError
 from calnet.simulators.base import STATUSES, SimResult, Simulator, not_numbers
+from calnet.simulators.registry import builtin_info
 from calnet.spec.models import Model
 from calnet.spec.network import Network
 
@@ -80,8 +81,6 @@ class BuiltinRunner:
     options: dict[str, Any] = field(default_factory=dict)
 
     def __call__(self, inputs: Mapping[str, float]) -> SimResult:
-        from calnet.simulators.registry import builtin_info
-
         return builtin_info(self.name).simulate(dict(inputs), **self.options)
 
 
@@ -226,8 +225,6 @@ def make_simulator(network: Network, model: Model, *, workdir: str | Path) -> Si
     options = dict(ref.options)
     version = str(options.pop("version", ""))
     if ref.kind == "builtin":
-        from calnet.simulators.registry import builtin_info
-
         try:
             return BuiltinRunner(ref.name, builtin_info(ref.name).version, options)
         except Exception as err:

@@ -48,6 +48,7 @@ from calnet.campaign.runners import RunRecord
 from calnet.errors import CampaignError
 from calnet.files import make_folder
 from calnet.spec.models import Model
+from calnet.spec.network import Network
 
 SCHEMA_VERSION = "1"
 
@@ -72,6 +73,11 @@ CREATE TABLE IF NOT EXISTS runs (
     source TEXT
 );
 """
+
+
+def default_store(network: Network, model_name: str) -> Path:
+    """``<spec folder>/campaigns/<model>.sqlite``, the store a campaign uses by default."""
+    return network.path(Path("campaigns") / f"{model_name}.sqlite")
 
 
 def model_fingerprint(model: Model) -> dict[str, Any]:

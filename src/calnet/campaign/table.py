@@ -9,9 +9,14 @@ from typing import Any
 
 import numpy as np
 
-from calnet.campaign.campaign import default_store
 from calnet.campaign.design import design_columns
-from calnet.campaign.store import RunStore, describe_change, fingerprint_hash, model_fingerprint
+from calnet.campaign.store import (
+    RunStore,
+    default_store,
+    describe_change,
+    fingerprint_hash,
+    model_fingerprint,
+)
 from calnet.errors import CampaignError
 from calnet.files import make_folder, replacing
 from calnet.spec.network import Network

@@ -71,7 +71,7 @@ def posterior_summary(network, post) -> dict:
     import arviz as az
 
     from calnet.calibration.diagnostics import kde_mode
-    from calnet.calibration.network import parameter_keys
+    from calnet.calibration.terms import parameter_keys
 
     cache: dict = {}
 

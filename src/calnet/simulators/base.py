@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 import numbers
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal, Protocol
 
@@ -69,6 +69,38 @@ def not_numbers(values: Mapping[str, Any], where: str = "") -> str:
     return "; ".join(f"output '{k}'{where} is {_brief(v)}, expected a number"
                      for k, v in values.items()
                      if v is not None and not isinstance(v, numbers.Real))
+
+
+def check_input_names(name: str, inputs: Mapping[str, Any], required: Sequence[str],
+                      optional: Sequence[str], units: Mapping[str, str]) -> None:
+    """Refuse a key that is neither a control input nor a parameter (a typo would
+    otherwise fall back to a default silently) and a missing control input.
+
+    Parameters
+    ----------
+    name : str
+        The simulator, for the message.
+    inputs : mapping of str to value
+        What the simulator was called with.
+    required, optional : sequence of str
+        Its control inputs (all needed) and its parameters (each may be left out).
+    units : mapping of str to str
+        Units of the control inputs, named in the message.
+
+    Raises
+    ------
+    ValueError
+        ``"NAME: unknown inputs [...]; ..."`` or ``"NAME: missing control inputs [...]; ..."``.
+    """
+    unknown = sorted(set(inputs) - set(required) - set(optional))
+    if unknown:
+        raise ValueError(f"{name}: unknown inputs {unknown}; expected {list(required)} and "
+                         f"optionally {list(optional)}")
+    missing = [k for k in required if k not in inputs]
+    if missing:
+        needed = ", ".join(f"{k} ({units[k]})" if k in units else k for k in required)
+        raise ValueError(f"{name}: missing control inputs {missing}; pass {needed}, got "
+                         f"{sorted(inputs)}")
 
 
 def _brief(value: Any) -> str:

@@ -57,7 +57,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
-from calnet.simulators.base import SimResult
+from calnet.simulators.base import SimResult, check_input_names
 
 
 @dataclass(frozen=True)
@@ -312,17 +312,7 @@ def simulate(inputs: Mapping[str, float], *, variant: str = "A") -> SimResult:
         If ``S`` or ``G`` is missing, a key is unknown (a typo would otherwise silently
         fall back to a default), or ``variant`` is unknown.
     """
-    missing = [k for k in INPUTS if k not in inputs]
-    if missing:
-        raise ValueError(
-            f"{NAME}: missing control inputs {missing}; pass S (m/s) and G (K/m), "
-            f"got keys {sorted(inputs)}"
-        )
-    unknown = sorted(set(inputs) - set(INPUTS) - set(PARAMETERS))
-    if unknown:
-        raise ValueError(
-            f"{NAME}: unknown keys {unknown}; expected a subset of {INPUTS + PARAMETERS}"
-        )
+    check_input_names(NAME, inputs, INPUTS, PARAMETERS, UNITS)
     if variant not in VARIANTS:
         raise ValueError(f"variant must be one of {VARIANTS}, got {variant!r}")
     values = {k: float(inputs[k]) if k in inputs else midpoint(k) for k in INPUTS + PARAMETERS}

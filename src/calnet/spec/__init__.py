@@ -1,7 +1,7 @@
 """The network spec: variables, models, links, data sets, settings; YAML in and out."""
 
 from calnet.spec.data import ExperimentalData, read_all, read_dataset
-from calnet.spec.io import load_spec, parse_spec, resolve_spec_path
+from calnet.spec.load import load_spec, parse_spec, resolve_spec_path
 from calnet.spec.models import (
     CalibrationSettings,
     CampaignSettings,

@@ -9,9 +9,9 @@ level they are built from.
 from calnet.surrogates.cv import CVResult, cross_validate, cv_metrics, kfold_indices
 from calnet.surrogates.fit import fit_gp, validate_training_data
 from calnet.surrogates.gp import FittedGP, condition
-from calnet.surrogates.io import load_gp, save_gp
 from calnet.surrogates.kernels import matern32
 from calnet.surrogates.likelihood import neg_log_marginal_likelihood, nlml_value_and_grad
+from calnet.surrogates.persist import load_gp, save_gp
 from calnet.surrogates.plots import parity_plot
 
 __all__ = [

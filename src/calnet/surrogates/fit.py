@@ -12,16 +12,13 @@ import dataclasses
 import warnings
 
 import jax
+import jax.numpy as jnp
+import numpy as np
+from scipy.optimize import minimize
 
-jax.config.update("jax_enable_x64", True)
-
-import jax.numpy as jnp  # noqa: E402
-import numpy as np  # noqa: E402
-from scipy.optimize import minimize  # noqa: E402
-
-from calnet.errors import SurrogateError, SurrogateWarning  # noqa: E402
-from calnet.surrogates.gp import FittedGP, condition  # noqa: E402
-from calnet.surrogates.likelihood import (  # noqa: E402
+from calnet.errors import SurrogateError, SurrogateWarning
+from calnet.surrogates.gp import FittedGP, condition
+from calnet.surrogates.likelihood import (
     neg_log_marginal_likelihood,
     nlml_value_and_grad,
 )

@@ -14,23 +14,19 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import partial
-from pathlib import Path
 
 import jax
+import jax.numpy as jnp
+import numpy as np
 
-jax.config.update("jax_enable_x64", True)
-
-import jax.numpy as jnp  # noqa: E402
-import numpy as np  # noqa: E402
-
-from calnet.errors import SurrogateError  # noqa: E402
-from calnet.surrogates.kernels import (  # noqa: E402
+from calnet.errors import SurrogateError
+from calnet.surrogates.kernels import (
     _matern32_corr,
     matern32,
     matern32_from_sqdist,
     scaled_sqdist,
 )
-from calnet.surrogates.likelihood import neg_log_marginal_likelihood, predictive_solve  # noqa: E402
+from calnet.surrogates.likelihood import neg_log_marginal_likelihood, predictive_solve
 
 ARRAY_FIELDS = ("x_train", "alpha", "chol", "lengthscales", "signal_var", "nugget",
                 "lower", "upper", "y_mean", "y_std", "nlml")
@@ -264,19 +260,6 @@ class FittedGP:
         """``[log ell (d), log s2, log nugget]``, shape (d + 2,)."""
         return jnp.log(jnp.concatenate(
             [self.lengthscales, jnp.stack([self.signal_var, self.nugget])]))
-
-    def save(self, path: str | Path) -> Path:
-        """Write to ``path`` (``.npz``) plus a ``.json`` sidecar (:func:`save_gp`)."""
-        from calnet.surrogates.io import save_gp
-
-        return save_gp(self, path)
-
-    @classmethod
-    def load(cls, path: str | Path) -> FittedGP:
-        """Read a surrogate written by :meth:`save`."""
-        from calnet.surrogates.io import load_gp
-
-        return load_gp(path)
 
     # -- internals ---------------------------------------------------------------------
 

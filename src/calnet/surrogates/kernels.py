@@ -6,16 +6,14 @@ unit-cube units. The kernel is (Rasmussen and Williams 2006, eq. 4.17)::
     k(r) = s2 * (1 + sqrt(3) r) * exp(-sqrt(3) r),   r^2 = sum_d (a_d - b_d)^2 / ell_d^2
 
 which is what scikit-learn's ``ConstantKernel * Matern(nu=1.5)`` computes. The distance
-is L2 (tinygp's ``Matern32`` defaults to L1: see koh_anchor pitfall 6).
+is L2; tinygp's ``Matern32`` defaults to L1, which is another kernel (its fits and
+likelihoods differ from these).
 """
 
 from __future__ import annotations
 
 import jax
-
-jax.config.update("jax_enable_x64", True)
-
-import jax.numpy as jnp  # noqa: E402
+import jax.numpy as jnp
 
 SQRT3 = 3.0**0.5
 

@@ -6,7 +6,8 @@ Hyperparameters travel as one unconstrained vector ``log_params`` of length ``d 
 
 with length scales in unit-cube units and both variances in standardised-output units.
 Everything here is a pure JAX function; a numerical failure (a Cholesky factor with NaN)
-gives ``+inf`` for the negative log likelihood instead of an exception (style rule 5).
+gives ``+inf`` for the negative log likelihood instead of an exception, so that inside
+jitted code an optimizer or sampler rejects the step rather than stopping.
 """
 
 from __future__ import annotations
@@ -14,13 +15,10 @@ from __future__ import annotations
 import math
 
 import jax
+import jax.numpy as jnp
+from jax.scipy.linalg import cho_solve, solve_triangular
 
-jax.config.update("jax_enable_x64", True)
-
-import jax.numpy as jnp  # noqa: E402
-from jax.scipy.linalg import cho_solve, solve_triangular  # noqa: E402
-
-from calnet.surrogates.kernels import SQRT3, scaled_sqdist  # noqa: E402
+from calnet.surrogates.kernels import SQRT3, scaled_sqdist
 
 LOG_2PI = math.log(2.0 * math.pi)
 

@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from calnet.simulators.base import SimResult
+from calnet.simulators.base import SimResult, check_input_names
 from calnet.simulators.melt_pool.model import run
 from calnet.simulators.melt_pool.options import MeltPoolOptions
 
@@ -52,13 +52,7 @@ __all__ = ["BOUNDS", "INPUTS", "NAME", "OUTPUTS", "PARAMETERS", "UNITS", "VERSIO
 
 
 def _check_inputs(inputs: Mapping[str, float]) -> tuple[float, float, dict[str, float]]:
-    unknown = sorted(set(inputs) - set(INPUTS) - set(PARAMETERS))
-    if unknown:
-        raise ValueError(f"melt_pool: unknown inputs {unknown}; expected {INPUTS} and "
-                         f"optionally {PARAMETERS}")
-    missing = [k for k in INPUTS if k not in inputs]
-    if missing:
-        raise ValueError(f"melt_pool: missing control inputs {missing}; pass P (W), v (m/s)")
+    check_input_names(NAME, inputs, INPUTS, PARAMETERS, UNITS)
     values = {k: float(inputs[k]) for k in inputs}
     bad = [k for k, x in values.items() if not math.isfinite(x) or x <= 0]
     if bad:

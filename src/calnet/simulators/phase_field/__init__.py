@@ -21,7 +21,7 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
-from calnet.simulators.base import SimResult
+from calnet.simulators.base import SimResult, check_input_names
 from calnet.simulators.phase_field.options import RESOLUTIONS, PhaseFieldOptions
 from calnet.simulators.phase_field.outputs import summary
 from calnet.simulators.phase_field.solver import PhysicalParameters, run
@@ -52,13 +52,7 @@ def parameters(inputs: Mapping[str, float]) -> PhysicalParameters:
     ValueError
         On a missing input, an unknown key, or a value that is not finite and > 0.
     """
-    unknown = sorted(set(inputs) - set(INPUTS) - set(PARAMETERS))
-    if unknown:
-        raise ValueError(f"{NAME}: unknown keys {unknown}; expected {INPUTS} and optionally "
-                         f"{PARAMETERS}")
-    missing = [k for k in INPUTS if k not in inputs]
-    if missing:
-        raise ValueError(f"{NAME}: missing control inputs {missing}; pass S (m/s), G (K/m)")
+    check_input_names(NAME, inputs, INPUTS, PARAMETERS, UNITS)
     v = {k: float(inputs[k]) if k in inputs else 0.5 * sum(BOUNDS[k])
          for k in INPUTS + PARAMETERS}
     bad = {k: x for k, x in v.items() if not (math.isfinite(x) and x > 0)}

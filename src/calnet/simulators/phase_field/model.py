@@ -28,8 +28,6 @@ import jax.numpy as jnp
 
 from calnet.simulators.solidification import CONSTANTS as _M2
 
-jax.config.update("jax_enable_x64", True)
-
 _PI2 = math.pi**2
 
 

@@ -11,16 +11,12 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import jax
+import jax.numpy as jnp
+import numpy as np
 
-jax.config.update("jax_enable_x64", True)
-
-import jax.numpy as jnp  # noqa: E402
-import numpy as np  # noqa: E402
-
-from calnet.errors import SurrogateError  # noqa: E402
-from calnet.files import make_folder, replacing  # noqa: E402
-from calnet.surrogates.gp import ARRAY_FIELDS, FittedGP  # noqa: E402
+from calnet.errors import SurrogateError
+from calnet.files import make_folder, replacing
+from calnet.surrogates.gp import ARRAY_FIELDS, FittedGP
 
 FORMAT = "calnet.FittedGP"
 VERSION = 1

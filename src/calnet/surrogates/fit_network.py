@@ -12,40 +12,17 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import jax.numpy as jnp
 import numpy as np
 
 from calnet.errors import SurrogateError
 from calnet.files import make_folder, replacing
 from calnet.parallel import map_threads
-from calnet.spec import Model, Network
+from calnet.spec import Network
 from calnet.surrogates.cv import CVResult, cross_validate
 from calnet.surrogates.fit import fit_gp
 from calnet.surrogates.gp import FittedGP
-from calnet.surrogates.io import load_gp, save_gp
-
-
-def log_mask(model: Model) -> np.ndarray:
-    """Boolean mask over ``inputs + parameters``: True where the GP works in ``ln x``."""
-    return np.array([getattr(v, "scale", "linear") == "log"
-                     for v in (*model.inputs, *model.parameters)])
-
-
-def gp_space(model: Model, z):
-    """Map physical ``(..., n_inputs + n_parameters)`` values to the GP's input space."""
-    mask = log_mask(model)
-    if not mask.any():
-        return z
-    xp = jnp if not isinstance(z, np.ndarray) else np
-    return xp.where(mask, xp.log(xp.where(mask, z, 1.0)), z)
-
-
-def gp_bounds(model: Model) -> tuple[np.ndarray, np.ndarray]:
-    """Lower and upper bounds of the GP input space, shape (n_inputs + n_parameters,)."""
-    vars_ = (*model.inputs, *model.parameters)
-    lower = np.array([v.lower for v in vars_], dtype=float)
-    upper = np.array([v.upper for v in vars_], dtype=float)
-    return gp_space(model, lower), gp_space(model, upper)
+from calnet.surrogates.persist import load_gp, save_gp
+from calnet.surrogates.space import gp_bounds, gp_space
 
 
 @dataclass(frozen=True)

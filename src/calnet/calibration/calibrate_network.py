@@ -32,15 +32,19 @@ import jax.numpy as jnp
 import numpy as np
 
 from calnet.calibration.diagnostics import convergence_problems, kde_mode, summarize
-from calnet.calibration.koh import KOHDensity, KOHModel, Term, standardise
-from calnet.calibration.priors import InverseGamma, LogNormal, parameter_prior, scale_prior
+from calnet.calibration.koh import KOHDensity, KOHModel, Term
+from calnet.calibration.priors import parameter_prior
+from calnet.calibration.sampling import sample_nuts
+from calnet.calibration.terms import (
+    make_term,
+    parameter_keys,
+)
 from calnet.chain import ChainPlan
 from calnet.errors import CalibrationError, CalibrationWarning
 from calnet.progress import Lines
 from calnet.spec import ExperimentalData, Network, read_all
 from calnet.spec.models import SamplerSettings
-from calnet.spec.variables import HalfNormalPrior
-from calnet.surrogates.network import Surrogates
+from calnet.surrogates.fit_network import Surrogates
 
 
 @dataclass(frozen=True)
@@ -113,104 +117,6 @@ class NetworkPosterior:
     def calibrated(self) -> bool:
         """Whether anything was sampled against data (False without data sets)."""
         return bool(self.data)
-
-
-def draw_index(total: int, n: int) -> np.ndarray:
-    """``n`` posterior draws (at most ``total``) evenly spread over ``total``; one (index 0,
-    into no arrays) for a posterior of 0 draws: nothing was sampled, so every draw is the
-    same (a network without parameters whose noise is known and has no discrepancy)."""
-    if total == 0:
-        return np.zeros(1, dtype=int)
-    return np.linspace(0, total - 1, min(n, total)).astype(int)
-
-
-# ----------------------------------------------------------------------------- terms
-def links_into(plan: ChainPlan, model: str) -> tuple[str, ...]:
-    """``model.output`` of every surrogate whose output reaches ``model``'s inputs."""
-    out: list[str] = []
-
-    def walk(name):
-        for src in plan.model(name).sources:
-            if src[0] == "output":
-                walk(src[1])
-                out.append(src[2])
-            elif src[0] == "identity":
-                walk(src[1])
-
-    walk(model)
-    return tuple(dict.fromkeys(out))
-
-
-def data_scale(network: Network, data: ExperimentalData) -> tuple[float, float]:
-    """Mean and sd of a data set's observations on the modelled scale."""
-    return standardise(modelled(network, data))
-
-
-def modelled(network: Network, data: ExperimentalData) -> np.ndarray:
-    """Observations on the modelled scale (``ln y`` for ``transform: log``)."""
-    ds = network.dataset(data.name)
-    out = network.model(ds.observed_model).output(ds.observed_output)
-    if out.transform == "log":
-        if np.any(data.y <= 0):
-            raise CalibrationError(f"data set {data.name}: output is modelled on the log "
-                                   "scale but has values <= 0; remove them or drop "
-                                   "transform: log")
-        return np.log(data.y)
-    return np.asarray(data.y, dtype=float)
-
-
-def known_noise_var(network: Network, data: ExperimentalData) -> np.ndarray | None:
-    """Known noise variance per point on the modelled scale (``(sd / y)^2`` for log)."""
-    if data.noise_sd is None:
-        return None
-    ds = network.dataset(data.name)
-    log = network.model(ds.observed_model).output(ds.observed_output).transform == "log"
-    sd = data.noise_sd / data.y if log else data.noise_sd
-    return np.asarray(sd, dtype=float) ** 2
-
-
-def make_term(network: Network, data: ExperimentalData, *, emulator_variance: bool,
-              plan: ChainPlan, scale: tuple[float, float] | None = None) -> tuple[Term, dict]:
-    """The KOH term of a data set and its arrays.
-
-    ``scale`` (mean, sd) of the observations on the modelled scale sets the default priors
-    and the internal standardisation; pass the full data set's when calibrating on a
-    subset (leave-one-out) so that every subset shares one compiled sampler.
-    """
-    ds = network.dataset(data.name)
-    model = network.model(ds.observed_model)
-    y = modelled(network, data)
-    mean, s = scale or standardise(y)
-    noise_var = known_noise_var(network, data)
-    if ds.noise.known:
-        se2_prior = None
-    elif ds.noise.reference:
-        se2_prior = InverseGamma(2.0, s**2)
-    else:
-        se2_prior = scale_prior(ds.noise.prior or HalfNormalPrior(sigma=s))
-    disc = ds.discrepancy
-    if not disc.enabled:
-        ell_priors, sd2_prior = (), None
-    else:
-        ell = LogNormal(disc.length_scale_prior.mu, disc.length_scale_prior.sigma)
-        ell_priors = (ell,) * len(model.inputs)
-        sd2_prior = (InverseGamma(2.0, s**2) if disc.reference
-                     else scale_prior(disc.sd_prior or HalfNormalPrior(sigma=s)))
-    term = Term(data.name, model.name, ds.observes, ell_priors, sd2_prior, se2_prior,
-                orthogonal=disc.enabled and disc.orthogonal,
-                emulator_variance=emulator_variance, links=links_into(plan, model.name))
-    tdata = {"y": jnp.asarray((y - mean) / s), "y_mean": jnp.asarray(mean),
-             "y_sd": jnp.asarray(s),
-             "xp": {k: jnp.asarray(data.x[:, j]) for j, k in enumerate(data.input_keys)},
-             "noise_var": jnp.asarray(noise_var if noise_var is not None
-                                      else np.zeros(len(y)))}
-    return term, tdata
-
-
-# ----------------------------------------------------------------------------- parameters
-def parameter_keys(network: Network, model: str) -> list[str]:
-    """Keys of ``model``'s parameters in declared order (see ``Network.param_key``)."""
-    return [network.param_key(model, p.name) for p in network.model(model).parameters]
 
 
 def _parameter(network: Network, key: str):
@@ -305,8 +211,6 @@ def key_draws(stage: StageResult) -> dict[str, np.ndarray]:
 def _sample(ld: KOHDensity, sampler: SamplerSettings, seed: int,
             progress: Callable[[str], None] | None = None):
     """NUTS on ``ld``; ``progress`` gets plain progress lines (:class:`Lines`)."""
-    from calnet.calibration.sampling import sample_nuts
-
     return sample_nuts(ld, seed=seed, num_chains=sampler.chains, num_warmup=sampler.warmup,
                        num_draws=sampler.draws, thin=sampler.thin,
                        target_accept=sampler.target_accept, chain_method=sampler.chain_method,

@@ -12,6 +12,8 @@ import yaml
 from pydantic import BaseModel, ValidationError
 
 from calnet.errors import CalnetError, SpecError, SpecWarning
+from calnet.simulators.registry import builtin_info, builtin_names
+from calnet.spec.data import read_all
 from calnet.spec.network import Network, norm_unit
 
 SPEC_FILENAME = "network.yaml"
@@ -56,8 +58,6 @@ def load_spec(spec: str | Path, *, read_data: bool = True) -> Network:
     network = parse_spec(raw, root=path.parent, source=str(path))
     check_simulators(network)
     if read_data:
-        from calnet.spec.data import read_all
-
         read_all(network)
     return network
 
@@ -207,8 +207,6 @@ def _element_model(cls: type[BaseModel] | None) -> type[BaseModel] | None:
 
 def check_simulators(network: Network) -> None:
     """Check that built-in simulators know every declared input, parameter and output."""
-    from calnet.simulators.registry import builtin_info, builtin_names
-
     for model in network.models:
         sim = model.simulator
         if sim.kind != "builtin":

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 from network_helpers import fitted_network, on_path, write_csv
 
-from calnet.calibration.network import calibrate
+from calnet.calibration.calibrate_network import calibrate
 from calnet.calibration.persist import load_posterior, save_posterior
 from calnet.errors import CalibrationError, CalibrationWarning
 from calnet.spec import load_spec, read_all

@@ -1,11 +1,18 @@
-"""A readable rendering of a network for ``calnet check``."""
+"""A readable rendering of a network for ``calnet check``, with the problems that would
+make every run of a model fail (a simulator that cannot be imported or reached)."""
 
 from __future__ import annotations
+
+import shutil
+from pathlib import Path
 
 from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
+from calnet.campaign.runners import load_callable, resolve_program
+from calnet.errors import CampaignError
+from calnet.spec.data import read_dataset
 from calnet.spec.network import Network
 
 
@@ -40,8 +47,6 @@ def describe_network(network: Network, console: Console) -> None:
                       f"{predicted}")
     if network.data:
         console.print("[bold]data sets[/]")
-        from calnet.spec.data import read_dataset
-
         for ds in network.data:
             data = read_dataset(network, ds)
             console.print(f"  {ds.name}: {ds.path} observes {ds.observes}; "
@@ -63,11 +68,6 @@ def simulator_problem(network: Network, model: str) -> str | None:
     running it: a Python target that cannot be imported, a command not found, a UM-Bridge
     server that does not answer or does not serve the model. (Workers of
     a remote Dask cluster may see other modules and programs, so this is a warning.)"""
-    import shutil
-    from pathlib import Path
-
-    from calnet.campaign.runners import CampaignError, load_callable, resolve_program
-
     sim = network.model(model).simulator
     if sim.kind == "python":
         try:
