@@ -296,19 +296,17 @@ def surrogates(
 
     from calnet.spec import load_spec
     from calnet.surrogates.fit_network import fit_surrogates
-    from calnet.surrogates.plots import parity_plot
+    from calnet.surrogates.plots import parity_plots
 
     network = load_spec(spec)
     out.mkdir(parents=True, exist_ok=True)  # a bad --out fails now, not after the fits
     with _working("fitting surrogates") as note:
         sur = fit_surrogates(network, cv=not no_cv, progress=note)
     sur.save(out)
+    parity_plots(network, sur, out)
     table = Table("output", "runs", "excluded", "k", "MAPE %", "RMSE", "95% coverage")
     for key, s in sur.items.items():
         cv = s.cv.metrics() if s.cv else {}
-        if s.cv:
-            parity_plot(s.cv, Path(out) / f"cv_{key}.png",
-                        units=network.model(s.model).output(s.output).unit)
         table.add_row(key, str(s.n_runs), str(s.n_excluded), str(cv.get("k", "-")),
                       *(f"{cv[k]:.4g}" if k in cv else "-" for k in ("mape", "rmse",
                                                                       "coverage95")))
@@ -339,8 +337,8 @@ def calibrate(
 
     from calnet.calibration.calibrate_network import calibrate as run_calibration
     from calnet.calibration.persist import save_posterior
-    from calnet.report import figures
-    from calnet.report.build import posterior_summary, prior_panels
+    from calnet.calibration.summary import posterior_summary
+    from calnet.report.build import posterior_figures
     from calnet.spec import load_spec
     from calnet.surrogates.fit_network import Surrogates
 
@@ -379,9 +377,7 @@ def calibrate(
                           f"{r['mean']:.4g}", f"[{r['q2.5']:.4g}, {r['q97.5']:.4g}]",
                           r["unit"], f"{r.get('rhat', float('nan')):.3f}",
                           f"{r.get('ess_bulk', float('nan')):.0f}")
-        figures.prior_posterior_grid(prior_panels(network, post, model, s),
-                                     out / f"posterior_{model}.png",
-                                     title=f"{model}: prior vs posterior")
+    posterior_figures(network, post, summary, out)
     console.print(table)
     for model, s in summary.items():
         if not s.get("prior_only") and s["divergences"]:

@@ -174,6 +174,7 @@ class _Context:
         self.emulated: dict = {}  # settings.predict outputs, from the prediction stage
         self.variants: dict = {}  # settings.compare: {variant: (network, posterior)}
         self.explored: dict = {}  # data set -> calnet.explore.Exploration
+        self.summary: dict = {}  # model -> calnet.calibration.summary.posterior_summary
         self.sampler = (_quick_sampler(network.settings.sampler) if quick
                         else network.settings.sampler)
 
@@ -200,17 +201,14 @@ class _Context:
 
     def surrogates(self, note) -> None:
         from calnet.surrogates.fit_network import fit_surrogates
-        from calnet.surrogates.plots import parity_plot
+        from calnet.surrogates.plots import parity_plots
 
         self.sur = fit_surrogates(self.network, stores=self.stores, seed=self.seed,
                                   restarts=2 if self.quick else None,
                                   cv_folds=5 if self.quick else None, progress=note)
         self.sur.save(self.out / "surrogates")
-        for key, s in self.sur.items.items():
-            if s.cv is not None:
-                unit = self.network.model(s.model).output(s.output).unit
-                self.figures[f"cv {key}"] = parity_plot(
-                    s.cv, self.out / "figures" / f"cv_{key}.png", units=unit)
+        self.figures.update({f"cv {key}": path for key, path in
+                             parity_plots(self.network, self.sur, self.out / "figures").items()})
         self.metrics["surrogates"] = self.sur.summary()
 
     def calibration(self, note) -> None:
@@ -231,8 +229,10 @@ class _Context:
                                   sampler=self.sampler, progress=note)
             self.variants = beside.result()
         from calnet.calibration.persist import save_posterior
+        from calnet.calibration.summary import posterior_summary
 
         save_posterior(self.post, self.out / "posterior")  # stage netCDFs + what predict needs
+        self.summary = posterior_summary(self.network, self.post)
 
     def prediction(self, note) -> None:
         from calnet.emulation import output_slices

@@ -236,7 +236,7 @@ def test_segmented_plugs_prior_draws_of_an_upstream_model_without_data(indep, pl
 def test_stage_timings_reach_the_posterior_not_its_summary(both, indep):
     """Timings are in the posterior (and run_info.json), not in the summary that goes to
     metrics.json, which is the same for the same seed."""
-    from calnet.report.build import posterior_summary
+    from calnet.calibration.summary import posterior_summary
 
     seg = both[0]
     assert set(seg.timings) == {"stage_up", "stage_down"}

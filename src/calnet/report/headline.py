@@ -47,7 +47,7 @@ def headline(metrics: Mapping[str, Any], summary: Mapping[str, Any], *,
         ``validation`` (per data set: test, leave-one-out and baseline errors) and
         ``warnings`` (every warning of the run).
     summary : dict
-        :func:`calnet.report.build.posterior_summary`.
+        :func:`calnet.calibration.summary.posterior_summary`.
     units : dict, optional
         ``{data set: unit of its observed output}``, for the RMSE column.
     warnings_section : int, optional

@@ -45,7 +45,7 @@ def write_posterior_csv(folder: str | Path, theta: Mapping[str, np.ndarray],
     theta : dict of model -> array, shape (n_draws, n_parameters)
         The network's parameter draws (``NetworkPosterior.theta``).
     summary : dict
-        :func:`calnet.report.build.posterior_summary`; its parameter order is the
+        :func:`calnet.calibration.summary.posterior_summary`; its parameter order is the
         columns' order of ``theta``.
 
     Returns

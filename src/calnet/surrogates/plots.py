@@ -76,3 +76,11 @@ def parity_plot(
     with replacing(path) as tmp:
         fig.savefig(tmp, dpi=dpi)
     return path
+
+
+def parity_plots(network, surrogates, folder: str | Path) -> dict[str, Path]:
+    """:func:`parity_plot` of every cross-validated surrogate, ``folder/cv_<model.output>.png``
+    with the output's unit: ``{model.output: path}``."""
+    return {key: parity_plot(s.cv, Path(folder) / f"cv_{key}.png",
+                             units=network.model(s.model).output(s.output).unit)
+            for key, s in surrogates.items.items() if s.cv is not None}
