@@ -65,6 +65,7 @@ class PhaseFieldOptions:
     window: int = 12
     min_travel: float = 1.0
     coupling: str = "profile"
+    antitrapping: float = 0.5
     start: str = "solidus"
 
     def __post_init__(self) -> None:
@@ -98,7 +99,7 @@ class PhaseFieldOptions:
             raise ValueError(f"unknown phase_field options {unknown}; expected some of "
                              f"{sorted(known)}")
         ints = {"nx", "ny", "max_steps", "seed", "window"}
-        floats = {"dx", "amplitude", "front_row", "chunk_cells", "min_travel"}
+        floats = {"antitrapping", "dx", "amplitude", "front_row", "chunk_cells", "min_travel"}
         conv = {k: int(v) if k in ints else float(v) if k in floats else v
                 for k, v in kwargs.items()}
         return cls(**conv)
