@@ -8,6 +8,7 @@ planar   flat front in a 1-cell-wide strip: k_V and undercooling against Aziz's 
 perm     flat front at p_int 1500, 5000 and 15000: does the permeability set the trapping?
 scaling  spacing against G (factor 4) and S (factor 4): log-log slopes
 grid     flat front (1-cell strip) at 5, 2.5 and 1.25 nm cells: k_V and undercooling
+converge flat front at 0.3 m/s down to 0.625 nm cells, p_int 1500 and 15000
 grid2d   spacing, k_V and undercooling at resolution default (5 nm) and fine (2.5 nm),
          the same 1.92 x 0.64 um domain
 compare  phase_field against the closed-form ``solidification`` over the ninb box
@@ -115,6 +116,19 @@ def grid() -> None:
                   f"{rec.steps} | {rec.status} |", flush=True)
 
 
+def converge() -> None:
+    print("| p_int (cm^3/(J s)) | dx (nm) | k_V | k_V Aziz (A) | diff | dT (K) | status | "
+          "wall (s) |\n|---|---|---|---|---|---|---|---|")
+    for p_int in (1500.0, 15000.0):
+        for dx in (2.5e-9, 1.25e-9, 0.625e-9):
+            t0 = time.perf_counter()
+            s, rec, a = _flat(0.3, p_int, dx=dx, ny=int(round(128 * 5e-9 / dx)),
+                              max_steps=int(80000 * (5e-9 / dx) ** 2), min_travel=2.0)
+            print(f"| {p_int:g} | {dx * 1e9:g} | {s['k_V']:.4f} | {a:.4f} | "
+                  f"{s['k_V'] / a - 1:+.1%} | {s['undercooling']:.2f} | {rec.status} | "
+                  f"{time.perf_counter() - t0:.0f} |", flush=True)
+
+
 def grid2d() -> None:
     rows = [_pf(0.3, 1e7), _pf(0.3, 1e7, resolution="fine")]
     _table(rows)
@@ -136,6 +150,7 @@ def compare() -> None:
 
 
 if __name__ == "__main__":
-    for name in sys.argv[1:] or ["planar", "perm", "grid", "scaling", "compare", "grid2d"]:
+    for name in sys.argv[1:] or ["planar", "perm", "grid", "converge", "scaling", "compare",
+                                 "grid2d"]:
         print(f"\n### {name}\n", flush=True)
         globals()[name]()
