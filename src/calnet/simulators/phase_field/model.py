@@ -173,6 +173,20 @@ def antitrapping_divergence(phi, rate, xs, xl, coefficient: float, dx: float,
     cells, the normal component of ``grad(phi)`` is the difference across the face and
     the tangential one the mean of the two cells' central differences. Periodic in x,
     no flux through the top and bottom.
+
+    Across a steady planar front ``integral j_at / (D_l (1 - phi)) dz`` is
+    ``a eta V (1 - k_e) x_l / D_l`` for any monotone profile, and the diffuse interface's
+    own excess of ``x_l`` between ``phi = 1/2`` and the solid edge is
+    ``(1 - k_e) V eta x_l / (2 D_l)`` to first order, so ``a = 1/2`` cancels it.
+
+    Parameters
+    ----------
+    phi, rate, xs, xl : jax.Array, shape (ny, nx)
+        Solid fraction, its rate of change (1/s) and the phase concentrations.
+    coefficient : float
+        ``a``.
+    dx : float
+        Grid spacing, m.
     """
     g = (xl - xs) * (1.0 - phi) * rate
     xp, xm, yp, ym = neighbours(phi)
@@ -202,6 +216,11 @@ def step(phi, xs, xl, T, sigma, mobility, permeability, dt, dx, c: PhaseFieldCon
 
         dx_s/dt = div(phi D_s grad x_s)/phi + P (1 - phi)(mu_l - mu_s) + phi_t (x_l - x_s)
         dx_l/dt = div((1-phi) D_l grad x_l)/(1-phi) + P phi (mu_s - mu_l) + phi_t (x_l - x_s)
+
+    With ``antitrapping`` (the coefficient ``a``, 0 for none) the mixture also gains
+    ``-div(j_at)`` (:func:`antitrapping_divergence`, with the new ``phi`` and its rate),
+    shared between ``x_s`` and ``x_l`` in their local ratio so that the exchange term is
+    not disturbed and the mixture stays conserved.
 
     In pure bulk cells the absent phase is kept at its equilibrium partner
     (``x_s = k_e x_l`` in the liquid, ``x_l = x_s / k_e`` in the solid).
