@@ -15,6 +15,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from calnet.simulators import phase_field  # noqa: E402
+from calnet.simulators.phase_field.outputs import front_heights  # noqa: E402
 from calnet.simulators.phase_field.solver import run  # noqa: E402
 
 
@@ -38,6 +39,15 @@ def main(out: str) -> None:
                  f"{last.mode} cells, lambda {last.wavelength * 1e6:.3f} um", fontsize=9)
     fig.savefig(out, dpi=110)
     print(out, rec.status, rec.steps, f"{rec.wall_seconds:.0f} s", float(np.max(mix)))
+    # count the cells where the tip-height measure does not: phi along rows behind the tip
+    tip = float(np.max(front_heights(f["phi"], f["y"])))
+    for depth in (40e-9, 80e-9):
+        row = f["phi"][int(np.searchsorted(f["y"], tip - depth))]
+        spec = np.abs(np.fft.rfft(row - row.mean()))
+        groove = row < 0.9
+        starts = int(np.sum(groove & ~np.roll(groove, 1)))
+        print(f"{depth * 1e9:.0f} nm behind the tip: dominant mode of phi "
+              f"{int(np.argmax(spec[1:]) + 1)}, grooves {starts}")
 
 
 if __name__ == "__main__":
