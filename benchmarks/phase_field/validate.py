@@ -3,9 +3,12 @@
     PYTHONPATH=src nice -n 10 python benchmarks/phase_field/validate.py [SECTION ...]
 
 planar   flat front in a 1-cell-wide strip: k_V and undercooling against Aziz's continuous
-         growth model (V_D = P eta f''/8 as in ``solidification``, and its variant B)
+         growth model (V_D = P eta f''/8 as in ``solidification``), with and without the
+         anti-trapping current
+perm     flat front at p_int 1500, 5000 and 15000: does the permeability set the trapping?
 scaling  spacing against G (factor 4) and S (factor 4): log-log slopes
 grid     flat front (1-cell strip) at 5, 2.5 and 1.25 nm cells: k_V and undercooling
+converge flat front at 0.3 m/s down to 0.625 nm cells, p_int 1500 and 15000
 grid2d   spacing, k_V and undercooling at resolution default (5 nm) and fine (2.5 nm),
          the same 1.92 x 0.64 um domain
 compare  phase_field against the closed-form ``solidification`` over the ninb box
@@ -37,20 +40,47 @@ def _pf(S, G, **opts):
             "wall": time.perf_counter() - t0}
 
 
+def _flat(S, p_int=PARAMS["p_int"], **opts):
+    """A flat front in a 1-cell strip; returns the summary, the run and Aziz (A)."""
+    kw = {"nx": 1, "ny": 128, "amplitude": 0.0, "max_steps": 80000, "window": 24,
+          "min_travel": 8.0, **opts}
+    opts = phase_field.PhaseFieldOptions(**kw)
+    par = {**PARAMS, "p_int": p_int}
+    rec = run(phase_field.parameters({"S": S, "G": 1e7, **par}), opts)
+    a = float(solidification.simulate_batch(S, 1e7, **par, variant="A")["k_V"])
+    return summary(rec.history, opts.window), rec, a
+
+
+def _max_mixture_partition(rec) -> float:
+    """x_s behind the front over the highest mixture concentration (the other reading)."""
+    phi, xs, xl = (rec.fields[k][:, 0] for k in ("phi", "xs", "xl"))
+    j = int(np.nonzero(phi >= 0.999)[0][-1])
+    return float(xs[j] / (phi * xs + (1 - phi) * xl)[j:].max())
+
+
 def planar() -> None:
-    print("| S (m/s) | k_V PF | k_V Aziz (A) | diff | k_V Aziz (B) | diff | dT PF (K) | steps "
-          "| wall (s) |\n|---|---|---|---|---|---|---|---|---|")
+    print("| S (m/s) | k_V PF | k_V Aziz (A) | diff | k_V max-mixture | diff | dT PF (K) "
+          "| speed (m/s) | steps | k_V no AT | diff | wall (s) |\n"
+          "|---|---|---|---|---|---|---|---|---|---|---|---|")
     for S in (0.05, 0.1, 0.2, 0.3, 0.6, 1.0):
-        opts = phase_field.PhaseFieldOptions(nx=1, ny=128, amplitude=0.0, max_steps=80000,
-                                             window=24, min_travel=2.0)
         t0 = time.perf_counter()
-        rec = run(phase_field.parameters({"S": S, "G": 1e7, **PARAMS}), opts)
-        s = summary(rec.history, opts.window)
-        a = solidification.simulate_batch(S, 1e7, **PARAMS, variant="A")["k_V"]
-        b = solidification.simulate_batch(S, 1e7, **PARAMS, variant="B")["k_V"]
-        print(f"| {S} | {s['k_V']:.3f} | {a:.3f} | {s['k_V'] / a - 1:+.1%} | {b:.3f} | "
-              f"{s['k_V'] / b - 1:+.1%} | {s['undercooling']:.2f} | {rec.steps} "
-              f"({rec.status}) | {time.perf_counter() - t0:.1f} |", flush=True)
+        s, rec, a = _flat(S)
+        km = _max_mixture_partition(rec)
+        s0, rec0, _ = _flat(S, antitrapping=0.0)
+        print(f"| {S} | {s['k_V']:.3f} | {a:.3f} | {s['k_V'] / a - 1:+.1%} | {km:.3f} | "
+              f"{km / a - 1:+.1%} | {s['undercooling']:.2f} | {s['tip_speed']:.3f} | "
+              f"{rec.steps} ({rec.status}) | {s0['k_V']:.3f} ({rec0.status}) | "
+              f"{s0['k_V'] / a - 1:+.1%} | {time.perf_counter() - t0:.1f} |", flush=True)
+
+
+def perm() -> None:
+    print("| p_int (cm^3/(J s)) | S (m/s) | k_V PF | k_V Aziz (A) | diff | dT PF (K) | status |"
+          "\n|---|---|---|---|---|---|---|")
+    for p_int in (1500.0, 5000.0, 15000.0):
+        for S in (0.1, 0.3, 1.0):
+            s, rec, a = _flat(S, p_int)
+            print(f"| {p_int:g} | {S} | {s['k_V']:.3f} | {a:.3f} | {s['k_V'] / a - 1:+.1%} | "
+                  f"{s['undercooling']:.2f} | {rec.status} |", flush=True)
 
 
 def _table(rows) -> None:
@@ -67,8 +97,7 @@ def _slope(x, y) -> float:
 
 
 def scaling() -> None:
-    # S = 0.1 m/s: at 0.3 m/s the default-parameter front is a 4 nm modulation, no cells
-    rows = [_pf(0.1, G) for G in (5e6, 1e7, 2e7)] + [_pf(S, 1e7) for S in (0.05, 0.2)]
+    rows = [_pf(0.3, G) for G in (5e6, 1e7, 2e7)] + [_pf(S, 1e7) for S in (0.15, 0.6)]
     _table(rows)
     g_rows, s_rows = rows[:3], [rows[3], rows[1], rows[4]]
     sg = _slope([r["G"] for r in g_rows], [r["lambda"] for r in g_rows])
@@ -78,19 +107,30 @@ def scaling() -> None:
 
 
 def grid() -> None:
-    print("| dx (nm) | k_V | dT (K) | steps | status |\n|---|---|---|---|---|")
-    for dx in (5e-9, 2.5e-9, 1.25e-9):
-        opts = phase_field.PhaseFieldOptions(nx=1, ny=int(round(128 * 5e-9 / dx)), dx=dx,
-                                             amplitude=0.0, max_steps=400000, window=24,
-                                             min_travel=2.0)
-        rec = run(phase_field.parameters({"S": 0.3, "G": 1e7, **PARAMS}), opts)
-        s = summary(rec.history, opts.window)
-        print(f"| {dx * 1e9:g} | {s['k_V']:.4f} | {s['undercooling']:.3f} | {rec.steps} | "
-              f"{rec.status} |", flush=True)
+    print("| S (m/s) | dx (nm) | k_V | dT (K) | steps | status |\n|---|---|---|---|---|---|")
+    for S in (0.3, 1.0):
+        for dx in (5e-9, 2.5e-9, 1.25e-9):
+            s, rec, _ = _flat(S, dx=dx, ny=int(round(128 * 5e-9 / dx)),
+                              max_steps=int(80000 * (5e-9 / dx) ** 2))
+            print(f"| {S} | {dx * 1e9:g} | {s['k_V']:.4f} | {s['undercooling']:.3f} | "
+                  f"{rec.steps} | {rec.status} |", flush=True)
+
+
+def converge() -> None:
+    print("| p_int (cm^3/(J s)) | dx (nm) | k_V | k_V Aziz (A) | diff | dT (K) | status | "
+          "wall (s) |\n|---|---|---|---|---|---|---|---|")
+    for p_int in (1500.0, 15000.0):
+        for dx in (2.5e-9, 1.25e-9, 0.625e-9):
+            t0 = time.perf_counter()
+            s, rec, a = _flat(0.3, p_int, dx=dx, ny=int(round(128 * 5e-9 / dx)),
+                              max_steps=int(80000 * (5e-9 / dx) ** 2), min_travel=2.0)
+            print(f"| {p_int:g} | {dx * 1e9:g} | {s['k_V']:.4f} | {a:.4f} | "
+                  f"{s['k_V'] / a - 1:+.1%} | {s['undercooling']:.2f} | {rec.status} | "
+                  f"{time.perf_counter() - t0:.0f} |", flush=True)
 
 
 def grid2d() -> None:
-    rows = [_pf(0.1, 1e7), _pf(0.1, 1e7, resolution="fine")]
+    rows = [_pf(0.3, 1e7), _pf(0.3, 1e7, resolution="fine")]
     _table(rows)
 
 
@@ -110,6 +150,7 @@ def compare() -> None:
 
 
 if __name__ == "__main__":
-    for name in sys.argv[1:] or ["planar", "grid", "scaling", "compare", "grid2d"]:
+    for name in sys.argv[1:] or ["planar", "perm", "grid", "converge", "scaling", "compare",
+                                 "grid2d"]:
         print(f"\n### {name}\n", flush=True)
         globals()[name]()

@@ -29,7 +29,7 @@ from calnet.simulators.solidification import BOUNDS as _M2_BOUNDS
 from calnet.simulators.solidification import TO_SI
 
 NAME = "phase_field"
-VERSION = "0.1.0"
+VERSION = "0.2.0"
 INPUTS: tuple[str, ...] = ("S", "G")
 PARAMETERS: tuple[str, ...] = ("sigma", "M", "p_int")
 OUTPUTS: tuple[str, ...] = ("lambda", "k_V", "undercooling", "amplitude", "steady")

@@ -48,6 +48,11 @@ class PhaseFieldOptions:
     coupling : {"profile", "constant"}, default "profile"
         How the driving force enters the phase-field equation
         (:func:`calnet.simulators.phase_field.model.phase_rate`).
+    antitrapping : float, default 0.5
+        Coefficient ``a`` of the anti-trapping current
+        (:func:`calnet.simulators.phase_field.model.antitrapping_divergence`); 0.5 cancels
+        the diffuse interface's own solute trapping to first order in ``V eta / D_l``, 0
+        gives the reference's equations as written (docs/physics.md).
     min_travel : float, default 1.0
         Minimum isotherm travel before a steady state is accepted, in units of the
         freezing-range length ``dT0 / G``.
@@ -65,6 +70,7 @@ class PhaseFieldOptions:
     window: int = 12
     min_travel: float = 1.0
     coupling: str = "profile"
+    antitrapping: float = 0.5
     start: str = "solidus"
 
     def __post_init__(self) -> None:
@@ -84,6 +90,8 @@ class PhaseFieldOptions:
             raise ValueError(f"start must be 'solidus' or 'equilibrium', got {self.start!r}")
         if self.coupling not in ("profile", "constant"):
             raise ValueError(f"coupling must be 'profile' or 'constant', got {self.coupling!r}")
+        if not (0.0 <= self.antitrapping <= 2.0):
+            raise ValueError(f"antitrapping must be in [0, 2], got {self.antitrapping}")
         if not 0.3 <= self.front_row <= 0.9:
             raise ValueError(f"front_row must be in [0.3, 0.9], got {self.front_row}")
         if self.window < 3 or self.chunk_cells <= 0 or self.amplitude < 0:
@@ -98,7 +106,7 @@ class PhaseFieldOptions:
             raise ValueError(f"unknown phase_field options {unknown}; expected some of "
                              f"{sorted(known)}")
         ints = {"nx", "ny", "max_steps", "seed", "window"}
-        floats = {"dx", "amplitude", "front_row", "chunk_cells", "min_travel"}
+        floats = {"antitrapping", "dx", "amplitude", "front_row", "chunk_cells", "min_travel"}
         conv = {k: int(v) if k in ints else float(v) if k in floats else v
                 for k, v in kwargs.items()}
         return cls(**conv)

@@ -30,7 +30,7 @@ class FrontState:
         ``T0 - T(tip)``: the tip's temperature below the liquidus of ``c0``, K.
     k_V : float
         Partition at the tip: ``x_s`` of the solid just formed behind the tip divided by
-        the highest mixture concentration ``phi x_s + (1 - phi) x_l`` in the tip column.
+        the liquid-phase concentration ``x_l`` at the tip's ``phi = 1/2`` crossing.
     mode : int
         Dominant Fourier mode of the front height ``h(x)`` (number of cells across the
         domain); 0 when the front is flat (amplitude below one grid cell).
@@ -103,13 +103,17 @@ def measure(phi: np.ndarray, xs: np.ndarray, xl: np.ndarray, *, y: np.ndarray, t
 
 
 def _tip_partition(phi: np.ndarray, xs: np.ndarray, xl: np.ndarray) -> float:
-    """``x_s`` (just-solid cell below the tip) over the peak mixture concentration."""
+    """``x_s`` of the just-solid cell below the tip over ``x_l`` at the tip's ``phi = 1/2``
+    crossing (linear interpolation, as in :func:`front_heights`): the liquid-phase
+    concentration where the sharp interface sits. NaN without solid or a crossing."""
     solid = np.nonzero(phi >= _SOLID)[0]
-    if solid.size == 0:
+    half = np.nonzero(phi >= 0.5)[0]
+    if solid.size == 0 or half[-1] + 1 >= phi.size:
         return math.nan
-    j = int(solid[-1])
-    mix = phi[j:] * xs[j:] + (1.0 - phi[j:]) * xl[j:]
-    return float(xs[j] / mix.max())
+    top = int(half[-1])
+    frac = (phi[top] - 0.5) / max(phi[top] - phi[top + 1], 1e-12)
+    xl_half = xl[top] + min(max(frac, 0.0), 1.0) * (xl[top + 1] - xl[top])
+    return float(xs[int(solid[-1])] / xl_half)
 
 
 def steady(history: Sequence[FrontState], *, window: int, min_time: float,

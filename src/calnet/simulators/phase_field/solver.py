@@ -94,9 +94,11 @@ def initial_fields(opts: PhaseFieldOptions, c: PhaseFieldConstants, speed: float
     return phi, c.k_e * xl, xl, y_front
 
 
-@partial(jax.jit, static_argnames=("n_steps", "dx", "c", "target", "coupling"))
+@partial(jax.jit, static_argnames=("n_steps", "dx", "c", "target", "coupling",
+                                   "antitrapping"))
 def advance(phi, xs, xl, t, y_off, dt, par, *, n_steps: int, dx: float,
-            c: PhaseFieldConstants, target: int, coupling: str = "profile"):
+            c: PhaseFieldConstants, target: int, coupling: str = "profile",
+            antitrapping: float = 0.0):
     """``n_steps`` explicit steps, then shift the frame to hold the tip at row ``target``.
 
     ``par`` is ``[S, G, sigma, mobility, permeability, T_ref, y_ref]`` (SI): the frozen
@@ -112,7 +114,8 @@ def advance(phi, xs, xl, t, y_off, dt, par, *, n_steps: int, dx: float,
     def body(_, carry):
         phi, xs, xl, t = carry
         T = T_ref + G * (y_off + (rows[:, None] + 0.5) * dx - y_ref - S * t)
-        phi, xs, xl = step(phi, xs, xl, T, sigma, mob, perm, dt, dx, c, coupling)
+        phi, xs, xl = step(phi, xs, xl, T, sigma, mob, perm, dt, dx, c, coupling,
+                              antitrapping)
         return phi, xs, xl, t + dt
 
     phi, xs, xl, t = jax.lax.fori_loop(0, n_steps, body, (phi, xs, xl, t))
@@ -159,7 +162,7 @@ def run(p: PhysicalParameters, opts: PhaseFieldOptions,
         n = int(min(chunk, opts.max_steps - steps))
         state = advance(*state[:3], jnp.float64(state[3]), jnp.float64(state[4]), dt, par,
                         n_steps=n, dx=opts.dx, c=c, target=target,
-                        coupling=opts.coupling)
+                        coupling=opts.coupling, antitrapping=opts.antitrapping)
         steps += n
         phi, xs, xl = (np.asarray(a) for a in state[:3])
         t, y_off = float(state[3]), float(state[4])
