@@ -117,9 +117,10 @@ def _fmt(r: dict, key: str, spec: str) -> str:
     return format(x, spec)
 
 
-def start_table() -> str:
-    """Rosenthal vs ambient initial field of the first continuation stage."""
-    recs = _load("start")
+def start_table(name: str = "start") -> str:
+    """Rosenthal vs ambient initial field of the first continuation stage (records of
+    phase ``name``: ``start``, or ``exposure`` for ``consolidation="exposure"``)."""
+    recs = _load(name)
     pairs: dict[tuple, dict] = {}
     for r in recs:
         pairs.setdefault(tuple(sorted(r["inputs"].items())), {})[r["tag"]] = r
@@ -182,5 +183,6 @@ if __name__ == "__main__":
         RESULTS = Path(sys.argv[1])
     for title, fn in (("Mesh convergence", convergence_table), ("Speed", speed_table),
                       ("Start independence", start_table), ("Powder layer", powder_table),
+                      ("consolidation=\"exposure\"", lambda: start_table("exposure")),
                       ("Physical sanity", sanity_table), ("Robustness corners", corners_table)):
         print(f"### {title}\n\n{fn()}\n")

@@ -162,7 +162,7 @@ def run(P: float, v: float, theta: dict[str, float], opts: MeltPoolOptions,
                                   ttol=opts.ttol if last else max(opts.ttol, 1.0),
                                   max_iter=opts.max_iter - iterations,
                                   max_update=opts.max_update, deadline=deadline,
-                                  monotone=opts.consolidation == "monotone",
+                                  consolidation=opts.consolidation,
                                   **({} if dt0 is None else {"dt0": dt0}))
             iterations += report.iterations
             if not report.converged:
