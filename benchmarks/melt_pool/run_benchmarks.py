@@ -11,7 +11,8 @@ Usage (from the repository root)::
 
 Phases ``convergence-res1`` and ``convergence-res2`` run one half of ``convergence``;
 ``start`` (start independence), ``powder`` (W with and without the powder layer) and
-``exposure`` (``consolidation="exposure"`` from both starts) are further phases.
+``exposure`` (``consolidation="exposure"`` from both starts) and ``sanity-exposure``
+are further phases.
 """
 
 from __future__ import annotations
@@ -102,23 +103,26 @@ def convergence(resolutions: tuple[float, ...] = (1.0, 2.0)) -> None:
         _save("convergence", kept + recs)
 
 
-def sanity(reverse: bool = False) -> None:
+def sanity(reverse: bool = False, options: dict | None = None, name: str | None = None
+           ) -> None:
     """Mid-range parameters at the 40 experimental settings, default resolution.
 
     ``reverse`` (phase ``sanity-reverse``): from the last row backwards, into
     ``results/sanity_reverse.json``, so that a second process can share the work;
-    ``report.py`` merges the two files (one record per sample).
+    ``report.py`` merges the two files (one record per sample). ``options`` and
+    ``name`` (phase ``sanity-exposure``: ``consolidation="exposure"`` into
+    ``results/sanity_exposure.json``) run a variant.
     """
     recs = []
     with DATA.open() as fh:
         rows = list(csv.DictReader(fh))
     for r in rows[::-1] if reverse else rows:
-        rec = run_one({"P": float(r["power_W"]), "v": float(r["speed_m_per_s"])},
+        rec = run_one({"P": float(r["power_W"]), "v": float(r["speed_m_per_s"])}, options,
                       tag=f"sample{r['sample']}")
         rec["measured_W"] = float(r["width_um"])
         rec["split"] = r["split"]
         recs.append(rec)
-        _save("sanity_reverse" if reverse else "sanity", recs)
+        _save(name or ("sanity_reverse" if reverse else "sanity"), recs)
 
 
 def corners() -> None:
@@ -183,5 +187,7 @@ if __name__ == "__main__":
             {"convergence": convergence, "sanity": sanity, "corners": corners,
              "start": start, "powder": powder, "exposure": exposure,
              "sanity-reverse": lambda: sanity(True),
+             "sanity-exposure": lambda: sanity(options={"consolidation": "exposure"},
+                                               name="sanity_exposure"),
              "convergence-res1": lambda: convergence((1.0,)),
              "convergence-res2": lambda: convergence((2.0,))}[phase]()

@@ -90,12 +90,15 @@ def test_conductivity_phases():
     assert laws.powder_x(np.array([1000.0]))[1][0] == pytest.approx(1.0)
 
 
-def test_jacobian_matches_finite_differences():
+@pytest.mark.parametrize("secant_faces", [False, True])
+def test_jacobian_matches_finite_differences(secant_faces):
     """The Newton Jacobian is exact (physics.md: L_i diag(k_i) plus rank-one A(T_s)),
-    including powder/dense faces, hybrid advection and boundary terms."""
+    including powder/dense faces (centre or secant conductivities), hybrid advection
+    and boundary terms."""
     box = pool_box(150e-6, 40e-6, 50e-6, 80e-6, resolution=0.35, beam_radius=40e-6)
     mesh = build_mesh(box, NI5NB, resolution=0.35, powder=True)
     disc = Discretization(mesh, NI5NB, 150.0, 0.5)
+    disc.secant_faces = secant_faces
     laws = _laws()
     rng = np.random.default_rng(0)
     T = initial_field(mesh, 150.0, 0.5, 0.5, 100.0, NI5NB) * (1 + 0.3 * rng.random(mesh.size))
@@ -112,6 +115,38 @@ def test_jacobian_matches_finite_differences():
     eps = 1e-3
     fd = (residual(T + eps * d)[0] - residual(T - eps * d)[0]) / (2 * eps)
     np.testing.assert_allclose(J @ d, fd, atol=1e-6 * np.abs(fd).max())
+
+
+def test_secant_faces_are_continuous_in_the_fraction():
+    """With secant conductivities a face between cells whose fractions tend to 1 (or
+    to 0) carries the Kirchhoff flux of the pure law, G (Phi(T_N) - Phi(T_P)): the
+    residual does not jump where a fraction reaches 0 or 1 (with centre
+    conductivities it does, most where k(T) is steep)."""
+    box = pool_box(150e-6, 40e-6, 50e-6, 80e-6, resolution=0.35, beam_radius=40e-6)
+    mesh = build_mesh(box, NI5NB, resolution=0.35, powder=True)
+    disc = Discretization(mesh, NI5NB, 150.0, 0.5)
+    laws = _laws()
+    rng = np.random.default_rng(3)
+    # hot and steep: powder cells spread over 1500-3400 K (powder ramp, vapour switch),
+    # except those on the fixed-temperature boundaries (inflow x, side y), which stay cold
+    T = initial_field(mesh, 150.0, 0.5, 0.5, 100.0, NI5NB)
+    T3 = T.reshape(mesh.shape)
+    hot = T3[:-1, :-1, : mesh.n_powder]
+    hot[...] = 1500.0 + 1900.0 * rng.random(hot.shape)
+    T = T3.ravel()
+    powder = np.zeros(mesh.shape, bool)
+    powder[:, :, : mesh.n_powder] = True
+    jumps = {}
+    for secant_faces in (False, True):
+        disc.secant_faces = secant_faces
+        for limit in (0.0, 1.0):
+            pure = np.where(powder.ravel(), limit, 1.0)
+            near = np.where(powder.ravel(), abs(limit - 1e-12), 1.0)
+            Rp = disc.evaluate(T, pure, laws, 0.4, None)[0]
+            Rn = disc.evaluate(T, near, laws, 0.4, None)[0]
+            jumps[secant_faces, limit] = np.abs(Rp - Rn).max() / np.abs(Rp).max()
+    assert jumps[True, 0.0] < 1e-9 and jumps[True, 1.0] < 1e-9
+    assert jumps[False, 1.0] > 1e-3  # the centre form jumps at full consolidation
 
 
 def test_consolidation_coupling_matches_finite_differences():
@@ -200,6 +235,7 @@ def test_exposure_coupling_matches_finite_differences():
     dR/dT at fixed frac plus dR/dfrac (dfrac/dT + dfrac/dA dA/dT), the fraction's
     derivative applied as an operator and also formed as a matrix."""
     mesh, disc, T = _exposure_case()
+    disc.secant_faces = True  # as the model sets it for this form
     laws = _laws()
     k_surface = 1e4
 

@@ -26,7 +26,12 @@ above the solidus (63 % after ``l_c / 3``), and reaches ``frac = 1`` exactly, so
 consolidated powder conducts through the exact Kirchhoff faces of the dense law. ``D``
 is a cumulative sum along ``x`` (one linear operator applied to ``s(T)``): ``frac`` is a
 smooth function of the field with no maximum and no memory, and its exact derivative is
-applied as an operator (:class:`Exposure`), never formed.
+applied as an operator (:class:`Exposure`), never formed. Faces between cells of
+different fractions then use the laws' secant conductivities
+(:attr:`~.assembly.Discretization.secant_faces`), so the residual is continuous where a
+fraction reaches 0 or 1; with centre conductivities it jumps there, and under the beam
+the series form throttles the vapour's vertical conduction, which kept the iteration
+from converging at the large keyhole pools.
 
 With ``"field"`` and ``"exposure"`` the Newton matrix includes
 ``dR/dfrac dfrac/dT`` (:func:`fraction_coupling`), so a converged state solves
@@ -212,7 +217,8 @@ def fraction_coupling(disc: Discretization, T: np.ndarray, frac: np.ndarray,
     """``dR/dfrac`` (W per unit fraction), shape (n_cells, n_cells), at fixed ``T``.
 
     Conduction through faces between cells of different laws (series conductance of
-    two half cells, each ``k = exp(f ln k_d + (1 - f) ln k_p)``) and the advected mass
+    two half cells, each ``k = exp(f ln k_d + (1 - f) ln k_p)`` of the laws' centre or,
+    with ``disc.secant_faces``, secant conductivities) and the advected mass
     flux (density ``(pack + (1 - pack) f) rho``, and the hybrid-advection weight through
     the mass flux and the upstream cell's reference conductivity).
     """
@@ -232,15 +238,25 @@ def fraction_coupling(disc: Discretization, T: np.ndarray, frac: np.ndarray,
         if not mixed.any():
             continue
         P, N, fP, fN = P[mixed], N[mixed], fP[mixed], fN[mixed]
-        ld, ll = logs[fc.vertical]
-        kP = np.exp(fP * ld[P] + (1 - fP) * ll[P])
-        kN = np.exp(fN * ld[N] + (1 - fN) * ll[N])
+        if disc.secant_faces:
+            from calnet.simulators.melt_pool.assembly import secant
+
+            dense, loose = tables[fc.vertical]
+            evs = [tab(T) for tab in (dense, loose)]
+            lgd = np.log(secant(T, P, N, dense, evs[0])[0])
+            lgl = np.log(secant(T, P, N, loose, evs[1])[0])
+            ldP, llP, ldN, llN = lgd, lgl, lgd, lgl
+        else:
+            ld, ll = logs[fc.vertical]
+            ldP, llP, ldN, llN = ld[P], ll[P], ld[N], ll[N]
+        kP = np.exp(fP * ldP + (1 - fP) * llP)
+        kN = np.exp(fN * ldN + (1 - fN) * llN)
         hP, hN = fc.hP[interior][mixed], fc.hN[interior][mixed]
         area = fc.G[interior][mixed] * (hP + hN)
         res = hP / kP + hN / kN
         common = area * (T[N] - T[P]) / res**2
-        d_fP = common * hP / kP * (ld[P] - ll[P])  # d flux into P / d f_P
-        d_fN = common * hN / kN * (ld[N] - ll[N])
+        d_fP = common * hP / kP * (ldP - llP)  # d flux into P / d f_P
+        d_fN = common * hN / kN * (ldN - llN)
         rows += [P, N, P, N]
         cols += [P, P, N, N]
         vals += [d_fP, -d_fP, d_fN, -d_fN]

@@ -64,9 +64,9 @@ class MeltPoolOptions:
         How a solve treats the consolidated powder fraction ``frac(T)``
         (:mod:`~.consolidation`). ``"exposure"``: a cumulative exposure to heat along
         the material path, a smooth function of the current iterate without maximum or
-        memory, its exact coupling in the Newton operator; it converges at small pools
-        and cycles at the lateral powder edge of the large keyhole pools
-        (benchmarks/README.md). ``"field"``: ``frac(T)`` of the current iterate, its
+        memory, its exact coupling in the Newton operator, and faces between cells of
+        different fractions with secant conductivities (benchmarks/README.md).
+        ``"field"``: ``frac(T)`` of the current iterate, its
         coupling in the Newton matrix, so the converged state solves
         ``R(T, frac(T)) = 0`` whatever the path; at most powder settings of the
         reference box the iteration cycles at the lateral edge of the consolidation
