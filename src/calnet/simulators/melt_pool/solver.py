@@ -14,12 +14,12 @@ fraction (a max over the upstream line), and the cap tightens with every turn of
 cycle until the pseudo-time term damps it. Cells crossing ``T_S`` or ``T_L`` stop
 just past the kink. The consolidated fraction of the powder is ``frac(T)``
 (:mod:`~.consolidation`) of the current iterate, with ``dR/dfrac dfrac/dT`` in the
-Newton matrix, so a converged state solves ``R(T, frac(T)) = 0`` whatever the path
-(``monotone=False``); or, by default, the largest ``frac(T)`` of the solve's iterates
-(``monotone=True``): the front only advances, which converges where the field form
-cycles, at the price of a state that can keep powder consolidated that the final field
-would not consolidate. With the cumulative-exposure fraction (``consolidation="exposure"``)
-the coupling is applied matrix-free inside GMRES (:func:`_with_exposure`).
+Newton operator, so a converged state solves ``R(T, frac(T)) = 0`` whatever the path
+(``consolidation="field"`` and ``"exposure"``; for the exposure form the coupling is
+applied matrix-free inside GMRES, :func:`_with_exposure`); or, by default
+(``"monotone"``), the largest ``frac(T)`` of the solve's iterates: the front only
+advances, which converges where the field form cycles, at the price of a state that can
+keep powder consolidated that the final field would not consolidate.
 """
 
 from __future__ import annotations
