@@ -112,14 +112,43 @@ def _sanity() -> list[dict]:
     return sorted(by.values(), key=lambda r: int(r["tag"].removeprefix("sample")))
 
 
+def variant_sanity_table(name: str = "sanity_exposure") -> str:
+    """A variant's sanity runs (phase ``sanity-exposure``) against the default ones."""
+    default = {r["tag"]: r for r in _sanity()}
+    recs = _load(name)
+    lines = ["| sample | P (W) | v (m/s) | status | W (um) default / variant | rel. diff "
+             "| Newton its default / variant | CPU (s) default / variant |",
+             "|---|---|---|---|---|---|---|---|"]
+    diffs = []
+    for r in recs:
+        d = default.get(r["tag"], {})
+        wd, wv = _fmt(d, "W", ".1f"), _fmt(r, "W", ".1f")
+        rel = float("nan")
+        if r["status"] == "ok" and d.get("status") == "ok":
+            rel = r["outputs"]["W"] / d["outputs"]["W"] - 1
+            diffs.append(abs(rel))
+        lines.append(f"| {r['tag'].removeprefix('sample')} | {r['inputs']['P']:g} "
+                     f"| {r['inputs']['v']:g} | {r['status']} | {wd} / {wv} | {rel:+.1%} "
+                     f"| {d.get('iterations')} / {r.get('iterations')} "
+                     f"| {d.get('cpu_s', float('nan')):.1f} / {r.get('cpu_s', float('nan')):.1f} |")
+    ok = sum(r["status"] == "ok" for r in recs)
+    cpu = [r["cpu_s"] for r in recs if "cpu_s" in r]
+    lines.append(f"\n{len(recs)} settings run, {ok} converged; |W/W_default - 1| median "
+                 f"{statistics.median(diffs) if diffs else float('nan'):.1%}, max "
+                 f"{max(diffs) if diffs else float('nan'):.1%}; CPU median "
+                 f"{statistics.median(cpu) if cpu else float('nan'):.1f} s.")
+    return "\n".join(lines)
+
+
 def _fmt(r: dict, key: str, spec: str) -> str:
     x = r.get("outputs", {}).get(key, float("nan"))
     return format(x, spec)
 
 
-def start_table() -> str:
-    """Rosenthal vs ambient initial field of the first continuation stage."""
-    recs = _load("start")
+def start_table(name: str = "start") -> str:
+    """Rosenthal vs ambient initial field of the first continuation stage (records of
+    phase ``name``: ``start``, or ``exposure`` for ``consolidation="exposure"``)."""
+    recs = _load(name)
     pairs: dict[tuple, dict] = {}
     for r in recs:
         pairs.setdefault(tuple(sorted(r["inputs"].items())), {})[r["tag"]] = r
@@ -182,5 +211,8 @@ if __name__ == "__main__":
         RESULTS = Path(sys.argv[1])
     for title, fn in (("Mesh convergence", convergence_table), ("Speed", speed_table),
                       ("Start independence", start_table), ("Powder layer", powder_table),
+                      ("consolidation=\"exposure\"", lambda: start_table("exposure")),
+                      ("consolidation=\"exposure\" at the sanity settings",
+                       variant_sanity_table),
                       ("Physical sanity", sanity_table), ("Robustness corners", corners_table)):
         print(f"### {title}\n\n{fn()}\n")

@@ -10,7 +10,8 @@ Usage (from the repository root)::
         .venv/bin/python benchmarks/melt_pool/run_benchmarks.py convergence sanity corners
 
 Phases ``convergence-res1`` and ``convergence-res2`` run one half of ``convergence``;
-``start`` (start independence) and ``powder`` (W with and without the powder layer)
+``start`` (start independence), ``powder`` (W with and without the powder layer) and
+``exposure`` (``consolidation="exposure"`` from both starts) and ``sanity-exposure``
 are further phases.
 """
 
@@ -75,40 +76,56 @@ def _save(name: str, records: list[dict]) -> None:
 
 
 def convergence(resolutions: tuple[float, ...] = (1.0, 2.0)) -> None:
-    """Default resolution and the mesh spacing halved at the five settings.
+    """Default resolution and the mesh spacing halved at the five settings (a 900 s
+    ``time_limit``; ``max_iter`` 1500 and 3600 s on the halved mesh, whose continuation
+    on a default-resolution sizing mesh can take 500 iterations).
 
-    Records of other resolutions already in ``results/convergence.json`` are kept, so
-    the slow halved-spacing runs can be made separately (``convergence-res2``, timing
-    irrelevant) from the default ones that the speed table uses (``convergence-res1``).
+    Converged records of this version already in ``results/convergence.json`` are reused
+    (a stopped phase resumes), and those of other resolutions are kept, so the slow
+    halved-spacing runs can be made separately (``convergence-res2``, timing irrelevant)
+    from the default ones that the speed table uses (``convergence-res1``).
     """
+    from calnet.simulators.melt_pool import VERSION
+
     tags = {f"res{res:g}" for res in resolutions}
     path = RESULTS / "convergence.json"
-    kept = [r for r in json.loads(path.read_text()) if r.get("tag") not in tags] \
-        if path.exists() else []
+    old = json.loads(path.read_text()) if path.exists() else []
+    kept = [r for r in old if r.get("tag") not in tags]
+    done = {(r["inputs"]["P"], r["inputs"]["v"], r["tag"]): r for r in old
+            if r.get("tag") in tags and r.get("version") == VERSION
+            and r["status"] == "ok"}  # resume a stopped phase
     recs: list[dict] = []
     for (P, v), res in itertools.product(SETTINGS, resolutions):
-        opts = {"resolution": res, "time_limit": 900.0} | ({"max_iter": 300} if res > 1 else {})
-        recs.append(run_one({"P": P, "v": v}, opts, tag=f"res{res:g}"))
+        tag = f"res{res:g}"
+        rec = done.get((P, v, tag))
+        if rec is None:
+            opts = {"resolution": res, "time_limit": 900.0} | (
+                {"max_iter": 1500, "time_limit": 3600.0} if res > 1 else {})
+            rec = run_one({"P": P, "v": v}, opts, tag=tag)
+        recs.append(rec)
         _save("convergence", kept + recs)
 
 
-def sanity(reverse: bool = False) -> None:
+def sanity(reverse: bool = False, options: dict | None = None, name: str | None = None
+           ) -> None:
     """Mid-range parameters at the 40 experimental settings, default resolution.
 
     ``reverse`` (phase ``sanity-reverse``): from the last row backwards, into
     ``results/sanity_reverse.json``, so that a second process can share the work;
-    ``report.py`` merges the two files (one record per sample).
+    ``report.py`` merges the two files (one record per sample). ``options`` and
+    ``name`` (phase ``sanity-exposure``: ``consolidation="exposure"`` into
+    ``results/sanity_exposure.json``) run a variant.
     """
     recs = []
     with DATA.open() as fh:
         rows = list(csv.DictReader(fh))
     for r in rows[::-1] if reverse else rows:
-        rec = run_one({"P": float(r["power_W"]), "v": float(r["speed_m_per_s"])},
+        rec = run_one({"P": float(r["power_W"]), "v": float(r["speed_m_per_s"])}, options,
                       tag=f"sample{r['sample']}")
         rec["measured_W"] = float(r["width_um"])
         rec["split"] = r["split"]
         recs.append(rec)
-        _save("sanity_reverse" if reverse else "sanity", recs)
+        _save(name or ("sanity_reverse" if reverse else "sanity"), recs)
 
 
 def corners() -> None:
@@ -154,12 +171,26 @@ def powder() -> None:
         _save("powder", recs)
 
 
+def exposure() -> None:
+    """``consolidation="exposure"`` from both starts at the settings of ``start``,
+    default resolution, into ``results/exposure.json``."""
+    cases = [RUN_104] + [{"P": P, "v": v} for P, v in SETTINGS if (P, v) != (90.0, 2.3)]
+    recs = []
+    for inputs, first in itertools.product(cases, ("rosenthal", "ambient")):
+        recs.append(run_one(inputs, {"start": first, "consolidation": "exposure"},
+                            tag=first))
+        _save("exposure", recs)
+
+
 if __name__ == "__main__":
     if sys.argv[1] == "--worker":
         _worker(sys.argv[2])
     else:
         for phase in sys.argv[1:]:
             {"convergence": convergence, "sanity": sanity, "corners": corners,
-             "start": start, "powder": powder, "sanity-reverse": lambda: sanity(True),
+             "start": start, "powder": powder, "exposure": exposure,
+             "sanity-reverse": lambda: sanity(True),
+             "sanity-exposure": lambda: sanity(options={"consolidation": "exposure"},
+                                               name="sanity_exposure"),
              "convergence-res1": lambda: convergence((1.0,)),
              "convergence-res2": lambda: convergence((2.0,))}[phase]()

@@ -36,6 +36,48 @@ def _blend(T: np.ndarray, f: np.ndarray, tabs, ev, idx: np.ndarray
     return k, k * (f * tabs[0].slope(T) / kd + (1 - f) * tabs[1].slope(T) / kl)
 
 
+SECANT_DT = 1e-3  # K, below this temperature difference a secant is the mean conductivity
+
+
+def secant(T: np.ndarray, P: np.ndarray, N: np.ndarray, tab, ev
+           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Secant conductivity ``(Phi(T_N) - Phi(T_P)) / (T_N - T_P)`` of one law between
+    the cells ``P`` and ``N``, and its derivatives by ``T_P`` and ``T_N``."""
+    phi, k = ev
+    d = T[N] - T[P]
+    small = np.abs(d) < SECANT_DT
+    safe = np.where(small, 1.0, d)
+    ks = np.where(small, 0.5 * (k[P] + k[N]), (phi[N] - phi[P]) / safe)
+    half = 0.25 * (tab.slope(T[P]) + tab.slope(T[N]))
+    dsP = np.where(small, half, (ks - k[P]) / safe)
+    dsN = np.where(small, half, (k[N] - ks) / safe)
+    return ks, dsP, dsN
+
+
+def _secant_mixed(T, P, N, fP, fN, tabs, ev, hP, hN, G):
+    """Flux into ``P`` through faces between cells of different consolidated fractions,
+    Kirchhoff-consistent: each half cell conducts with ``k = k_d^f k_p^(1 - f)`` of the
+    two laws' secant conductivities over ``[T_P, T_N]``, so the flux is continuous
+    in ``f`` and equals ``G (Phi(T_N) - Phi(T_P))`` of a single law at ``f = 0`` or 1.
+    Returns the flux and its derivatives by ``T_P`` and ``T_N``."""
+    kd, kdP, kdN = secant(T, P, N, tabs[0], ev[0])
+    kl, klP, klN = secant(T, P, N, tabs[1], ev[1])
+    kP = np.exp(fP * np.log(kd) + (1 - fP) * np.log(kl))
+    kN = np.exp(fN * np.log(kd) + (1 - fN) * np.log(kl))
+    area = G * (hP + hN)
+    res = hP / kP + hN / kN
+    g = area / res
+    dT = T[N] - T[P]
+    w = dT * area / res**2  # d flux / d k_half = w h / k_half^2
+
+    def dk(f, kh, dd, dl):
+        return kh * (f * dd / kd + (1 - f) * dl / kl)
+
+    dflux_P = w * (hP / kP**2 * dk(fP, kP, kdP, klP) + hN / kN**2 * dk(fN, kN, kdP, klP))
+    dflux_N = w * (hP / kP**2 * dk(fP, kP, kdN, klN) + hN / kN**2 * dk(fN, kN, kdN, klN))
+    return g * dT, -g + dflux_P, g + dflux_N
+
+
 @dataclass(frozen=True)
 class _Pattern:
     """CSR pattern of the Jacobian and where each listed entry goes (see
@@ -127,6 +169,10 @@ class Discretization:
         self.beam = np.flatnonzero(self.q_top > 1e-12 * self.q_top.max())
         self.ts_cells, self.ts_weights = self._surface_stencil()
         self._patterns: dict[bool, _Pattern] = {}
+        # faces between cells of different consolidated fractions: series conductance
+        # of the cell-centre conductivities (False) or of the two laws' secant
+        # conductivities over the face's temperature range (True, _secant_mixed)
+        self.secant_faces = False
 
     def with_power(self, P: float) -> Discretization:
         """The same discretization with laser power ``P`` (W); geometry shared."""
@@ -248,7 +294,9 @@ class Discretization:
         Faces between two dense (``frac = 1``) or two loose-powder (``frac = 0``) cells:
         ``G (Phi(T_nb) - Phi(T_P))`` (Kirchhoff, exact). Other faces: series conductance
         of the two half cells, each with its own ``k(T, frac)`` (log blend of the powder
-        and dense laws), differentiated exactly at fixed ``frac``.
+        and dense laws) at its centre temperature, or, with ``secant_faces``, of the
+        laws' secant conductivities over ``[T_P, T_nb]`` (:func:`_secant_mixed`,
+        continuous in ``frac``); differentiated exactly at fixed ``frac``.
         """
         interior = fc.nb >= 0
         nb = np.where(interior, fc.nb, fc.P)
@@ -272,7 +320,12 @@ class Discretization:
             out_dP[same] = -fc.G[same] * k[P]
             out_dN[same] = np.where(I, fc.G[same] * k[N], 0.0)
         mixed = ~pure & interior
-        if mixed.any():
+        if mixed.any() and self.secant_faces:
+            P, N = fc.P[mixed], nb[mixed]
+            flux, dP, dN = _secant_mixed(T, P, N, fP[mixed], fN[mixed], tabs, ev,
+                                         fc.hP[mixed], fc.hN[mixed], fc.G[mixed])
+            out_flux[mixed], out_dP[mixed], out_dN[mixed] = flux, dP, dN
+        elif mixed.any():
             P, N = fc.P[mixed], nb[mixed]
             kP, sP = _blend(T[P], fP[mixed], tabs, ev, P)
             kN, sN = _blend(T[N], fN[mixed], tabs, ev, N)

@@ -153,6 +153,7 @@ def run(P: float, v: float, theta: dict[str, float], opts: MeltPoolOptions,
     for stage in range(3):
         final_stage = res == opts.resolution
         disc = Discretization(mesh, mat, P, v)
+        disc.secant_faces = opts.consolidation == "exposure"  # continuous in frac
         for p_stage in powers if stage == 0 else [P]:
             last = p_stage == P and final_stage
             d = disc.with_power(p_stage)
@@ -162,7 +163,7 @@ def run(P: float, v: float, theta: dict[str, float], opts: MeltPoolOptions,
                                   ttol=opts.ttol if last else max(opts.ttol, 1.0),
                                   max_iter=opts.max_iter - iterations,
                                   max_update=opts.max_update, deadline=deadline,
-                                  monotone=opts.consolidation == "monotone",
+                                  consolidation=opts.consolidation,
                                   **({} if dt0 is None else {"dt0": dt0}))
             iterations += report.iterations
             if not report.converged:

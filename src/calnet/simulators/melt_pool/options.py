@@ -13,7 +13,7 @@ ABSORPTIVITY_LAWS = ("surface_temperature", "keyhole_depth")
 KVZ_MODES = ("factor", "absolute")
 ANISOTROPY_DIRECTIONS = ("vertical", "lateral")
 STARTS = ("rosenthal", "ambient")
-CONSOLIDATIONS = ("monotone", "field")
+CONSOLIDATIONS = ("monotone", "field", "exposure")
 
 
 @dataclass(frozen=True)
@@ -60,15 +60,19 @@ class MeltPoolOptions:
     continuation_ratio : float, default 1.5
         Largest ratio of consecutive laser powers in the continuation from a cold,
         conduction-mode solution (:func:`~.model.power_ladder`); must exceed 1.
-    consolidation : {"monotone", "field"}, default "monotone"
+    consolidation : {"monotone", "field", "exposure"}, default "monotone"
         How a solve treats the consolidated powder fraction ``frac(T)``
-        (:mod:`~.consolidation`). ``"field"``: ``frac(T)`` of the current iterate, its
+        (:mod:`~.consolidation`). ``"exposure"``: a cumulative exposure to heat along
+        the material path, a smooth function of the current iterate without maximum or
+        memory, its exact coupling in the Newton operator, and faces between cells of
+        different fractions with secant conductivities (benchmarks/README.md).
+        ``"field"``: ``frac(T)`` of the current iterate, its
         coupling in the Newton matrix, so the converged state solves
         ``R(T, frac(T)) = 0`` whatever the path; at most powder settings of the
         reference box the iteration cycles at the lateral edge of the consolidation
         front and does not converge (benchmarks/README.md). ``"monotone"``: the largest
-        ``frac(T)`` over the solve's iterates (each continuation stage starts afresh), so
-        the front only advances; it converges, but the state can depend on the
+        upstream-maximum ``frac(T)`` over the solve's iterates (each continuation stage
+        starts afresh), so the front only advances; it converges, but the state can depend on the
         iteration path by a few per cent.
     start : {"rosenthal", "ambient"}, default "rosenthal"
         Initial field of the first continuation stage: the beam-smeared Rosenthal field

@@ -14,11 +14,12 @@ fraction (a max over the upstream line), and the cap tightens with every turn of
 cycle until the pseudo-time term damps it. Cells crossing ``T_S`` or ``T_L`` stop
 just past the kink. The consolidated fraction of the powder is ``frac(T)``
 (:mod:`~.consolidation`) of the current iterate, with ``dR/dfrac dfrac/dT`` in the
-Newton matrix, so a converged state solves ``R(T, frac(T)) = 0`` whatever the path
-(``monotone=False``); or, by default, the largest ``frac(T)`` of the solve's iterates
-(``monotone=True``): the front only advances, which converges where the field form
-cycles, at the price of a state that can keep powder consolidated that the final field
-would not consolidate.
+Newton operator, so a converged state solves ``R(T, frac(T)) = 0`` whatever the path
+(``consolidation="field"`` and ``"exposure"``; for the exposure form the coupling is
+applied matrix-free inside GMRES, :func:`_with_exposure`); or, by default
+(``"monotone"``), the largest ``frac(T)`` of the solve's iterates: the front only
+advances, which converges where the field form cycles, at the price of a state that can
+keep powder consolidated that the final field would not consolidate.
 """
 
 from __future__ import annotations
@@ -31,9 +32,15 @@ from dataclasses import dataclass
 import numpy as np
 import pyamg
 import scipy.sparse as sp
+import scipy.sparse.linalg as spla
 
 from calnet.simulators.melt_pool.assembly import Discretization
-from calnet.simulators.melt_pool.consolidation import consolidated, fraction_coupling
+from calnet.simulators.melt_pool.consolidation import (
+    Exposure,
+    consolidated,
+    exposure,
+    fraction_coupling,
+)
 from calnet.simulators.melt_pool.properties import MaterialLaws
 
 _DEBUG = bool(os.environ.get("CALNET_MELT_POOL_DEBUG"))
@@ -136,16 +143,44 @@ class LinearSolver:
         return x, len(res)
 
 
+def _with_exposure(M: sp.csr_matrix, disc: Discretization, T: np.ndarray,
+                   laws: MaterialLaws, cons: Exposure, dA: np.ndarray | None
+                   ) -> sp.csr_matrix | spla.LinearOperator:
+    """The Newton operator ``M - dR/dfrac (dfrac/dT + dfrac/dA dA/dT)``, matrix-free.
+
+    ``M`` is the matrix at fixed ``frac``; ``dA`` the absorptivity gradient on the
+    surface stencil ``disc.ts_cells`` (None when it is lagged). Returns ``M`` itself
+    where no column's fraction depends on the field.
+    """
+    if not np.any(cons.dr):
+        return M
+    C = fraction_coupling(disc, T, cons.frac, laws)
+    if C.nnz == 0:
+        return M
+    via_a = C @ cons.by_absorptivity() if dA is not None else None
+    cells = disc.ts_cells
+
+    def matvec(d: np.ndarray) -> np.ndarray:
+        d = np.ravel(d)
+        out = M @ d - C @ cons.apply(d)
+        if via_a is not None:
+            out -= via_a * float(dA @ d[cells])
+        return out
+
+    return spla.LinearOperator(M.shape, matvec=matvec, dtype=float)
+
+
 def newton_solve(disc: Discretization, laws: MaterialLaws, T0: np.ndarray, *,
                  absorptivity: AbsorptivityLaw, k_powder: float, rtol: float, ttol: float,
                  max_iter: int, max_update: float, deadline: float | None,
-                 dt0: float = DT0, monotone: bool = True) -> SolveReport:
+                 dt0: float = DT0, consolidation: str = "monotone") -> SolveReport:
     """Drive the residual to ``max|R| <= rtol * A P / 2`` from the initial field ``T0``.
 
-    ``monotone``: the consolidated fraction is the largest ``frac(T)`` of the solve's
-    iterates (it never decreases; convergence requires it to have stopped growing);
-    otherwise it is ``frac(T)`` of the current iterate, with its coupling in the
-    Newton matrix."""
+    ``consolidation="monotone"``: the consolidated fraction is the largest upstream-maximum
+    ``frac(T)`` of the solve's iterates (it never decreases; convergence requires it to
+    have stopped growing); ``"field"``: the upstream-maximum ``frac(T)`` of the current
+    iterate, ``"exposure"``: the cumulative-exposure ``frac(T)`` of the current iterate,
+    both with their coupling in the Newton operator (:mod:`~.consolidation`)."""
     T = T0.copy()
     rho_c = None
     dt, r0_norm, upd, lin_total, calm = dt0, None, np.inf, 0, 10
@@ -159,8 +194,13 @@ def newton_solve(disc: Discretization, laws: MaterialLaws, T0: np.ndarray, *,
             reason = "time limit reached"
             break
         A, dA, Ts = absorptivity.evaluate(T)
-        target, dfrac = consolidated(disc, T, A, k_powder)
-        if monotone:  # the front only advances within a solve; no coupling term
+        cons = None
+        if consolidation == "exposure":
+            cons = exposure(disc, T, A, k_powder)
+            target, dfrac = cons.frac, None
+        else:
+            target, dfrac = consolidated(disc, T, A, k_powder)
+        if consolidation == "monotone":  # the front only advances within a solve; no coupling term
             grown = target if frac is None else np.maximum(frac, target)
             front_moved = frac is None or float(np.abs(grown - frac).max()) > FRAC_TOL
             frac, dfrac = grown, None
@@ -188,8 +228,12 @@ def newton_solve(disc: Discretization, laws: MaterialLaws, T0: np.ndarray, *,
         _, c = laws.enthalpy(T)
         rho_c = disc.density(frac) * c
         M = disc.system(J, disc.volume * rho_c / dt, coupled=dA is not None)
-        full = M - fraction_coupling(disc, T, frac, laws) @ dfrac if dfrac is not None \
-            and dfrac.nnz else M
+        if cons is not None:
+            full = _with_exposure(M, disc, T, laws, cons, dA)
+        elif dfrac is not None and dfrac.nnz:
+            full = M - fraction_coupling(disc, T, frac, laws) @ dfrac
+        else:
+            full = M
         dT, n_lin = linear_solve(full, R, rtol=min(1e-3, max(1e-10, 0.1 * rnorm)),
                                  preconditioner=M)
         lin_total += n_lin
