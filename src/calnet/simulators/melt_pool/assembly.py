@@ -25,7 +25,7 @@ from scipy.special import erf
 from calnet.simulators.materials import STEFAN_BOLTZMANN, AlloyProperties
 from calnet.simulators.melt_pool.consolidation import consolidated
 from calnet.simulators.melt_pool.mesh import Mesh
-from calnet.simulators.melt_pool.properties import MaterialLaws
+from calnet.simulators.melt_pool.properties import MaterialLaws, secant
 
 
 def _blend(T: np.ndarray, f: np.ndarray, tabs, ev, idx: np.ndarray
@@ -34,24 +34,6 @@ def _blend(T: np.ndarray, f: np.ndarray, tabs, ev, idx: np.ndarray
     kd, kl = ev[0][1][idx], ev[1][1][idx]
     k = np.exp(f * np.log(kd) + (1 - f) * np.log(kl))
     return k, k * (f * tabs[0].slope(T) / kd + (1 - f) * tabs[1].slope(T) / kl)
-
-
-SECANT_DT = 1e-3  # K, below this temperature difference a secant is the mean conductivity
-
-
-def secant(T: np.ndarray, P: np.ndarray, N: np.ndarray, tab, ev
-           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Secant conductivity ``(Phi(T_N) - Phi(T_P)) / (T_N - T_P)`` of one law between
-    the cells ``P`` and ``N``, and its derivatives by ``T_P`` and ``T_N``."""
-    phi, k = ev
-    d = T[N] - T[P]
-    small = np.abs(d) < SECANT_DT
-    safe = np.where(small, 1.0, d)
-    ks = np.where(small, 0.5 * (k[P] + k[N]), (phi[N] - phi[P]) / safe)
-    half = 0.25 * (tab.slope(T[P]) + tab.slope(T[N]))
-    dsP = np.where(small, half, (ks - k[P]) / safe)
-    dsN = np.where(small, half, (k[N] - ks) / safe)
-    return ks, dsP, dsN
 
 
 def _secant_mixed(T, P, N, fP, fN, tabs, ev, hP, hN, G):

@@ -47,6 +47,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 import scipy.sparse as sp
 
+from calnet.simulators.melt_pool.properties import secant
+
 if TYPE_CHECKING:
     from calnet.simulators.melt_pool.assembly import Discretization
     from calnet.simulators.melt_pool.properties import MaterialLaws
@@ -239,8 +241,6 @@ def fraction_coupling(disc: Discretization, T: np.ndarray, frac: np.ndarray,
             continue
         P, N, fP, fN = P[mixed], N[mixed], fP[mixed], fN[mixed]
         if disc.secant_faces:
-            from calnet.simulators.melt_pool.assembly import secant
-
             dense, loose = tables[fc.vertical]
             evs = [tab(T) for tab in (dense, loose)]
             lgd = np.log(secant(T, P, N, dense, evs[0])[0])

@@ -183,3 +183,21 @@ def absorptivity_of_temperature(Ts: float, theta: dict[str, float], mat: AlloyPr
     th = np.tanh((Ts - mat.T_boil) / w_absorb)
     span = theta["A_max"] - theta["A_0"]
     return theta["A_0"] + span * 0.5 * (1 + th), span * 0.5 * (1 - th**2) / w_absorb
+
+
+SECANT_DT = 1e-3  # K, below this temperature difference a secant is the mean conductivity
+
+
+def secant(T: np.ndarray, P: np.ndarray, N: np.ndarray, tab, ev
+           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Secant conductivity ``(Phi(T_N) - Phi(T_P)) / (T_N - T_P)`` of one law between
+    the cells ``P`` and ``N``, and its derivatives by ``T_P`` and ``T_N``."""
+    phi, k = ev
+    d = T[N] - T[P]
+    small = np.abs(d) < SECANT_DT
+    safe = np.where(small, 1.0, d)
+    ks = np.where(small, 0.5 * (k[P] + k[N]), (phi[N] - phi[P]) / safe)
+    half = 0.25 * (tab.slope(T[P]) + tab.slope(T[N]))
+    dsP = np.where(small, half, (ks - k[P]) / safe)
+    dsN = np.where(small, half, (k[N] - ks) / safe)
+    return ks, dsP, dsN
