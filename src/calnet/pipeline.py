@@ -221,13 +221,15 @@ class _Context:
         # thread: their compilation runs while the other core is idle (XLA compiles a
         # program on one core), their sampling shares the cores with the spec's
         with one_blas_thread(), ThreadPoolExecutor(max_workers=1) as pool:
+            beside = None
             if variants:
                 note("calibrating " + ", ".join(variants) + " beside the spec's model")
-            beside = pool.submit(calibrate_variants, self.network, self.sur, train, variants,
-                                 sampler=secondary_sampler(self.sampler), seed=self.seed)
+                beside = pool.submit(calibrate_variants, self.network, self.sur, train,
+                                     variants, sampler=secondary_sampler(self.sampler),
+                                     seed=self.seed)
             self.post = calibrate(self.network, self.sur, data=train, seed=self.seed,
                                   sampler=self.sampler, progress=note)
-            self.variants = beside.result()
+            self.variants = beside.result() if beside else {}
         from calnet.calibration.persist import save_posterior
         from calnet.calibration.summary import posterior_summary
 
