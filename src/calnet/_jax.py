@@ -6,6 +6,16 @@ imported yet this sets ``JAX_ENABLE_X64``, which jax reads when it starts (subpr
 inherit it, as they inherit ``XLA_FLAGS``); when jax is already imported it updates
 jax's configuration. XLA host devices and the compilation cache are configured by the
 entry points (:mod:`calnet.calibration.devices`), not here.
+
+It also widens XLA's CPU thread pool (``NPROC``, read when jax starts its CPU backend)
+to at least :data:`MIN_CPU_THREADS` threads. jaxlib 0.10 runs the batch of a batched
+LAPACK call (Cholesky, triangular solve) as tasks on that pool and blocks a pool thread
+until they finish; when every thread of the pool is blocked so, nothing runs them and the
+process hangs for ever. The pool has one thread per core, so on a 2-core machine two
+batched factorisations at once (two data sets predicted in two threads, or two in one
+program) are enough. With more threads than calnet ever runs such calls at once, they
+cannot all block. A pool that jax started before calnet was imported keeps its size:
+import calnet first, or set ``NPROC`` yourself.
 """
 
 from __future__ import annotations
@@ -13,7 +23,9 @@ from __future__ import annotations
 import os
 import sys
 
-__all__ = ["enable_x64"]
+__all__ = ["enable_x64", "widen_cpu_pool", "MIN_CPU_THREADS"]
+
+MIN_CPU_THREADS = 16
 
 
 def enable_x64() -> None:
@@ -24,4 +36,11 @@ def enable_x64() -> None:
         os.environ["JAX_ENABLE_X64"] = "true"
 
 
+def widen_cpu_pool() -> None:
+    """Ask for an XLA CPU thread pool of at least :data:`MIN_CPU_THREADS` threads (one per
+    core when there are more), unless ``NPROC`` is set already."""
+    os.environ.setdefault("NPROC", str(max(MIN_CPU_THREADS, os.cpu_count() or 1)))
+
+
 enable_x64()
+widen_cpu_pool()
