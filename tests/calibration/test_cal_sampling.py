@@ -22,10 +22,12 @@ class _GaussianSpec:
     """``y ~ N(A theta, K)``, ``theta ~ N(0, PRIOR_SD^2 I)``: the sampler's protocol."""
 
     broken: bool = False
+    kinked: bool = False  # + |u_1|: finite everywhere, its gradient NaN at u_1 = 0
 
     def logdensity(self, data, u):
         r = data["y"] - data["A"] @ u
         lp = -0.5 * r @ data["K_inv"] @ r - 0.5 * jnp.sum(u**2) / PRIOR_SD**2
+        lp = lp - (jnp.sqrt(u[1] ** 2) if self.kinked else 0.0)
         return lp + (jnp.sqrt(u[0] - 50.0) if self.broken else 0.0)
 
     def constrain(self, data, u):
@@ -219,6 +221,20 @@ def test_non_finite_start_raises_before_sampling():
     ld = _Gaussian(_GaussianSpec(broken=True), ld.data, "pdas")
     with pytest.raises(CalibrationError, match="pdas: the log-density is not finite"):
         sample_nuts(ld, seed=0, num_chains=2, num_warmup=10, num_draws=10)
+
+
+def test_non_finite_gradient_at_some_starts_names_those_chains():
+    ld, _, _ = _build(0, name="pdas")
+    ld = _Gaussian(_GaussianSpec(kinked=True), ld.data, "pdas")
+    init = np.array([[0.1, 0.5, 0.0], [0.1, 0.0, 0.0], [0.2, -0.3, 0.1], [0.0, 0.0, 1.0]])
+    with pytest.raises(CalibrationError, match=r"pdas: the gradient of the log-density is not "
+                                               r"finite at the initial point\(s\) of chain\(s\) "
+                                               r"\[1, 3\]"):
+        sample_nuts(ld, seed=0, num_chains=4, num_warmup=10, num_draws=10, init=init)
+    # the same density from starts where it is smooth samples
+    idata = sample_nuts(ld, seed=0, num_chains=4, num_warmup=10, num_draws=10,
+                        init=init + np.array([0.0, 0.2, 0.0]))
+    assert np.isfinite(idata.posterior["theta"].values).all()
 
 
 @pytest.mark.parametrize("kwargs", [dict(num_chains=0), dict(thin=0),

@@ -53,7 +53,7 @@ from calnet.chain import ChainPlan
 from calnet.errors import CalibrationError
 
 __all__ = ["Term", "KOHModel", "KOHDensity", "se_kernel", "mvn_logpdf_chol", "check_initial",
-           "standardise", "HYPERPARAMETERS"]
+           "initial_point_message", "standardise", "HYPERPARAMETERS"]
 
 HYPERPARAMETERS = ("ell", "sd2", "se2")
 _LOG_2PI = math.log(2.0 * math.pi)
@@ -495,12 +495,18 @@ def check_initial(ld, u0, model_name: str | None = None) -> None:
     u0 = jnp.atleast_2d(jnp.asarray(u0, dtype=float))
     values, grads = _value_and_grad_jit(ld.spec, ld.data, u0)
     values, grads = np.asarray(values), np.asarray(grads)
-    bad_value = ~np.isfinite(values)
-    bad_grad = ~np.all(np.isfinite(grads), axis=1)
-    if bad_value.any() or bad_grad.any():
-        chains = np.flatnonzero(bad_value | bad_grad).tolist()
-        what = "log-density" if bad_value.any() else "gradient of the log-density"
-        raise CalibrationError(
-            f"{name}: the {what} is not finite at the initial point(s) of chain(s) "
-            f"{chains} (values {values.tolist()}); check that the surrogate mean is finite "
-            "for parameters inside their bounds and that the data are finite")
+    bad = ~np.isfinite(values) | ~np.all(np.isfinite(grads), axis=1)
+    if bad.any():
+        raise CalibrationError(initial_point_message(name, values, bad))
+
+
+def initial_point_message(name: str, values: np.ndarray, bad: np.ndarray) -> str:
+    """The error for initial points (chains ``bad``, (n_chains,) bool) where the
+    log-density (``values`` (n_chains,)) or its gradient is not finite."""
+    values = np.asarray(values, dtype=float)
+    what = ("log-density" if (~np.isfinite(values[bad])).any()
+            else "gradient of the log-density")
+    return (f"{name}: the {what} is not finite at the initial point(s) of chain(s) "
+            f"{np.flatnonzero(bad).tolist()} (values {values.tolist()}); check that the "
+            "surrogate mean is finite for parameters inside their bounds and that the data "
+            "are finite")

@@ -1,10 +1,12 @@
 """NUTS sampling of a calibration log-density: several chains, compiled once, reused.
 
-The sampler is BlackJAX's NUTS kernel after BlackJAX's ``window_adaptation`` (Stan's
-windowed warm-up: dual averaging of the step size, Welford estimate of a diagonal or
-dense inverse mass matrix), the whole warm-up + sampling run of a chain being one XLA
-program. Chains run in parallel across XLA host devices (``pmap``) when there are at
-least two devices (see :func:`calnet.calibration.devices.configure_host_devices`),
+The sampler is BlackJAX's NUTS kernel after Stan's windowed warm-up (BlackJAX's dual
+averaging of the step size and Welford estimate of a diagonal or dense inverse mass
+matrix, on Stan's window schedule), the whole warm-up + sampling run of a chain being one
+XLA program with one copy of the kernel. The same program checks the initial points: a
+chain whose log-density or gradient is not finite there does not run, and
+:func:`sample_nuts` raises. Chains run in parallel across XLA host devices (``pmap``)
+when there are at least two devices (see :func:`calnet.calibration.devices.configure_host_devices`),
 otherwise one after another inside one program (``sequential``) or in lock-step
 (``vectorized``).
 
@@ -27,21 +29,21 @@ import threading
 import time
 from collections import OrderedDict
 from collections.abc import Callable, Hashable, Iterator
-from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass
 from functools import partial
-from typing import Any
+from typing import Any, NamedTuple
 
-import blackjax
 import jax
 import jax.numpy as jnp
 import numpy as np
-from blackjax.adaptation.base import get_filter_adapt_info_fn
+from blackjax.adaptation.mass_matrix import mass_matrix_adaptation
+from blackjax.adaptation.step_size import dual_averaging_adaptation
+from blackjax.adaptation.window_adaptation import build_schedule
 from blackjax.mcmc import nuts
 
 from calnet.calibration.diagnostics import import_arviz
-from calnet.calibration.koh import check_initial
+from calnet.calibration.koh import initial_point_message
 from calnet.errors import CalibrationError
 from calnet.parallel import one_blas_thread
 from calnet.progress import Lines
@@ -164,40 +166,111 @@ def _maybe_report(cfg: _Config, chain, i, total):
                      lambda: None)
 
 
+# ----------------------------------------------------------------------------- warm-up
+class _Adaptation(NamedTuple):
+    """Stan's windowed adaptation: dual averaging of the step size, a Welford estimate of
+    the inverse mass matrix over slow windows that forget each other."""
+
+    step: Any  # dual-averaging state
+    metric: Any  # mass-matrix estimation state
+    step_size: jax.Array
+    inverse_mass_matrix: jax.Array
+
+
+def _adaptation(cfg: _Config):
+    """``(init, update, final)`` of :class:`_Adaptation`, from BlackJAX's dual averaging
+    and mass-matrix estimation (the pieces of its ``window_adaptation``, whose ``run``
+    owns its own copy of the NUTS kernel)."""
+    da_init, da_update, da_final = dual_averaging_adaptation(cfg.target_accept)
+    mm_init, mm_update, mm_final = mass_matrix_adaptation(not cfg.dense_mass)
+
+    def init(step_size):
+        metric = mm_init(cfg.dim)
+        return _Adaptation(da_init(step_size), metric, jnp.asarray(step_size, dtype=float),
+                           metric.inverse_mass_matrix)
+
+    def update(a: _Adaptation, slow, window_end, position, acceptance_rate):
+        step = da_update(a.step, acceptance_rate)
+        metric = jax.lax.cond(slow, lambda m: mm_update(m, position), lambda m: m, a.metric)
+        a = _Adaptation(step, metric, jnp.exp(step.log_step_size), a.inverse_mass_matrix)
+
+        def close_window(a):  # a new mass matrix; the step size starts again from it
+            metric = mm_final(a.metric)
+            step = da_init(da_final(a.step))
+            return _Adaptation(step, metric, jnp.exp(step.log_step_size),
+                               metric.inverse_mass_matrix)
+        return jax.lax.cond(window_end, close_window, lambda a: a, a)
+
+    def final(a: _Adaptation):
+        return jnp.exp(a.step.log_step_size_avg), a.inverse_mass_matrix
+
+    return init, update, final
+
+
+def _schedule(num_warmup: int, num_draws: int) -> tuple[np.ndarray, ...]:
+    """Per iteration: warm-up?, slow window?, end of a slow window? (Stan's schedule)."""
+    with jax.ensure_compile_time_eval():  # BlackJAX builds it with jnp; a constant here
+        plan = np.asarray(build_schedule(num_warmup), dtype=int).reshape(-1, 2)
+    pad = np.zeros(num_draws, dtype=int)
+    warm = np.r_[np.ones(num_warmup, dtype=bool), pad.astype(bool)]
+    return warm, np.r_[plan[:, 0], pad].astype(bool), np.r_[plan[:, 1], pad].astype(bool)
+
+
 # ----------------------------------------------------------------------------- one chain
 def _run_chain(cfg: _Config, data, key, u0, chain):
-    """Warm-up then sampling of one chain, as one XLA program.
+    """Warm-up then sampling of one chain, as one XLA program with one NUTS kernel.
+
+    The warm-up iterations and the sampling iterations are one scan: the kernel runs with
+    the adapted step size and mass matrix during the warm-up and with their final values
+    after it, so that it is traced and compiled once. A chain whose initial point has a
+    non-finite log-density or gradient does not run (its outputs are zeros).
 
     Returns the positions and transition statistics of the sampling iterations, the
-    final step size and inverse mass matrix.
+    final step size and inverse mass matrix, and the log-density and whether it and its
+    gradient are finite at the initial point.
     """
     logdensity = partial(cfg.spec.logdensity, data)
     key_w, key_s = jax.random.split(key)
-    if cfg.num_warmup:
-        warmup = blackjax.window_adaptation(
-            blackjax.nuts, logdensity, is_mass_matrix_diagonal=not cfg.dense_mass,
-            target_acceptance_rate=cfg.target_accept,
-            adaptation_info_fn=get_filter_adapt_info_fn(),
-            max_num_doublings=cfg.max_tree_depth)
-        (state, params), _ = warmup.run(key_w, u0, num_steps=cfg.num_warmup)
-        step_size, imm = params["step_size"], params["inverse_mass_matrix"]
-    else:
-        state = nuts.init(u0, logdensity)
-        step_size = jnp.asarray(1.0)
-        imm = jnp.ones(cfg.dim) if not cfg.dense_mass else jnp.eye(cfg.dim)
     kernel = nuts.build_kernel()
+    init, update, final = _adaptation(cfg)
+    state0 = nuts.init(u0, logdensity)
+    ok = jnp.isfinite(state0.logdensity) & jnp.all(jnp.isfinite(state0.logdensity_grad))
     total = cfg.num_warmup + cfg.num_draws
+    warm, slow, window_end = (jnp.asarray(a) for a in _schedule(cfg.num_warmup,
+                                                                 cfg.num_draws))
+    keys = jnp.concatenate([jax.random.split(key_w, cfg.num_warmup),
+                            jax.random.split(key_s, cfg.num_draws)])
 
-    def one_step(state, xs):
-        k, i = xs
+    def one_step(carry, xs):
+        state, adapt, step_size, imm = carry
+        k, i, w, s, e = xs
+        step_size = jnp.where(w, adapt.step_size, step_size)
+        imm = jnp.where(w, adapt.inverse_mass_matrix, imm)
         state, info = kernel(k, state, logdensity, step_size, imm,
                              max_num_doublings=cfg.max_tree_depth)
+        adapted = update(adapt, s, e, state.position, info.acceptance_rate)
+        adapt = jax.tree.map(lambda a, b: jnp.where(w, a, b), adapted, adapt)
+        # after the last warm-up iteration the step size and mass matrix are frozen
+        done = final(adapt)
+        last = i == cfg.num_warmup - 1
+        step_size, imm = (jnp.where(last, d, p) for d, p in zip(done, (step_size, imm),
+                                                                strict=True))
         _maybe_report(cfg, chain, i, total)
-        return state, (state.position, _stats(state, info))
+        return (state, adapt, step_size, imm), (state.position, _stats(state, info))
 
-    xs = (jax.random.split(key_s, cfg.num_draws), cfg.num_warmup + jnp.arange(cfg.num_draws))
-    _, (positions, stats) = jax.lax.scan(one_step, state, xs)
-    return positions, stats, step_size, imm
+    adapt = init(1.0)
+    carry = (state0, adapt, adapt.step_size, adapt.inverse_mass_matrix)
+    xs = (keys, jnp.arange(total), warm, slow, window_end)
+
+    def run(carry):
+        (_, _, step_size, imm), (positions, stats) = jax.lax.scan(one_step, carry, xs)
+        return (jax.tree.map(lambda a: a[cfg.num_warmup:], positions),
+                jax.tree.map(lambda a: a[cfg.num_warmup:], stats), step_size, imm)
+
+    shapes = jax.eval_shape(run, carry)
+    out = jax.lax.cond(ok, run, lambda c: jax.tree.map(
+        lambda sd: jnp.zeros(sd.shape, sd.dtype), shapes), carry)
+    return (*out, state0.logdensity, ok)
 
 
 def _stats(state, info) -> dict:
@@ -374,16 +447,11 @@ def sample_nuts(
                                f"got {u0.shape}")
     keys = jax.random.split(jax.random.fold_in(jax.random.PRNGKey(seed), 1), num_chains)
     ids = jnp.arange(num_chains)
-    u_start = u0
     if method == "parallel":  # (devices, chains per device, ...)
         keys, u0, ids = (a.reshape((groups, num_chains // groups) + a.shape[1:])
                          for a in (keys, u0, ids))
     args = (keys, u0, ids, ld.data)
-    # XLA compiles the sampler on one core: check the initial points on the other
-    with ThreadPoolExecutor(max_workers=1) as pool:
-        compiling = pool.submit(_compiled, cfg, args)
-        check_initial(ld, u_start, ld.name)  # on an error, the pool waits for the compile
-        exe, t_compile = compiling.result()
+    exe, t_compile = _compiled(cfg, args)
     _PROGRESS["fn"], running = _reporter(progress, ld.name, num_chains, num_warmup,
                                          num_draws, t_compile)
     try:
@@ -395,7 +463,9 @@ def sample_nuts(
         _PROGRESS["fn"] = None
     if method == "parallel":  # back to (chains, ...)
         out = jax.tree.map(lambda a: np.asarray(a).reshape((num_chains,) + a.shape[2:]), out)
-    positions, stats, step_size, _ = jax.tree.map(np.asarray, out)
+    positions, stats, step_size, _, lp0, ok = jax.tree.map(np.asarray, out)
+    if not ok.all():
+        raise CalibrationError(initial_point_message(ld.name, lp0, ~ok))
     keep = slice(thin - 1, None, thin)  # the program returns the sampling iterations only
     constrained = _constrain_draws(ld, positions[:, keep])
     posterior = {v: constrained[v] for v in ld.sampled_vars}
