@@ -113,6 +113,60 @@ def _switches(links: tuple[str, ...], on: tuple[str, ...] = ()) -> dict:
     return {k: jnp.asarray(1.0 if k in on else 0.0) for k in links}
 
 
+DRAW_BLOCK = 20
+"""Posterior draws per call of a compiled predictive program."""
+ROW_BLOCKS = (64, 1024)
+"""Rows (process settings) per call: the smallest block that holds them all, else the
+largest, as often as needed. With the draws in blocks of :data:`DRAW_BLOCK`, a data set's
+predictive programs compile once for its data, leave-one-out points and test points (64)
+and once for its Sobol points and map grid (1024), whatever the number of draws."""
+
+
+def _padded(a, n: int, axis: int):
+    """``a`` repeated at its last entry along ``axis`` to length ``n``."""
+    k = a.shape[axis]
+    if k == n:
+        return a
+    return jnp.take(a, np.r_[np.arange(k), np.full(n - k, k - 1)], axis=axis)
+
+
+def _block(tree, where: tuple[slice, ...], sizes: tuple[int, ...]):
+    """Every array of ``tree`` cut to ``where`` along its first axes and padded to
+    ``sizes`` (see :func:`_padded`)."""
+    def cut(a):
+        a = a[where]
+        for axis, n in enumerate(sizes):
+            a = _padded(a, n, axis)
+        return a
+    return jax.tree.map(cut, tree)
+
+
+def _blocked(fn, n_draws: int, n_rows: int, draws, rows, both=None):
+    """``fn(draws, rows, both)`` over blocks of draws and rows, the results (pytrees of
+    (draws, rows) arrays) put together as NumPy arrays.
+
+    ``draws``: pytree of arrays with the draws first; ``rows``: with the rows first;
+    ``both``: (draws, rows, ...). A short block is padded with copies of its last draw or
+    row, whose results are dropped: the rows and draws of the predictive are independent.
+    """
+    if not n_rows or not n_draws:
+        return jax.tree.map(np.asarray, fn(draws, rows, both or {}))
+    R = next((b for b in ROW_BLOCKS if n_rows <= b), ROW_BLOCKS[-1])
+    D = DRAW_BLOCK
+    columns = []
+    for r0 in range(0, n_rows, R):
+        r = slice(r0, min(r0 + R, n_rows))
+        blocks = []
+        for d0 in range(0, n_draws, D):
+            d = slice(d0, min(d0 + D, n_draws))
+            res = fn(_block(draws, (d,), (D,)), _block(rows, (r,), (R,)),
+                     _block(both or {}, (d, r), (D, R)))
+            blocks.append(_block(res, (slice(0, d.stop - d.start), slice(0, r.stop - r.start)),
+                                 ()))
+        columns.append(jax.tree.map(lambda *a: np.concatenate(a, axis=0), *blocks))
+    return jax.tree.map(lambda *a: np.concatenate(a, axis=1), *columns)
+
+
 @dataclass(frozen=True)
 class _Setup:
     """What every predictive evaluation of one data set needs."""
@@ -246,8 +300,10 @@ def mean_function(network: Network, surrogates: Surrogates, posterior: NetworkPo
     def f(x):
         x = np.atleast_2d(np.asarray(x, dtype=float))
         xp = {k: jnp.asarray(x[:, j]) for j, k in enumerate(st.keys)}
-        mean = _means_over_draws(st.spec, st.gps, st.tdata, xp, st.thetas, st.hyper)
-        z = np.asarray(mean) * float(st.tdata["y_sd"]) + float(st.tdata["y_mean"])
+        mean = _blocked(lambda d, r, _: _means_over_draws(st.spec, st.gps, st.tdata, r,
+                                                          d["thetas"], d["hyper"]),
+                        len(idx), len(x), {"thetas": st.thetas, "hyper": st.hyper}, xp)
+        z = mean * float(st.tdata["y_sd"]) + float(st.tdata["y_mean"])
         z = np.exp(z) if st.log else z
         return z if per_draw else np.mean(z, axis=0)
 
@@ -293,8 +349,11 @@ def predict(network: Network, surrogates: Surrogates, posterior: NetworkPosterio
     key = network.dataset(dataset).observes
 
     def run(eps_on):
-        return _moments_over_draws(st.spec, _switches(links, tuple(eps_on)), st.gps,
-                                   st.tdata, xp_new, st.thetas, st.hyper, eps, noise_new)
+        on = _switches(links, tuple(eps_on))
+        return _blocked(lambda d, r, b: _moments_over_draws(
+            st.spec, on, st.gps, st.tdata, r["xp"], d["thetas"], d["hyper"], b, r["noise"]),
+            len(idx), len(x), {"thetas": st.thetas, "hyper": st.hyper},
+            {"xp": xp_new, "noise": noise_new}, eps)
 
     mean0, var_delta, var_emu, noise = (np.asarray(a) for a in run(()))
     # the spread of the mean over draws: parameters, and the discrepancy's and noise's
