@@ -294,16 +294,14 @@ def surrogates(
     """Fit a GP surrogate per output needed; print the CV table."""
     from rich.table import Table
 
+    from calnet.pipeline import surrogate_stage
     from calnet.spec import load_spec
-    from calnet.surrogates.fit_network import fit_surrogates
-    from calnet.surrogates.plots import parity_plots
 
     network = load_spec(spec)
     out.mkdir(parents=True, exist_ok=True)  # a bad --out fails now, not after the fits
     with _working("fitting surrogates") as note:
-        sur = fit_surrogates(network, cv=not no_cv, progress=note)
-    sur.save(out)
-    parity_plots(network, sur, out)
+        sur, _ = surrogate_stage(network, folder=out, figures=out, cv=not no_cv,
+                                 progress=note)
     table = Table("output", "runs", "excluded", "k", "MAPE %", "RMSE", "95% coverage")
     for key, s in sur.items.items():
         cv = s.cv.metrics() if s.cv else {}
@@ -336,8 +334,7 @@ def calibrate(
     from rich.table import Table
 
     from calnet.calibration.calibrate_network import calibrate as run_calibration
-    from calnet.calibration.persist import save_posterior
-    from calnet.calibration.summary import posterior_summary
+    from calnet.pipeline import record_calibration
     from calnet.report.build import posterior_figures
     from calnet.spec import load_spec
     from calnet.surrogates.fit_network import Surrogates
@@ -347,9 +344,9 @@ def calibrate(
     out.mkdir(parents=True, exist_ok=True)  # a bad --out fails now, not after sampling
     with _working("calibrating") as note:
         post = run_calibration(network, sur, mode=mode, plug=plug, progress=note)
-    save_posterior(post, out)
-    summary = posterior_summary(network, post)
-    doc = {**summary, "surrogate_check": {c.dataset: c.to_dict() for c in post.checks}}
+    result = record_calibration(network, post, folder=out)
+    summary = result.models
+    doc = {**summary, "surrogate_check": result.surrogate_check}
     (out / "summary.json").write_text(json.dumps(doc, indent=1, default=_json_default))
     if not post.calibrated:
         kept = (f"the parameters of {', '.join(post.prior_only)} keep their priors "
@@ -377,7 +374,7 @@ def calibrate(
                           f"{r['mean']:.4g}", f"[{r['q2.5']:.4g}, {r['q97.5']:.4g}]",
                           r["unit"], f"{r.get('rhat', float('nan')):.3f}",
                           f"{r.get('ess_bulk', float('nan')):.0f}")
-    posterior_figures(network, post, summary, out)
+    posterior_figures(result, out)
     console.print(table)
     for model, s in summary.items():
         if not s.get("prior_only") and s["divergences"]:

@@ -17,7 +17,9 @@ from calnet.calibration.calibrate_network import (
 )
 from calnet.calibration.terms import data_scale, parameter_keys
 from calnet.chain import ChainPlan
-from calnet.predict import loo_conditionals, metrics, predict
+from calnet.errors import CalibrationWarning
+from calnet.predict import Prediction, loo_conditionals, metrics, predict
+from calnet.results import Comparison, DatasetValidation, VariantScore
 from calnet.spec import ExperimentalData, Network
 from calnet.spec.models import SamplerSettings
 from calnet.surrogates.fit_network import Surrogates
@@ -238,7 +240,7 @@ def calibrate_variants(network: Network, surrogates: Surrogates, data, variants,
 
 def compare_variants(network: Network, surrogates: Surrogates, posterior: NetworkPosterior,
                      variants: tuple[str, ...], *, sampler: SamplerSettings, seed: int = 0,
-                     progress=None, calibrated=None) -> dict:
+                     progress=None, calibrated=None) -> Comparison:
     """Calibrate each variant of ``network`` (:func:`variant`) on the posterior's data
     and compare it with the spec's own model by PSIS-LOO, per data set (ArviZ's
     ``compare``: ELPD, difference to the best and its standard error, stacking weight).
@@ -246,10 +248,9 @@ def compare_variants(network: Network, surrogates: Surrogates, posterior: Networ
     ``calibrated``: the variants' ``{name: (network, posterior)}`` from
     :func:`calibrate_variants`, when they were calibrated already.
 
-    Returns ``{data set: {model name: {elpd_loo, p_loo, elpd_diff, dse, weight,
-    max_pareto_k, draws, notes}}}`` where the spec's own model is named ``spec``; ``notes``
-    are a variant's failed convergence or surrogate checks (the spec's own are reported
-    with its calibration).
+    Returns ``{data set: {model name: VariantScore}}`` where the spec's own model is
+    named ``spec``; a score's ``notes`` are a variant's failed convergence or surrogate
+    checks (the spec's own are reported with its calibration).
     """
     from calnet.calibration.diagnostics import import_arviz
 
@@ -268,14 +269,67 @@ def compare_variants(network: Network, surrogates: Surrogates, posterior: Networ
                                     pointwise=True, reff=1.0)
         with _quiet_pareto():
             table = az.compare(loos, ic="loo")
-        out[ds] = {name: {"elpd_loo": float(row["elpd_loo"]), "p_loo": float(row["p_loo"]),
-                          "elpd_diff": float(row["elpd_diff"]), "dse": float(row["dse"]),
-                          "weight": float(row["weight"]),
-                          "max_pareto_k": float(np.max(loos[name].pareto_k)),
-                          "draws": int(posts[name][1].n_draws),
-                          "notes": [] if name == "spec" else list(posts[name][1].notes)}
+        out[ds] = {name: VariantScore(
+                       elpd_loo=float(row["elpd_loo"]), p_loo=float(row["p_loo"]),
+                       elpd_diff=float(row["elpd_diff"]), dse=float(row["dse"]),
+                       weight=float(row["weight"]),
+                       max_pareto_k=float(np.max(loos[name].pareto_k)),
+                       draws=int(posts[name][1].n_draws),
+                       notes=() if name == "spec" else tuple(posts[name][1].notes))
                    for name, row in table.iterrows()}
     return out
+
+
+def validate_dataset(network: Network, surrogates: Surrogates, posterior: NetworkPosterior,
+                     data: ExperimentalData, prediction: Prediction, *,
+                     sampler: SamplerSettings, seed: int = 0, loo_max: int | None = None,
+                     baselines_test: dict | None = None, progress=None) -> DatasetValidation:
+    """Errors of the posterior predictive of one data set: at its calibration points, at
+    its test points, left out one at a time (:func:`psis_loo`), with the PIT of every
+    point and the predictive variance's shares.
+
+    Parameters
+    ----------
+    data : ExperimentalData
+        The whole data set (training and test rows, ``data.is_test``).
+    prediction : Prediction
+        :func:`calnet.predict.predict_data` at every row of ``data``.
+    sampler : SamplerSettings
+        The calibration's sampler; the exact leave-one-out refits use
+        :func:`secondary_sampler` of it.
+    loo_max : int, optional
+        Most points re-calibrated exactly where PSIS is unreliable.
+    baselines_test : dict, optional
+        :func:`baselines` at the test points.
+    progress : callable, optional
+        ``progress(text)`` with the refits done.
+
+    Returns
+    -------
+    DatasetValidation
+    """
+    pred, train = prediction, ~data.is_test
+    pit = pred.pit(data.y)  # posterior predictive check: uniform if calibrated
+    errors = metrics(data.y[train], pred.mean[train], pred.lower[train], pred.upper[train],
+                     samples=pred.samples[:, train], pit=pit[train])
+    test = None
+    if data.is_test.any():
+        test = metrics(data.test.y, pred.mean[data.is_test], pred.lower[data.is_test],
+                       pred.upper[data.is_test], samples=pred.samples[:, data.is_test],
+                       pit=pit[data.is_test])
+    # PSIS on the posterior; a point with Pareto k > 0.7 re-samples the observing model's
+    # stage without it
+    loo_sampler = secondary_sampler(sampler)
+    loo = psis_loo(network, surrogates, posterior, data.name, sampler=loo_sampler, seed=seed,
+                   refit_max=loo_max,
+                   progress=(lambda i, n: progress(f"LOO refit {data.name} {i + 1}/{n}"))
+                   if progress else None)
+    if loo.get("pit_check", {}).get("flagged"):
+        warnings.warn(loo["pit_check"]["message"], CalibrationWarning, stacklevel=2)
+    loo["sampler"] = {"chains": loo_sampler.chains, "warmup": loo_sampler.warmup,
+                      "draws": loo_sampler.draws}
+    return DatasetValidation(train=errors, pit=pit, loo=loo, variance_shares=pred.shares(),
+                             test=test, baselines_test=baselines_test)
 
 
 class _Refitter:
