@@ -100,7 +100,7 @@ def write_outputs(ctx, results: RunResults) -> None:
                 f"Predictive check: {d.observes}")
     for key, s in results.predicted_outputs.items():
         fig[f"predicted {key}"] = slices_figure(
-            s.to_dict(), out / "figures" / f"predicted_{key}.png", _output_unit(net, key),
+            s, out / "figures" / f"predicted_{key}.png", _output_unit(net, key),
             {k: net.model(k.split(".")[0]).variable(k.split(".")[1]).unit
              for k in s.input_keys})
     write_metrics(out / "metrics.json", results.to_metrics())
@@ -138,7 +138,7 @@ def _caption(ctx, results: RunResults, key: str) -> str:
     d = ctx.data.get(name)
     observes = d.observes if d is not None else name
     if kind == "predicted":
-        return emulation_caption(name, results.predicted_outputs[name].to_dict())
+        return emulation_caption(name, results.predicted_outputs[name])
     if kind == "network":
         return ("The model network: one box per model with its inputs and outputs (measured "
                 "outputs in red); an arrow carries an upstream quantity into a downstream "
@@ -298,9 +298,8 @@ def _sections(ctx, results: RunResults) -> list[Section]:
         figures=pick("sobol ") + pick("map ") + pick("process "))
     sections = [overview, sur] + ([cal] if rows else []) + ([val, sens] if ctx.data else [])
     if results.predicted_outputs:
-        sections.append(emulation_section(
-            {k: s.to_dict() for k, s in results.predicted_outputs.items()},
-            _predicted_units(ctx, results), pick("predicted ")))
+        sections.append(emulation_section(results.predicted_outputs,
+                                          _predicted_units(ctx, results), pick("predicted ")))
     if ref:
         note = results.reference.get("note")
         sections.append(Section("Comparison with the reference study",

@@ -61,8 +61,7 @@ def headline(results: RunResults, *, units: Mapping[str, str] | None = None,
     cal = results.calibration
     tables = [_parameter_table(cal.models),
               _error_table(results.validation, units or {}),
-              headline_table({k: s.to_dict() for k, s in results.predicted_outputs.items()},
-                             predicted_units or {})]
+              headline_table(results.predicted_outputs, predicted_units or {})]
     warnings = _warnings(results)
     shown = warnings[:MAX_WARNINGS]
     more = None
