@@ -312,4 +312,4 @@ def require(condition: bool, message: str) -> None:
         raise CalnetError(message)
 
 
-__all__ = ["STAGES", "run_pipeline", "np"]
+__all__ = ["STAGES", "run_pipeline", "surrogate_stage", "record_calibration", "np"]

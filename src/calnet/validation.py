@@ -7,21 +7,26 @@ import contextlib
 import warnings
 
 import numpy as np
+from scipy import stats
+from scipy.special import logsumexp
 
 from calnet.calibration.calibrate_network import (
     NetworkPosterior,
     StageResult,
     _sample,
     build_koh,
+    calibrate,
     with_stage,
 )
-from calnet.calibration.terms import data_scale, parameter_keys
+from calnet.calibration.diagnostics import import_arviz
+from calnet.calibration.terms import data_scale, known_noise_var, parameter_keys
 from calnet.chain import ChainPlan
 from calnet.errors import CalibrationWarning
 from calnet.predict import Prediction, loo_conditionals, metrics, predict
 from calnet.results import Comparison, DatasetValidation, VariantScore
 from calnet.spec import ExperimentalData, Network
-from calnet.spec.models import SamplerSettings
+from calnet.spec.models import DiscrepancySettings, SamplerSettings
+from calnet.surrogates import fit_gp
 from calnet.surrogates.fit_network import Surrogates
 
 
@@ -29,8 +34,6 @@ def baselines(network: Network, train: ExperimentalData, test: ExperimentalData,
               *, seed: int = 0) -> dict[str, dict[str, float]]:
     """Metrics of two naive predictors of ``test``: the training mean, and a GP fitted
     directly to process inputs -> output on the training points."""
-    from calnet.surrogates import fit_gp
-
     out = {"training_mean": metrics(test.y, np.full(len(test.y), train.y.mean()))}
     power = _power_law(train, test)
     if power is not None:
@@ -97,11 +100,6 @@ def psis_loo(network: Network, surrogates: Surrogates, posterior: NetworkPosteri
     ``elpd_loo``, ``elpd_se``, ``p_loo`` (modelled scale), ``pareto_k`` per point,
     ``refit`` (indices refitted exactly) and ``method``.
     """
-    from scipy import stats
-    from scipy.special import logsumexp
-
-    from calnet.calibration.diagnostics import import_arviz
-
     az = import_arviz()
     full = posterior.data[dataset]
     if posterior.n_draws < 2 or len(full.y) < 2:
@@ -166,8 +164,6 @@ def pit_check(name: str, pit) -> dict:
     binomial test of the number of points outside the central 95 % band (too narrow;
     the KS test is weak against PIT values piled at both ends). Returns
     ``dict(ks_pvalue, outside95, outside_pvalue, flagged, message)``."""
-    from scipy import stats
-
     pit = np.asarray(pit, float)
     n = len(pit)
     outside = int(np.sum((pit < 0.025) | (pit > 0.975)))
@@ -193,8 +189,6 @@ def variant(network: Network, name: str) -> Network:
     """``network`` with every data set's discrepancy replaced: ``no_discrepancy`` (none),
     ``non_orthogonal`` (the same priors, not orthogonal to the parameters) or
     ``reference`` (the reference study's KOH)."""
-    from calnet.spec.models import DiscrepancySettings
-
     def new(ds):
         if name == "no_discrepancy":
             return DiscrepancySettings(enabled=False)
@@ -226,8 +220,6 @@ def calibrate_variants(network: Network, surrogates: Surrogates, data, variants,
     Nothing is warned: each posterior's convergence and surrogate checks are in its
     ``notes``, so this can run in a thread beside the spec's own calibration.
     """
-    from calnet.calibration.calibrate_network import calibrate
-
     out = {}
     for name in variants:
         if progress:
@@ -252,8 +244,6 @@ def compare_variants(network: Network, surrogates: Surrogates, posterior: Networ
     named ``spec``; a score's ``notes`` are a variant's failed convergence or surrogate
     checks (the spec's own are reported with its calibration).
     """
-    from calnet.calibration.diagnostics import import_arviz
-
     az = import_arviz()
     if calibrated is None:
         calibrated = calibrate_variants(network, surrogates, posterior.data, variants,
@@ -371,7 +361,5 @@ class _Refitter:
 
 
 def _noise_var(network: Network, data: ExperimentalData, i: int):
-    from calnet.calibration.terms import known_noise_var
-
     var = known_noise_var(network, data)
     return None if var is None else var[i:i + 1]

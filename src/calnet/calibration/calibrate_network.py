@@ -37,6 +37,7 @@ from calnet.calibration.diagnostics import (
     kde_mode,
     summarize,
 )
+from calnet.calibration.guard import check_bounds, check_surrogates
 from calnet.calibration.koh import KOHDensity, KOHModel, Term
 from calnet.calibration.priors import parameter_prior
 from calnet.calibration.sampling import sample_nuts
@@ -297,8 +298,6 @@ def _checked(network, surrogates, post: NetworkPosterior, warn: bool) -> Network
     """``post`` with its surrogate checks; warns (or, without ``warn``, notes) where a
     surrogate sets the answer, a posterior piles up at a bound, or a convergence check
     failed."""
-    from calnet.calibration.guard import check_bounds, check_surrogates
-
     checks = tuple(check_surrogates(network, surrogates, post))
     messages = [c.message() for c in checks if c.message()]
     messages += check_bounds(network, post) + list(post.notes)
