@@ -21,6 +21,7 @@ from rich.console import Console
 from rich.progress import BarColumn, Progress, TaskID, TextColumn, TimeElapsedColumn
 
 from calnet.calibration.calibrate_network import NetworkPosterior
+from calnet.calibration.diagnostics import import_arviz
 from calnet.calibration.persist import save_posterior
 from calnet.calibration.sampling import cache_info
 from calnet.calibration.summary import calibration_result
@@ -89,6 +90,12 @@ def run_pipeline(spec: str | Path, *, out: Path, fresh: bool = False, quick: boo
     ctx = _Context(network, out, quick, fresh, loo_max if loo_max is not None
                    else (12 if quick else 15))
     ctx.run_info["timings_s"] = timings
+    # ArviZ imports matplotlib.pyplot, whose import records warnings (catch_warnings with
+    # record=True sets process-wide state): imported first in a stage's thread while the
+    # main thread enters and leaves its own warning contexts, it can leave the main
+    # thread's warnings recorded into a list that nobody reads. Import it before any stage
+    # starts a thread.
+    import_arviz()
     with _display(console) as show:
         for i, stage in enumerate(STAGES):
             show.start(stage, i)
