@@ -23,7 +23,7 @@ class _Dict(SimpleNamespace):
 
 def _run(**kw):
     sur = SimpleNamespace(summary=lambda: {"M.y": {"n_runs": 20}})
-    cal = kw.pop("calibration", CalibrationResult("joint", "-", True, {"M": {}},
+    cal = kw.pop("calibration", CalibrationResult("joint", "-", True, {"M": {}}, 1.01, 400,
                                                   sampler={"chains": 4}, notes=("n",)))
     return RunResults("net", True, {"M": CampaignSummary(22, 2, {"ok": 20, "failed": 2})},
                       sur, cal, **kw)
@@ -57,7 +57,7 @@ def test_a_calibrated_run_writes_every_stage():
 
 
 def test_an_emulation_only_run_writes_no_calibration_comparison_or_predicted_outputs():
-    none = CalibrationResult("none", "-", False, {})
+    none = CalibrationResult("none", "-", False, {}, 1.01, 400)
     m = _run(calibration=none).to_metrics()
     assert "calibration" not in m and "comparison" not in m
     assert "predicted_outputs" not in m

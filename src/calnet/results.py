@@ -182,6 +182,9 @@ class CalibrationResult:
     models : dict
         Per model, :func:`calnet.calibration.summary.posterior_summary`: parameters
         (range, mode, mean, interval, R-hat, ESS), divergences, max R-hat, min bulk ESS.
+    rhat_max, ess_min : float
+        The convergence limits the sampler's diagnostics are held to
+        (:mod:`calnet.calibration.diagnostics`).
     theta : dict of model -> ndarray (n_draws, n_parameters)
         Parameter draws per model.
     panels : dict of model -> tuple of PriorPanel
@@ -192,21 +195,19 @@ class CalibrationResult:
         What the user should know about how the posterior was obtained.
     surrogate_check : dict of data set -> dict
         The surrogates' sd at the posterior against the data's.
-    rhat_max, ess_min : float
-        The convergence limits the sampler's diagnostics are held to.
     """
 
     mode: str
     plug: str
     calibrated: bool
     models: Mapping[str, Mapping[str, Any]]
+    rhat_max: float
+    ess_min: float
     theta: Mapping[str, np.ndarray] = field(default_factory=dict)
     panels: Mapping[str, tuple[PriorPanel, ...]] = field(default_factory=dict)
     sampler: Mapping[str, Any] = field(default_factory=dict)
     notes: tuple[str, ...] = ()
     surrogate_check: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
-    rhat_max: float = 1.01
-    ess_min: float = 400
 
     def to_dict(self) -> dict[str, Any]:
         """The ``calibration`` entry of metrics.json."""

@@ -84,7 +84,8 @@ def test_emulation_only_and_parameterless_runs_say_what_was_calibrated():
     sl = OutputSlices("M3.y", ("M1.x",), arr(0.0, 0.5, 1.0), arr(1.0, 2.0, 4.0),
                       arr(0.5, 1.8, 3.0), arr(1.5, 2.2, 5.0), np.array([0.5]),
                       {"emulator M3.y": 1.0})
-    none = CalibrationResult(mode="none", plug="-", calibrated=False, models={})
+    none = CalibrationResult(mode="none", plug="-", calibrated=False, models={}, rhat_max=1.01,
+                             ess_min=400)
     emulated = replace(results(), warnings=(), validation={}, calibration=none,
                        predicted_outputs={"M3.y": sl})
     box = headline(emulated, predicted_units={"M3.y": "mm"})

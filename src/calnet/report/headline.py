@@ -11,7 +11,8 @@ Examples
 ...                                       "q97.5": 2.5}},
 ...                  "max_rhat": 1.002, "min_ess_bulk": 900.0, "divergences": 0,
 ...                  "stage": "M"}}
->>> cal = CalibrationResult(mode="joint", plug="-", calibrated=True, models=summary)
+>>> cal = CalibrationResult(mode="joint", plug="-", calibrated=True, models=summary,
+...                         rhat_max=1.01, ess_min=400)
 >>> box = headline(RunResults("net", False, {}, None, cal))
 >>> box.tables[0].rows
 (('M.k', 2.0, '[1.5, 2.5]', 'W'),)
