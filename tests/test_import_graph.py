@@ -10,6 +10,7 @@ The layers, lowest first (a module may import from its own layer or a lower one)
 - simulators: the built-in physics, which know nothing of specs (loading a spec checks a
   built-in simulator's names against :mod:`calnet.simulators.registry`);
 - spec: variables, models, the network, loading YAML;
+- results: the typed stage results that the report renders (plain data);
 - gp: the Gaussian-process library (kernels, likelihood, fit, cross-validation, files,
   the GP input space of a model) and :mod:`calnet.chain` (the network as a function of
   GPs): pure numerics that chain-aware campaign designs use to place downstream runs;
@@ -30,6 +31,7 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
                    "calnet.parallel", "calnet.progress")),
     ("simulators", ("calnet.simulators",)),
     ("spec", ("calnet.spec",)),
+    ("results", ("calnet.results",)),
     ("gp", ("calnet.surrogates.kernels", "calnet.surrogates.likelihood",
             "calnet.surrogates.gp", "calnet.surrogates.fit", "calnet.surrogates.cv",
             "calnet.surrogates.persist", "calnet.surrogates.space", "calnet.chain")),
@@ -190,6 +192,34 @@ def test_no_import_cycle():
     assert not gone, f"these known cycles are gone; delete them from KNOWN_CYCLES: {gone}"
 
 
+#: what the report may not import, directly or through another module: it renders the
+#: stages' results (:mod:`calnet.results`) and computes nothing of its own
+NOT_IN_REPORT = ("calnet.calibration", "calnet.predict", "calnet.surrogates",
+                 "calnet.validation")
+
+
+def reachable(graph: dict[str, set[str]], start: set[str]) -> set[str]:
+    """Every module imported from ``start``, directly or through others."""
+    seen, todo = set(), list(start)
+    while todo:
+        for w in graph.get(todo.pop(), ()):
+            if w not in seen:
+                seen.add(w)
+                todo.append(w)
+    return seen
+
+
+def test_the_report_only_renders():
+    graph = import_graph()
+    report = {m for m in graph if m == "calnet.report" or m.startswith("calnet.report.")}
+    bad = sorted(m for m in reachable(graph, report)
+                 if any(m == p or m.startswith(p + ".") for p in NOT_IN_REPORT))
+    paths = [f"{a} -> {b}" for a in sorted(report) for b in sorted(graph[a])
+             if b in bad or reachable(graph, {b}) & set(bad)]
+    assert not bad, (f"report/ reaches {bad} through: {paths}; compute it in the stage and "
+                     "hand it over in calnet.results")
+
+
 def test_the_graph_sees_function_local_and_relative_imports(tmp_path):
     pkg = tmp_path / "calnet"
     (pkg / "sub").mkdir(parents=True)
@@ -203,3 +233,4 @@ def test_the_graph_sees_function_local_and_relative_imports(tmp_path):
     assert graph["calnet.low"] == {"calnet.sub.high"}
     assert graph["calnet.sub.high"] == {"calnet.low"}
     assert cycles(graph) == [["calnet.low", "calnet.sub.high", "calnet.low"]]
+    assert reachable(graph, {"calnet.low"}) == {"calnet.low", "calnet.sub.high"}

@@ -6,6 +6,7 @@ traceback; spec errors exit with code 2, other errors with code 1.
 
 from __future__ import annotations
 
+import csv as csv_mod
 import functools
 import inspect
 import json
@@ -26,6 +27,7 @@ from typer.core import TyperCommand, TyperGroup
 from calnet import __version__
 from calnet.calibration.devices import configure_host_devices, enable_compilation_cache
 from calnet.errors import CalnetError, SpecError
+from calnet.files import make_folder, replacing
 
 
 def _reflow(text: str | None) -> str | None:
@@ -294,16 +296,14 @@ def surrogates(
     """Fit a GP surrogate per output needed; print the CV table."""
     from rich.table import Table
 
+    from calnet.pipeline import surrogate_stage
     from calnet.spec import load_spec
-    from calnet.surrogates.fit_network import fit_surrogates
-    from calnet.surrogates.plots import parity_plots
 
     network = load_spec(spec)
     out.mkdir(parents=True, exist_ok=True)  # a bad --out fails now, not after the fits
     with _working("fitting surrogates") as note:
-        sur = fit_surrogates(network, cv=not no_cv, progress=note)
-    sur.save(out)
-    parity_plots(network, sur, out)
+        sur, _ = surrogate_stage(network, folder=out, figures=out, cv=not no_cv,
+                                 progress=note)
     table = Table("output", "runs", "excluded", "k", "MAPE %", "RMSE", "95% coverage")
     for key, s in sur.items.items():
         cv = s.cv.metrics() if s.cv else {}
@@ -336,8 +336,7 @@ def calibrate(
     from rich.table import Table
 
     from calnet.calibration.calibrate_network import calibrate as run_calibration
-    from calnet.calibration.persist import save_posterior
-    from calnet.calibration.summary import posterior_summary
+    from calnet.pipeline import record_calibration
     from calnet.report.build import posterior_figures
     from calnet.spec import load_spec
     from calnet.surrogates.fit_network import Surrogates
@@ -347,9 +346,9 @@ def calibrate(
     out.mkdir(parents=True, exist_ok=True)  # a bad --out fails now, not after sampling
     with _working("calibrating") as note:
         post = run_calibration(network, sur, mode=mode, plug=plug, progress=note)
-    save_posterior(post, out)
-    summary = posterior_summary(network, post)
-    doc = {**summary, "surrogate_check": {c.dataset: c.to_dict() for c in post.checks}}
+    result = record_calibration(network, post, folder=out)
+    summary = result.models
+    doc = {**summary, "surrogate_check": result.surrogate_check}
     (out / "summary.json").write_text(json.dumps(doc, indent=1, default=_json_default))
     if not post.calibrated:
         kept = (f"the parameters of {', '.join(post.prior_only)} keep their priors "
@@ -377,36 +376,13 @@ def calibrate(
                           f"{r['mean']:.4g}", f"[{r['q2.5']:.4g}, {r['q97.5']:.4g}]",
                           r["unit"], f"{r.get('rhat', float('nan')):.3f}",
                           f"{r.get('ess_bulk', float('nan')):.0f}")
-    posterior_figures(network, post, summary, out)
+    posterior_figures(result, out)
     console.print(table)
     for model, s in summary.items():
         if not s.get("prior_only") and s["divergences"]:
             console.print(f"[yellow]{model}: {s['divergences']} divergent transitions[/]")
     console.print(f"posteriors (ArviZ netCDF, network_posterior.*), summary.json and "
                   f"prior-vs-posterior plots written to {out}")
-
-
-def _takes(network, target: str, name: str) -> bool:
-    """Whether ``name`` (bare or qualified) is a process input of ``target``."""
-    from calnet.predict import resolve_input
-
-    try:
-        return resolve_input(network, target, name) is not None
-    except CalnetError:  # ambiguous: predicting the target says so
-        return True
-
-
-def _predict_posterior(network, run_dir: Path):
-    """The run's posterior; for a network without parameters that was never calibrated
-    (``calnet surrogates`` only), the empty one."""
-    from calnet.calibration.calibrate_network import uncalibrated
-    from calnet.calibration.persist import FILE, load_posterior
-
-    folder = run_dir / "posterior"
-    if not (folder / f"{FILE}.json").is_file() and not any(m.parameters
-                                                          for m in network.models):
-        return uncalibrated(network)
-    return load_posterior(folder, network)
 
 
 @app.command()
@@ -441,48 +417,39 @@ def predict(
     discrepancy and the noise.
     """
     from calnet.emulation import predict_output
+    from calnet.predict import (
+        largest_shares,
+        load_run,
+        prediction_targets,
+        read_points,
+        settings_matrix,
+        shared_inputs,
+        shares_per_point,
+    )
     from calnet.predict import predict as run_predict
-    from calnet.predict import settings_matrix
     from calnet.spec import load_spec
-    from calnet.surrogates.fit_network import Surrogates
 
     network = load_spec(spec)
-    rows = [_parse_at(a) for a in at] + (_read_points(csv) if csv else [])
+    rows = [_parse_at(a) for a in at] + (read_points(csv) if csv else [])
     if not rows:
         raise CalnetError("give the settings to predict at: --at P=200,v=0.5 (repeatable) "
                           "or --csv points.csv")
-    sur_dir = run_dir / "surrogates"
-    if not (sur_dir / "surrogates.json").is_file():
-        raise CalnetError(f"no fitted surrogates in '{sur_dir}'; run 'calnet run SPEC --out "
-                          f"{run_dir}' first, or pass --run DIR")
-    post = _predict_posterior(network, run_dir)
-    sur = Surrogates.load(sur_dir)
-    names = dataset or [*post.hyper, *network.settings.predict]
-    unknown = [d for d in names if d not in (sur.items if "." in d else post.hyper)]
-    if unknown:
-        raise CalnetError(f"nothing to predict for {unknown}; choose a calibrated data set "
-                          f"{list(post.hyper)} or an output with a surrogate {list(sur.items)}")
-    if not names:
-        raise CalnetError("nothing to predict: the network has no data sets and "
-                          "settings.predict is empty; pass -d model.output")
+    sur, post = load_run(network, run_dir)
+    names = prediction_targets(network, sur, post, dataset)
     seed = network.settings.seed if seed is None else seed
     results, table_rows = [], []
     # without -d, a point may carry inputs that only some of the targets take
-    skip = set() if dataset else {k for row in rows for k in row
-                                  if any(_takes(network, d, k) for d in names)}
+    skip = set() if dataset else shared_inputs(network, names, rows)
     for name in names:
         x, notes = settings_matrix(network, name, rows, skip=skip)
         for note in dict.fromkeys(notes):
             warnings.warn(note, stacklevel=1)
         pred = (predict_output(network, sur, post, name, x, seed=seed) if "." in name
                 else run_predict(network, sur, post, name, x, n_draws=draws, seed=seed))
-        shares = [{k: float(v[i]) for k, v in pred.point_shares().items()}
-                  for i in range(len(x))]
-        results.append(pred.to_dict() | {"variance_share_per_point": shares})
+        results.append(pred.to_dict() | {"variance_share_per_point": shares_per_point(pred)})
         model, out_name = pred.observes.split(".")
         unit = network.model(model).output(out_name).unit
-        for i in range(len(x)):
-            top = sorted(shares[i].items(), key=lambda kv: -kv[1])[:3]
+        for i, top in enumerate(largest_shares(pred)):
             table_rows.append((f"{name} (simulator)" if "." in name else pred.observes,
                                ", ".join(f"{k.split('.', 1)[1]}={v:g}" for k, v
                                          in zip(pred.input_keys, x[i], strict=True)),
@@ -504,28 +471,7 @@ def predict(
         console.print(f"predictions written to {output}")
 
 
-def _read_points(path: Path) -> list[dict[str, float]]:
-    import pandas as pd
-
-    if not path.is_file():
-        raise CalnetError(f"--csv: no file '{path}'")
-    try:
-        frame = pd.read_csv(path)
-    except Exception as err:  # noqa: BLE001 - any parse failure is the user's file
-        raise CalnetError(f"--csv {path}: cannot read it as CSV ({err})") from None
-    if frame.empty:
-        raise CalnetError(f"--csv {path}: no rows; write one point per row under the header")
-    bad = [c for c in frame.columns if not pd.api.types.is_numeric_dtype(frame[c])]
-    if bad:
-        raise CalnetError(f"--csv {path}: column(s) {bad} are not numeric")
-    return [{str(k): float(v) for k, v in row.items()} for row in frame.to_dict("records")]
-
-
 def _write_predictions(path: Path, results: list[dict]) -> None:
-    import csv as csv_mod
-
-    from calnet.files import make_folder, replacing
-
     make_folder(path.parent)
     with replacing(path) as tmp, tmp.open("w", newline="") as fh:
         writer = csv_mod.writer(fh)

@@ -20,10 +20,26 @@ import numpy as np
 from rich.console import Console
 from rich.progress import BarColumn, Progress, TaskID, TextColumn, TimeElapsedColumn
 
+from calnet.calibration.calibrate_network import NetworkPosterior
+from calnet.calibration.diagnostics import import_arviz
+from calnet.calibration.persist import save_posterior
+from calnet.calibration.sampling import cache_info
+from calnet.calibration.summary import calibration_result
+from calnet.campaign import default_store, load_runs, run_campaign
+from calnet.emulation import output_slices
 from calnet.errors import CalibrationWarning, CalnetError
+from calnet.explore import explore
 from calnet.parallel import map_threads, one_blas_thread
+from calnet.predict import predict_data
+from calnet.report.build import write_outputs
+from calnet.report.metrics import run_environment, write_run_info
+from calnet.report.reference import read_reference
+from calnet.results import CalibrationResult, CampaignSummary, RunResults
 from calnet.spec import Network, load_spec, read_all
 from calnet.spec.models import SamplerSettings
+from calnet.surrogates.fit_network import Surrogates, fit_surrogates
+from calnet.surrogates.plots import parity_plots
+from calnet.validation import baselines, compare_variants, validate_dataset
 
 STAGES = ("campaign", "surrogates", "calibration", "prediction", "validation",
           "sensitivity", "report")
@@ -74,6 +90,12 @@ def run_pipeline(spec: str | Path, *, out: Path, fresh: bool = False, quick: boo
     ctx = _Context(network, out, quick, fresh, loo_max if loo_max is not None
                    else (12 if quick else 15))
     ctx.run_info["timings_s"] = timings
+    # ArviZ imports matplotlib.pyplot, whose import records warnings (catch_warnings with
+    # record=True sets process-wide state): imported first in a stage's thread while the
+    # main thread enters and leaves its own warning contexts, it can leave the main
+    # thread's warnings recorded into a list that nobody reads. Import it before any stage
+    # starts a thread.
+    import_arviz()
     with _display(console) as show:
         for i, stage in enumerate(STAGES):
             show.start(stage, i)
@@ -90,14 +112,31 @@ def run_pipeline(spec: str | Path, *, out: Path, fresh: bool = False, quick: boo
     _write_run_info(ctx, spec, started)
     console.print(f"report: {out / 'report.html'}  metrics: {out / 'metrics.json'}  "
                   f"total wall time {timings['total']:.1f} s", soft_wrap=True)
-    return ctx.metrics
+    return ctx.results.to_metrics()
+
+
+def surrogate_stage(network: Network, *, folder: Path, figures: Path, **fit) -> tuple[
+        Surrogates, dict[str, Path]]:
+    """Fit the network's surrogates (:func:`calnet.surrogates.fit_network.fit_surrogates`
+    with the keywords ``fit``), write them to ``folder`` and their parity plots to
+    ``figures``: ``(surrogates, {model.output: plot})``. ``calnet run`` and ``calnet
+    surrogates`` both call it."""
+    sur = fit_surrogates(network, **fit)
+    sur.save(folder)
+    return sur, parity_plots(network, sur, figures)
+
+
+def record_calibration(network: Network, post: NetworkPosterior, *, folder: Path,
+                       sampler: SamplerSettings | None = None) -> CalibrationResult:
+    """Write ``post`` to ``folder`` (the stages' netCDFs and what ``calnet predict`` needs)
+    and return its :class:`calnet.results.CalibrationResult`. ``calnet run`` and ``calnet
+    calibrate`` both call it."""
+    save_posterior(post, folder)
+    return calibration_result(network, post, sampler=sampler)
 
 
 def _write_run_info(ctx: _Context, spec: str | Path, started: datetime) -> None:
     """``out/run_info.json``: what changes from run to run, kept out of metrics.json."""
-    from calnet.calibration.sampling import cache_info
-    from calnet.report.metrics import run_environment, write_run_info
-
     stages = {"+".join(s.models): {"compile_s": s.idata.posterior.attrs.get("compile_time"),
                                    "sampling_s": s.idata.posterior.attrs.get("sampling_time")}
               for s in ctx.post.stages}
@@ -165,24 +204,23 @@ class _Context:
         self.network, self.out, self.quick, self.fresh, self.loo_max = (
             network, out, quick, fresh, loo_max)
         self.seed = network.settings.seed
-        self.metrics: dict = {"network": network.name, "quick": quick}
         self.run_info: dict = {}  # what varies between runs with the same seed
         self.warnings: list[str] = []
         self.data = read_all(network)
         self.stores: dict[str, Path] = {}
         self.figures: dict[str, Path] = {}
+        self.campaigns: dict[str, CampaignSummary] = {}
         self.emulated: dict = {}  # settings.predict outputs, from the prediction stage
         self.variants: dict = {}  # settings.compare: {variant: (network, posterior)}
+        self.validated: dict = {}  # data set -> calnet.results.DatasetValidation
+        self.comparison = None  # calnet.results.Comparison, with settings.compare
         self.explored: dict = {}  # data set -> calnet.explore.Exploration
-        self.summary: dict = {}  # model -> calnet.calibration.summary.posterior_summary
+        self.results: RunResults | None = None  # every stage's result, for the report
         self.sampler = (_quick_sampler(network.settings.sampler) if quick
                         else network.settings.sampler)
 
     # ------------------------------------------------------------ stages
     def campaign(self, note) -> None:
-        from calnet.campaign import default_store, load_runs, run_campaign
-
-        summary = {}
         for name in self.network.order:
             if not self.network.needed_outputs(name):
                 continue
@@ -194,22 +232,15 @@ class _Context:
             run_campaign(self.network, name, store=store, progress=note)
             runs = load_runs(self.network, name, store=store)
             self.stores[name] = Path(store)
-            summary[name] = {"n_total": runs.n_total,
-                             "n_excluded": runs.n_excluded,
-                             "status_counts": dict(runs.status_counts)}
-        self.metrics["campaigns"] = summary
+            self.campaigns[name] = CampaignSummary(runs.n_total, runs.n_excluded,
+                                                   dict(runs.status_counts))
 
     def surrogates(self, note) -> None:
-        from calnet.surrogates.fit_network import fit_surrogates
-        from calnet.surrogates.plots import parity_plots
-
-        self.sur = fit_surrogates(self.network, stores=self.stores, seed=self.seed,
-                                  restarts=2 if self.quick else None,
-                                  cv_folds=5 if self.quick else None, progress=note)
-        self.sur.save(self.out / "surrogates")
-        self.figures.update({f"cv {key}": path for key, path in
-                             parity_plots(self.network, self.sur, self.out / "figures").items()})
-        self.metrics["surrogates"] = self.sur.summary()
+        self.sur, parity = surrogate_stage(
+            self.network, folder=self.out / "surrogates", figures=self.out / "figures",
+            stores=self.stores, seed=self.seed, restarts=2 if self.quick else None,
+            cv_folds=5 if self.quick else None, progress=note)
+        self.figures.update({f"cv {key}": path for key, path in parity.items()})
 
     def calibration(self, note) -> None:
         from calnet.calibration.calibrate_network import calibrate
@@ -230,16 +261,11 @@ class _Context:
             self.post = calibrate(self.network, self.sur, data=train, seed=self.seed,
                                   sampler=self.sampler, progress=note)
             self.variants = beside.result() if beside else {}
-        from calnet.calibration.persist import save_posterior
-        from calnet.calibration.summary import posterior_summary
-
-        save_posterior(self.post, self.out / "posterior")  # stage netCDFs + what predict needs
-        self.summary = posterior_summary(self.network, self.post)
+        self.calibrated = record_calibration(self.network, self.post,
+                                             folder=self.out / "posterior",
+                                             sampler=self.sampler)
 
     def prediction(self, note) -> None:
-        from calnet.emulation import output_slices
-        from calnet.predict import predict_data
-
         def one(name):
             note(name)
             return predict_data(self.network, self.sur, self.post, self.data[name],
@@ -254,70 +280,38 @@ class _Context:
                                                seed=self.seed)
 
     def validation(self, note) -> None:
-        from calnet.validation import baselines
-
-        out = {}
         # the naive baselines' GP fits run beside the leave-one-out (one more core)
         with one_blas_thread(), ThreadPoolExecutor(max_workers=1) as pool:
             naive = {name: pool.submit(baselines, self.network, d.train, d.test,
                                        seed=self.seed)
                      for name, d in self.data.items() if d.is_test.any()}
-            self._validate_each(naive, out, note)
-        self.metrics["validation"] = out
+            for name, d in self.data.items():
+                note(f"leave-one-out {name}")
+                self.validated[name] = validate_dataset(
+                    self.network, self.sur, self.post, d, self.predictions[name],
+                    sampler=self.sampler, seed=self.seed, loo_max=self.loo_max,
+                    baselines_test=naive[name].result() if name in naive else None,
+                    progress=note)
         if self.variants:
-            from calnet.validation import compare_variants
-
             note("comparison with " + ", ".join(self.variants))
-            self.metrics["comparison"] = compare_variants(
+            self.comparison = compare_variants(
                 self.network, self.sur, self.post, tuple(self.variants),
                 sampler=self.sampler, seed=self.seed, calibrated=self.variants)
 
-    def _validate_each(self, naive, out, note) -> None:
-        from calnet.predict import metrics
-        from calnet.validation import psis_loo, secondary_sampler
-
-        for name, d in self.data.items():
-            pred = self.predictions[name]
-            pit = pred.pit(d.y)  # posterior predictive check: uniform if calibrated
-            entry = {"train": metrics(d.y[~d.is_test], pred.mean[~d.is_test],
-                                      pred.lower[~d.is_test], pred.upper[~d.is_test],
-                                      samples=pred.samples[:, ~d.is_test],
-                                      pit=pit[~d.is_test]),
-                     "pit": pit.tolist()}
-            if d.is_test.any():
-                entry["test"] = metrics(d.test.y, pred.mean[d.is_test], pred.lower[d.is_test],
-                                        pred.upper[d.is_test], samples=pred.samples[:, d.is_test],
-                                        pit=pit[d.is_test])
-            note(f"leave-one-out {name}")
-            # PSIS on the posterior; a point with Pareto k > 0.7 re-samples the observing
-            # model's stage without it
-            loo_sampler = secondary_sampler(self.sampler)
-            entry["loo"] = psis_loo(
-                self.network, self.sur, self.post, name, sampler=loo_sampler,
-                seed=self.seed, refit_max=self.loo_max,
-                progress=lambda i, n, nm=name: note(f"LOO refit {nm} {i + 1}/{n}"))
-            if entry["loo"].get("pit_check", {}).get("flagged"):
-                warnings.warn(entry["loo"]["pit_check"]["message"], CalibrationWarning,
-                              stacklevel=1)
-            entry["loo"]["sampler"] = {"chains": loo_sampler.chains,
-                                       "warmup": loo_sampler.warmup,
-                                       "draws": loo_sampler.draws}
-            entry["variance_shares"] = self.predictions[name].shares()
-            if name in naive:
-                entry["baselines_test"] = naive[name].result()
-            out[name] = entry
-
     def sensitivity(self, note) -> None:
-        from calnet.explore import explore
-
         self.explored = explore(self.network, self.sur, self.post, self.data, seed=self.seed,
                                 quick=self.quick, progress=note)
 
     def report(self, note) -> None:
-        from calnet.report.build import write_outputs
-
         note("figures, report.html, metrics.json")
-        write_outputs(self)
+        self.results = RunResults(
+            network=self.network.name, quick=self.quick, campaigns=self.campaigns,
+            surrogates=self.sur, calibration=self.calibrated, predictions=self.predictions,
+            validation=self.validated, sensitivity=self.explored,
+            predicted_outputs=self.emulated, comparison=self.comparison,
+            warnings=tuple(sorted(set(self.warnings))),
+            reference=read_reference(self.network.path(".")))
+        write_outputs(self, self.results)
 
 
 def require(condition: bool, message: str) -> None:
@@ -325,4 +319,4 @@ def require(condition: bool, message: str) -> None:
         raise CalnetError(message)
 
 
-__all__ = ["STAGES", "run_pipeline", "np"]
+__all__ = ["STAGES", "run_pipeline", "surrogate_stage", "record_calibration", "np"]

@@ -11,16 +11,19 @@ gives the predictive distribution; the variance is split into its sources.
 
 from __future__ import annotations
 
-from collections.abc import Collection
+from collections.abc import Collection, Sequence
 from dataclasses import dataclass, field
 from functools import partial
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from calnet.calibration.calibrate_network import NetworkPosterior
+from calnet.calibration.calibrate_network import NetworkPosterior, uncalibrated
 from calnet.calibration.koh import KOHModel
+from calnet.calibration.persist import FILE as POSTERIOR_FILE
+from calnet.calibration.persist import load_posterior
 from calnet.calibration.terms import draw_index, known_noise_var, make_term
 from calnet.chain import ChainPlan
 from calnet.errors import CalnetError
@@ -515,3 +518,86 @@ def settings_matrix(network: Network, target: str, rows: list[dict[str, float]],
 def _names(keys: list[str]) -> str:
     bare = [k.split(".", 1)[1] for k in keys]
     return ", ".join(bare if len(set(bare)) == len(bare) else keys)
+
+
+def load_run(network: Network, run_dir: str | Path) -> tuple[Surrogates, NetworkPosterior]:
+    """The surrogates and posterior that ``calnet run`` (or ``calnet surrogates`` and
+    ``calnet calibrate``) wrote to ``run_dir``; for a network without parameters that was
+    never calibrated, the empty posterior."""
+    run_dir = Path(run_dir)
+    sur_dir = run_dir / "surrogates"
+    if not (sur_dir / "surrogates.json").is_file():
+        raise CalnetError(f"no fitted surrogates in '{sur_dir}'; run 'calnet run SPEC --out "
+                          f"{run_dir}' first, or pass --run DIR")
+    folder = run_dir / "posterior"
+    if (not (folder / f"{POSTERIOR_FILE}.json").is_file()
+            and not any(m.parameters for m in network.models)):
+        post = uncalibrated(network)
+    else:
+        post = load_posterior(folder, network)
+    return Surrogates.load(sur_dir), post
+
+
+def prediction_targets(network: Network, surrogates: Surrogates, posterior: NetworkPosterior,
+                       asked: Sequence[str] = ()) -> list[str]:
+    """What to predict: the data sets and ``model.output`` names ``asked``, or (none
+    asked) every calibrated data set and every output of ``settings.predict``."""
+    names = list(asked) or [*posterior.hyper, *network.settings.predict]
+    unknown = [d for d in names if d not in (surrogates.items if "." in d else posterior.hyper)]
+    if unknown:
+        raise CalnetError(f"nothing to predict for {unknown}; choose a calibrated data set "
+                          f"{list(posterior.hyper)} or an output with a surrogate "
+                          f"{list(surrogates.items)}")
+    if not names:
+        raise CalnetError("nothing to predict: the network has no data sets and "
+                          "settings.predict is empty; pass -d model.output")
+    return names
+
+
+def _takes(network: Network, target: str, name: str) -> bool:
+    """Whether ``name`` (bare or qualified) is a process input of ``target``."""
+    try:
+        return resolve_input(network, target, name) is not None
+    except CalnetError:  # ambiguous: predicting the target says so
+        return True
+
+
+def shared_inputs(network: Network, targets: Sequence[str],
+                  rows: list[dict[str, float]]) -> set[str]:
+    """The names in ``rows`` that some of ``targets`` take: a point given for several
+    targets may carry inputs that only some of them take (``skip`` of
+    :func:`settings_matrix`)."""
+    return {k for row in rows for k in row if any(_takes(network, t, k) for t in targets)}
+
+
+def read_points(path: str | Path) -> list[dict[str, float]]:
+    """Process settings from a CSV file, one point per row under a header of input names
+    (bare ``P`` or qualified ``melt_pool.P``): ``[{name: value}, ...]``."""
+    import pandas as pd  # pandas only where points come from a file
+
+    path = Path(path)
+    if not path.is_file():
+        raise CalnetError(f"--csv: no file '{path}'")
+    try:
+        frame = pd.read_csv(path)
+    except Exception as err:  # noqa: BLE001 - any parse failure is the user's file
+        raise CalnetError(f"--csv {path}: cannot read it as CSV ({err})") from None
+    if frame.empty:
+        raise CalnetError(f"--csv {path}: no rows; write one point per row under the header")
+    bad = [c for c in frame.columns if not pd.api.types.is_numeric_dtype(frame[c])]
+    if bad:
+        raise CalnetError(f"--csv {path}: column(s) {bad} are not numeric")
+    return [{str(k): float(v) for k, v in row.items()} for row in frame.to_dict("records")]
+
+
+def shares_per_point(prediction: Prediction) -> list[dict[str, float]]:
+    """Share of each source in the predictive variance, one dict per point."""
+    shares = prediction.point_shares()
+    return [{k: float(v[i]) for k, v in shares.items()} for i in range(len(prediction.mean))]
+
+
+def largest_shares(prediction: Prediction, n: int = 3) -> list[list[tuple[str, float]]]:
+    """Per point, the ``n`` sources with the largest shares of the predictive variance,
+    largest first: ``[[(source, share), ...], ...]``."""
+    return [sorted(point.items(), key=lambda kv: -kv[1])[:n]
+            for point in shares_per_point(prediction)]

@@ -7,19 +7,26 @@ import contextlib
 import warnings
 
 import numpy as np
+from scipy import stats
+from scipy.special import logsumexp
 
 from calnet.calibration.calibrate_network import (
     NetworkPosterior,
     StageResult,
     _sample,
     build_koh,
+    calibrate,
     with_stage,
 )
-from calnet.calibration.terms import data_scale, parameter_keys
+from calnet.calibration.diagnostics import import_arviz
+from calnet.calibration.terms import data_scale, known_noise_var, parameter_keys
 from calnet.chain import ChainPlan
-from calnet.predict import loo_conditionals, metrics, predict
+from calnet.errors import CalibrationWarning
+from calnet.predict import Prediction, loo_conditionals, metrics, predict
+from calnet.results import Comparison, DatasetValidation, VariantScore
 from calnet.spec import ExperimentalData, Network
-from calnet.spec.models import SamplerSettings
+from calnet.spec.models import DiscrepancySettings, SamplerSettings
+from calnet.surrogates import fit_gp
 from calnet.surrogates.fit_network import Surrogates
 
 
@@ -27,8 +34,6 @@ def baselines(network: Network, train: ExperimentalData, test: ExperimentalData,
               *, seed: int = 0) -> dict[str, dict[str, float]]:
     """Metrics of two naive predictors of ``test``: the training mean, and a GP fitted
     directly to process inputs -> output on the training points."""
-    from calnet.surrogates import fit_gp
-
     out = {"training_mean": metrics(test.y, np.full(len(test.y), train.y.mean()))}
     power = _power_law(train, test)
     if power is not None:
@@ -95,11 +100,6 @@ def psis_loo(network: Network, surrogates: Surrogates, posterior: NetworkPosteri
     ``elpd_loo``, ``elpd_se``, ``p_loo`` (modelled scale), ``pareto_k`` per point,
     ``refit`` (indices refitted exactly) and ``method``.
     """
-    from scipy import stats
-    from scipy.special import logsumexp
-
-    from calnet.calibration.diagnostics import import_arviz
-
     az = import_arviz()
     full = posterior.data[dataset]
     if posterior.n_draws < 2 or len(full.y) < 2:
@@ -164,8 +164,6 @@ def pit_check(name: str, pit) -> dict:
     binomial test of the number of points outside the central 95 % band (too narrow;
     the KS test is weak against PIT values piled at both ends). Returns
     ``dict(ks_pvalue, outside95, outside_pvalue, flagged, message)``."""
-    from scipy import stats
-
     pit = np.asarray(pit, float)
     n = len(pit)
     outside = int(np.sum((pit < 0.025) | (pit > 0.975)))
@@ -191,8 +189,6 @@ def variant(network: Network, name: str) -> Network:
     """``network`` with every data set's discrepancy replaced: ``no_discrepancy`` (none),
     ``non_orthogonal`` (the same priors, not orthogonal to the parameters) or
     ``reference`` (the reference study's KOH)."""
-    from calnet.spec.models import DiscrepancySettings
-
     def new(ds):
         if name == "no_discrepancy":
             return DiscrepancySettings(enabled=False)
@@ -224,8 +220,6 @@ def calibrate_variants(network: Network, surrogates: Surrogates, data, variants,
     Nothing is warned: each posterior's convergence and surrogate checks are in its
     ``notes``, so this can run in a thread beside the spec's own calibration.
     """
-    from calnet.calibration.calibrate_network import calibrate
-
     out = {}
     for name in variants:
         if progress:
@@ -238,7 +232,7 @@ def calibrate_variants(network: Network, surrogates: Surrogates, data, variants,
 
 def compare_variants(network: Network, surrogates: Surrogates, posterior: NetworkPosterior,
                      variants: tuple[str, ...], *, sampler: SamplerSettings, seed: int = 0,
-                     progress=None, calibrated=None) -> dict:
+                     progress=None, calibrated=None) -> Comparison:
     """Calibrate each variant of ``network`` (:func:`variant`) on the posterior's data
     and compare it with the spec's own model by PSIS-LOO, per data set (ArviZ's
     ``compare``: ELPD, difference to the best and its standard error, stacking weight).
@@ -246,13 +240,10 @@ def compare_variants(network: Network, surrogates: Surrogates, posterior: Networ
     ``calibrated``: the variants' ``{name: (network, posterior)}`` from
     :func:`calibrate_variants`, when they were calibrated already.
 
-    Returns ``{data set: {model name: {elpd_loo, p_loo, elpd_diff, dse, weight,
-    max_pareto_k, draws, notes}}}`` where the spec's own model is named ``spec``; ``notes``
-    are a variant's failed convergence or surrogate checks (the spec's own are reported
-    with its calibration).
+    Returns ``{data set: {model name: VariantScore}}`` where the spec's own model is
+    named ``spec``; a score's ``notes`` are a variant's failed convergence or surrogate
+    checks (the spec's own are reported with its calibration).
     """
-    from calnet.calibration.diagnostics import import_arviz
-
     az = import_arviz()
     if calibrated is None:
         calibrated = calibrate_variants(network, surrogates, posterior.data, variants,
@@ -268,14 +259,67 @@ def compare_variants(network: Network, surrogates: Surrogates, posterior: Networ
                                     pointwise=True, reff=1.0)
         with _quiet_pareto():
             table = az.compare(loos, ic="loo")
-        out[ds] = {name: {"elpd_loo": float(row["elpd_loo"]), "p_loo": float(row["p_loo"]),
-                          "elpd_diff": float(row["elpd_diff"]), "dse": float(row["dse"]),
-                          "weight": float(row["weight"]),
-                          "max_pareto_k": float(np.max(loos[name].pareto_k)),
-                          "draws": int(posts[name][1].n_draws),
-                          "notes": [] if name == "spec" else list(posts[name][1].notes)}
+        out[ds] = {name: VariantScore(
+                       elpd_loo=float(row["elpd_loo"]), p_loo=float(row["p_loo"]),
+                       elpd_diff=float(row["elpd_diff"]), dse=float(row["dse"]),
+                       weight=float(row["weight"]),
+                       max_pareto_k=float(np.max(loos[name].pareto_k)),
+                       draws=int(posts[name][1].n_draws),
+                       notes=() if name == "spec" else tuple(posts[name][1].notes))
                    for name, row in table.iterrows()}
     return out
+
+
+def validate_dataset(network: Network, surrogates: Surrogates, posterior: NetworkPosterior,
+                     data: ExperimentalData, prediction: Prediction, *,
+                     sampler: SamplerSettings, seed: int = 0, loo_max: int | None = None,
+                     baselines_test: dict | None = None, progress=None) -> DatasetValidation:
+    """Errors of the posterior predictive of one data set: at its calibration points, at
+    its test points, left out one at a time (:func:`psis_loo`), with the PIT of every
+    point and the predictive variance's shares.
+
+    Parameters
+    ----------
+    data : ExperimentalData
+        The whole data set (training and test rows, ``data.is_test``).
+    prediction : Prediction
+        :func:`calnet.predict.predict_data` at every row of ``data``.
+    sampler : SamplerSettings
+        The calibration's sampler; the exact leave-one-out refits use
+        :func:`secondary_sampler` of it.
+    loo_max : int, optional
+        Most points re-calibrated exactly where PSIS is unreliable.
+    baselines_test : dict, optional
+        :func:`baselines` at the test points.
+    progress : callable, optional
+        ``progress(text)`` with the refits done.
+
+    Returns
+    -------
+    DatasetValidation
+    """
+    pred, train = prediction, ~data.is_test
+    pit = pred.pit(data.y)  # posterior predictive check: uniform if calibrated
+    errors = metrics(data.y[train], pred.mean[train], pred.lower[train], pred.upper[train],
+                     samples=pred.samples[:, train], pit=pit[train])
+    test = None
+    if data.is_test.any():
+        test = metrics(data.test.y, pred.mean[data.is_test], pred.lower[data.is_test],
+                       pred.upper[data.is_test], samples=pred.samples[:, data.is_test],
+                       pit=pit[data.is_test])
+    # PSIS on the posterior; a point with Pareto k > 0.7 re-samples the observing model's
+    # stage without it
+    loo_sampler = secondary_sampler(sampler)
+    loo = psis_loo(network, surrogates, posterior, data.name, sampler=loo_sampler, seed=seed,
+                   refit_max=loo_max,
+                   progress=(lambda i, n: progress(f"LOO refit {data.name} {i + 1}/{n}"))
+                   if progress else None)
+    if loo.get("pit_check", {}).get("flagged"):
+        warnings.warn(loo["pit_check"]["message"], CalibrationWarning, stacklevel=2)
+    loo["sampler"] = {"chains": loo_sampler.chains, "warmup": loo_sampler.warmup,
+                      "draws": loo_sampler.draws}
+    return DatasetValidation(train=errors, pit=pit, loo=loo, variance_shares=pred.shares(),
+                             test=test, baselines_test=baselines_test)
 
 
 class _Refitter:
@@ -317,7 +361,5 @@ class _Refitter:
 
 
 def _noise_var(network: Network, data: ExperimentalData, i: int):
-    from calnet.calibration.terms import known_noise_var
-
     var = known_noise_var(network, data)
     return None if var is None else var[i:i + 1]

@@ -243,3 +243,19 @@ def test_stage_timings_reach_the_posterior_not_its_summary(both, indep):
     assert all(t > 0 for t in seg.timings.values()), seg.timings
     summary = posterior_summary(indep[0], seg)
     assert not any("time" in key for m in ("up", "down") for key in summary[m]), summary
+
+
+def test_the_summary_reads_the_diagnostics_the_calibration_computed(both, indep):
+    """R-hat and ESS are computed once, for the convergence check while calibrating; the
+    summary built from them equals one recomputed from the draws. A stage moved by linear
+    response (plug="posterior") has new draws, so its diagnostics are recomputed."""
+    from dataclasses import replace
+
+    from calnet.calibration.summary import posterior_summary
+
+    seg, joint = both
+    assert joint.stages[0].diagnostics is not None
+    assert [s.diagnostics is None for s in seg.stages] == [False, True]  # down was moved
+    for post in (seg, joint):
+        fresh = replace(post, stages=tuple(replace(s, diagnostics=None) for s in post.stages))
+        assert posterior_summary(indep[0], fresh) == posterior_summary(indep[0], post)

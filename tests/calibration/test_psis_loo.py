@@ -127,11 +127,11 @@ def test_compare_says_whether_the_discrepancy_is_needed(tmp_path_factory):
         results[wave] = compare_variants(network, sur, post, ("no_discrepancy",),
                                          sampler=fast, seed=2)["obs"]
     wave = results[0.4]
-    assert wave["spec"]["elpd_diff"] == 0.0 and wave["spec"]["weight"] > 0.9
-    assert wave["no_discrepancy"]["elpd_diff"] > 2 * wave["no_discrepancy"]["dse"]
+    assert wave["spec"].elpd_diff == 0.0 and wave["spec"].weight > 0.9
+    assert wave["no_discrepancy"].elpd_diff > 2 * wave["no_discrepancy"].dse
     flat = results[0.0]
-    worse = max(flat["spec"]["elpd_diff"], flat["no_discrepancy"]["elpd_diff"])
-    assert worse < 3 * max(flat["spec"]["dse"], flat["no_discrepancy"]["dse"], 0.5)
+    worse = max(flat["spec"].elpd_diff, flat["no_discrepancy"].elpd_diff)
+    assert worse < 3 * max(flat["spec"].dse, flat["no_discrepancy"].dse, 0.5)
 
 
 @pytest.mark.slow

@@ -1,5 +1,7 @@
-"""What a finished run hands the report: a posterior summary and metrics, small (for the
-headline and render tests)."""
+"""What a finished run hands the report: its results, small (for the headline and render
+tests)."""
+
+from calnet.results import CalibrationResult, DatasetValidation, RunResults
 
 GUARD = ("pdas: the surrogate, not the data, sets the answer: the surrogate sd at the "
          "posterior (0.107) is 0.68 x the data's noise and discrepancy sd (0.157), ...")
@@ -27,25 +29,40 @@ def summary(rhat=1.002, ess=900.0, divergences=0):
         "extra": {"prior_only": True}}
 
 
-def metrics(warnings=()):
-    err = lambda rmse, mape, n: {"rmse": rmse, "mape": mape, "n": n}  # noqa: E731
+def calibration(summary_=None, *, mode="segmented", checks=None, notes=()):
+    if checks is None:
+        checks = {"pdas": {"ratio": 0.68, "warning": GUARD,
+                           "surrogate_sd": {"thermal.G": 0.06, "micro.lam": 0.09},
+                           "runs": {"thermal.G": 40, "micro.lam": 30},
+                           "runs_needed": {"thermal.G": 900, "micro.lam": 552}},
+                  "width": {"ratio": 0.2, "warning": None, "surrogate_sd": {},
+                            "runs": {}, "runs_needed": {}}}
+    return CalibrationResult(mode=mode, plug="mode", calibrated=True, rhat_max=1.01, ess_min=400,
+                             models=summary() if summary_ is None else summary_,
+                             notes=tuple(notes), surrogate_check=checks)
+
+
+def err(rmse, mape, n):
+    return {"rmse": rmse, "mape": mape, "n": n}
+
+
+def validation():
     return {
-        "quick": False,
-        "calibration": {"mode": "segmented", "notes": [],
-                        "surrogate_check": {
-                            "pdas": {"ratio": 0.68, "warning": GUARD,
-                                     "surrogate_sd": {"thermal.G": 0.06, "micro.lam": 0.09},
-                                     "runs": {"thermal.G": 40, "micro.lam": 30},
-                                     "runs_needed": {"thermal.G": 900, "micro.lam": 552}},
-                            "width": {"ratio": 0.2, "warning": None, "surrogate_sd": {},
-                                      "runs": {}, "runs_needed": {}}}},
-        "validation": {
-            "width": {"train": err(7.7, 8.1, 30), "test": err(12.9, 12.3, 10),
-                      "baselines_test": {"training_mean": err(44.1, 38.8, 10),
-                                         "direct_gp": {"error": "too few points"}},
-                      "loo": {"skipped": "40 points > loo_max 15"}},
-            "hard": {"train": err(1.0, 0.5, 8),
-                     "loo": {"calnet": err(2.06, 0.762, 8),
-                             "training_mean": err(23.6, 10.4, 8)}},
-            "tiny": {"train": err(0.1, 1.0, 3), "loo": {"skipped": "..."}}},
-        "warnings": sorted([GUARD, *warnings])}
+        "width": DatasetValidation(
+            train=err(7.7, 8.1, 30), test=err(12.9, 12.3, 10), pit=[], variance_shares={},
+            baselines_test={"training_mean": err(44.1, 38.8, 10),
+                            "direct_gp": {"error": "too few points"}},
+            loo={"skipped": "40 points > loo_max 15"}),
+        "hard": DatasetValidation(
+            train=err(1.0, 0.5, 8), pit=[], variance_shares={},
+            loo={"calnet": err(2.06, 0.762, 8), "training_mean": err(23.6, 10.4, 8)}),
+        "tiny": DatasetValidation(train=err(0.1, 1.0, 3), pit=[], variance_shares={},
+                                  loo={"skipped": "..."})}
+
+
+def results(warnings=(), *, cal=None, valid=None, **kw):
+    """A segmented run of three models (one at its prior) with three data sets."""
+    return RunResults(network="t", quick=False, campaigns={}, surrogates=None,
+                      calibration=calibration() if cal is None else cal,
+                      validation=validation() if valid is None else valid,
+                      warnings=tuple(sorted([GUARD, *warnings])), **kw)

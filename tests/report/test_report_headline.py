@@ -1,16 +1,19 @@
 """The headline box: estimates, prediction error against the baselines, the warnings
 that matter."""
 
-from report_inputs import BOUND, ESS, RHAT
-from report_inputs import metrics as _metrics
-from report_inputs import summary as _summary
+from dataclasses import replace
 
+import numpy as np
+from report_inputs import BOUND, ESS, RHAT, calibration, results, summary, validation
+
+from calnet.emulation import OutputSlices
 from calnet.report import Headline, Section, write_report
 from calnet.report.headline import MAX_WARNINGS, headline
+from calnet.results import CalibrationResult
 
 
 def test_parameters_show_mean_and_interval_with_units():
-    box = headline(_metrics(), _summary())
+    box = headline(results())
     params = box.tables[0]
     assert params.header == ("parameter", "posterior mean", "95 % interval", "unit")
     assert params.rows == (("thermal.a", 1.2, "[1.1, 1.3]", "W"),
@@ -20,7 +23,7 @@ def test_parameters_show_mean_and_interval_with_units():
 
 
 def test_prediction_error_against_the_baselines_on_the_same_points():
-    box = headline(_metrics(), _summary(), units={"width": "um", "hard": "HV"})
+    box = headline(results(), units={"width": "um", "hard": "HV"})
     err = box.tables[1]
     assert err.header == ("data set", "evaluated on", "unit", "calnet", "training mean",
                           "direct GP")  # only the baselines the run has
@@ -31,15 +34,14 @@ def test_prediction_error_against_the_baselines_on_the_same_points():
     assert rows["hard"] == ("hard", "leave-one-out, 8 points", "HV", "2.06 (0.762 %)",
                             "23.6 (10.4 %)", "\u2013")
     assert rows["tiny"][1:4] == ("3 training points (no test)", "", "0.1 (1 %)")
-    m = _metrics()
-    m["validation"]["width"]["test"]["mape"] = None  # not meaningful: RMSE alone
-    assert headline(m, _summary()).tables[1].rows[0][3] == "12.9"
+    valid = validation()
+    valid["width"].test["mape"] = None  # not meaningful: RMSE alone
+    assert headline(results(valid=valid)).tables[1].rows[0][3] == "12.9"
 
 
 def test_warnings_that_matter_come_first_and_convergence_reads_once():
-    box = headline(_metrics([RHAT, ESS, BOUND]), _summary(rhat=1.018, ess=178.0,
-                                                          divergences=3),
-                   warnings_section=7)
+    cal = calibration(summary(rhat=1.018, ess=178.0, divergences=3))
+    box = headline(results([RHAT, ESS, BOUND], cal=cal), warnings_section=7)
     assert box.warnings[0].startswith("pdas: the surrogate, not the data, sets the answer")
     assert "mostly micro.lam" in box.warnings[0] and "552 runs of 'micro' (now 30)" in (
         box.warnings[0])
@@ -52,19 +54,18 @@ def test_warnings_that_matter_come_first_and_convergence_reads_once():
 
 
 def test_clean_run_says_so_and_long_lists_are_cut():
-    box = headline({**_metrics(), "warnings": [],
-                    "calibration": {"mode": "joint", "surrogate_check": {}, "notes": []}},
-                   _summary())
+    clean = replace(results(), warnings=(), calibration=calibration(mode="joint", checks={}))
+    box = headline(clean)
     assert box.warnings == () and box.more is None
     assert box.lines[1].endswith("within the limits.")
     many = [f"other warning {i}" for i in range(10)]
-    box = headline(_metrics(many), _summary(), warnings_section=5)
+    box = headline(results(many), warnings_section=5)
     assert len(box.warnings) == MAX_WARNINGS
     assert box.more.startswith(f"{11 - MAX_WARNINGS} more not shown here.")
 
 
 def test_headline_box_is_rendered_first(tmp_path):
-    box = headline(_metrics([BOUND, "<b>x</b>"]), _summary(), warnings_section=2)
+    box = headline(results([BOUND, "<b>x</b>"]), warnings_section=2)
     html = write_report(tmp_path, title="t", headline=box,
                         sections=[Section("A"), Section("Warnings")]).read_text()
     assert html.index('id="headline"') < html.index("<nav>") < html.index('id="s1"')
@@ -79,16 +80,18 @@ def test_headline_box_is_rendered_first(tmp_path):
 def test_emulation_only_and_parameterless_runs_say_what_was_calibrated():
     """No data: no calibration line, the predicted outputs' table instead; data without
     parameters: only the discrepancy and noise were calibrated."""
-    sl = {"x": [0.0, 0.5, 1.0], "mean": [1.0, 2.0, 4.0], "lower95": [0.5, 1.8, 3.0],
-          "upper95": [1.5, 2.2, 5.0]}
-    metrics = {"quick": False, "warnings": [], "validation": {},
-               "predicted_outputs": {"M3.y": {"output": "M3.y", "inputs": ["M1.x"],
-                                              "slices": {"M1.x": sl},
-                                              "variance_shares": {"emulator M3.y": 1.0}}}}
-    box = headline(metrics, {}, predicted_units={"M3.y": "mm"})
+    arr = lambda *v: (np.array(v),)  # noqa: E731
+    sl = OutputSlices("M3.y", ("M1.x",), arr(0.0, 0.5, 1.0), arr(1.0, 2.0, 4.0),
+                      arr(0.5, 1.8, 3.0), arr(1.5, 2.2, 5.0), np.array([0.5]),
+                      {"emulator M3.y": 1.0})
+    none = CalibrationResult(mode="none", plug="-", calibrated=False, models={}, rhat_max=1.01,
+                             ess_min=400)
+    emulated = replace(results(), warnings=(), validation={}, calibration=none,
+                       predicted_outputs={"M3.y": sl})
+    box = headline(emulated, predicted_units={"M3.y": "mm"})
     assert box.lines == ("No data sets: emulation only, nothing calibrated; the surrogates "
                          "predict M3.y through the chain.",)
     (table,) = box.tables
     assert table.rows == (("M3.y", "x", "[1, 4]", "1.133", "2", "mm"),)  # widths 1, .4, 2
-    with_data = {**metrics, "calibration": {"mode": "segmented"}}
-    assert "no calibration parameters" in headline(with_data, {}).lines[0]
+    with_data = replace(emulated, calibration=calibration({}, checks={}))
+    assert "no calibration parameters" in headline(with_data).lines[0]

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from report_inputs import BOUND, metrics, summary
+from report_inputs import BOUND, results
 
 from calnet.report import Section, Table, write_report
 from calnet.report import figures as F
@@ -45,7 +45,7 @@ def small_report(tmp_path_factory):
             (F.data_grid(None, None, {"width": (P, v, P > 200)}, tmp / "data.png"),
              "Experimental settings."),
             (F.prior_posterior_grid(panels, tmp / "post.png"), "Prior vs posterior.")]
-    box = headline(metrics([BOUND]), summary(), units={"width": "um"}, warnings_section=2)
+    box = headline(results([BOUND]), units={"width": "um"}, warnings_section=2)
     sections = [Section("Network and data", tables=[Table("t", ["a"], [[1.5]])], figures=figs),
                 Section("Warnings", paragraphs=[BOUND])]
     return write_report(tmp / "out", title="calnet report: render", sections=sections,

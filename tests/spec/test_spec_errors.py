@@ -221,9 +221,8 @@ def test_normal_prior_without_mass_inside_the_bounds(base_spec, write_spec):
 def test_predict_settings_skip_inputs_of_other_data_sets(base_spec, write_spec):
     """``calnet predict`` without ``-d``: a point may carry inputs that only some data
     sets take; those are skipped for the others, an unknown name is still an error."""
-    from calnet.cli import _takes
     from calnet.errors import CalnetError
-    from calnet.predict import settings_matrix
+    from calnet.predict import settings_matrix, shared_inputs
 
     net = load_spec(write_spec(base_spec))
     row = [{"P": 100, "v": 1.0, "other": 3.0}]
@@ -231,8 +230,8 @@ def test_predict_settings_skip_inputs_of_other_data_sets(base_spec, write_spec):
         settings_matrix(net, "width", row)
     x, _ = settings_matrix(net, "width", row, skip={"other"})
     assert x.tolist() == [[100, 1.0]]
-    assert _takes(net, "width", "P") and _takes(net, "width", "heat.v")
-    assert not _takes(net, "width", "other")
+    assert shared_inputs(net, ["width"], [{"P": 1.0, "heat.v": 1.0, "other": 3.0}]) == {
+        "P", "heat.v"}
 
 
 def test_empty_sections_say_so(base_spec, write_spec):

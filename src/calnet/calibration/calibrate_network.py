@@ -31,7 +31,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from calnet.calibration.diagnostics import convergence_problems, kde_mode, summarize
+from calnet.calibration.diagnostics import (
+    PosteriorSummary,
+    convergence_problems,
+    kde_mode,
+    summarize,
+)
+from calnet.calibration.guard import check_bounds, check_surrogates
 from calnet.calibration.koh import KOHDensity, KOHModel, Term
 from calnet.calibration.priors import parameter_prior
 from calnet.calibration.sampling import sample_nuts
@@ -55,6 +61,9 @@ class StageResult:
     datasets: tuple[str, ...]
     idata: object  # arviz.InferenceData
     logdensity: KOHDensity
+    #: R-hat, ESS and the other diagnostics of ``idata`` where the calibration computed
+    #: them (None where it did not, e.g. for a stage moved by linear response)
+    diagnostics: PosteriorSummary | None = field(default=None, compare=False, repr=False)
 
     def draws(self, var: str) -> np.ndarray:
         """Flattened draws of a posterior variable, shape (chains * draws, ...)."""
@@ -289,8 +298,6 @@ def _checked(network, surrogates, post: NetworkPosterior, warn: bool) -> Network
     """``post`` with its surrogate checks; warns (or, without ``warn``, notes) where a
     surrogate sets the answer, a posterior piles up at a bound, or a convergence check
     failed."""
-    from calnet.calibration.guard import check_bounds, check_surrogates
-
     checks = tuple(check_surrogates(network, surrogates, post))
     messages = [c.message() for c in checks if c.message()]
     messages += check_bounds(network, post) + list(post.notes)
@@ -305,15 +312,16 @@ def _all_keys(network: Network) -> list[str]:
     return list(dict.fromkeys(k for m in network.order for k in parameter_keys(network, m)))
 
 
-def _convergence(idata, warn: bool) -> list[str]:
+def _convergence(idata, warn: bool) -> tuple[list[str], PosteriorSummary]:
     """R-hat, ESS and divergence checks of one sampled stage: warned, or (without
-    ``warn``) returned as notes."""
-    problems = convergence_problems(summarize(idata, warn=False))
+    ``warn``) returned as notes; and the stage's diagnostics."""
+    summary = summarize(idata, warn=False)
+    problems = convergence_problems(summary)
     if not warn:
-        return problems
+        return problems, summary
     for message in problems:
         warnings.warn(message, CalibrationWarning, stacklevel=4)
-    return []
+    return [], summary
 
 
 def _joint(network, surrogates, data, plan, seed, sampler, emu, progress,
@@ -327,8 +335,8 @@ def _joint(network, surrogates, data, plan, seed, sampler, emu, progress,
     if ld.dim == 0:  # no parameters, known noise, no discrepancy: nothing to sample
         return _posterior(network, "joint", "-", (), {}, data, (), {}, ())
     idata = _sample(ld, sampler, seed, progress)
-    problems = _convergence(idata, warn)
-    stage = StageResult(models, tuple(data), idata, ld)
+    problems, diagnostics = _convergence(idata, warn)
+    stage = StageResult(models, tuple(data), idata, ld, diagnostics)
     return _posterior(network, "joint", "-", (stage,), key_draws(stage), data, (), {},
                       tuple(problems))
 
@@ -376,12 +384,14 @@ def _segmented(network, surrogates, data, plan, seed, sampler, emu, plug, progre
         if ld.dim == 0:  # no parameters, known noise, no discrepancy: nothing to sample
             continue
         idata = _sample(ld, sampler, seed + i, progress)
-        notes += _convergence(idata, warn)
+        problems, diagnostics = _convergence(idata, warn)
+        notes += problems
         moved = [k for k in fixed_keys if np.ptp(draws[k]) > 0]
         if plug == "posterior" and moved and ld.dim:
             idata = cut_by_linear_response(ld, idata, {k: draws[k] for k in moved},
                                            {k: plug_at[k] for k in moved})
-        stage = StageResult((name,), tuple(own), idata, ld)
+            diagnostics = None  # of the draws before the move
+        stage = StageResult((name,), tuple(own), idata, ld, diagnostics)
         stages.append(stage)
         draws.update(key_draws(stage))
         for k in free:

@@ -22,6 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from calnet.calibration.koh import KOHModel
+from calnet.calibration.terms import draw_index, make_term, parameter_keys
 from calnet.chain import ChainPlan
 
 #: the surrogate sd above this fraction of the data's sd triggers the warning
@@ -118,8 +119,6 @@ def _over_draws(spec: KOHModel, gps, tdata, thetas, hyper):
 def check_surrogates(network, surrogates, posterior, *, n_draws: int = 50
                      ) -> list[SurrogateCheck]:
     """:class:`SurrogateCheck` of every calibrated data set."""
-    from calnet.calibration.terms import draw_index, make_term
-
     plan = ChainPlan.from_network(network)
     gps = {k: s.gp for k, s in surrogates.items.items()}
     idx = draw_index(posterior.n_draws, n_draws)
@@ -163,8 +162,6 @@ BOUND_NARROW = 0.6
 def check_bounds(network, posterior) -> list[str]:
     """A message for every calibrated parameter whose posterior presses against one of
     its bounds: the data ask for values the bounds (and the campaign) exclude."""
-    from calnet.calibration.terms import parameter_keys
-
     out, seen = [], set()
     for model, draws in posterior.theta.items():
         if model in posterior.prior_only:

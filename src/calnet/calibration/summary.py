@@ -1,15 +1,19 @@
-"""Per-model summary of a network posterior: the table calnet prints and reports."""
+"""Per-model summary of a network posterior: the table calnet prints and reports, and
+the calibration stage's result (:func:`calibration_result`) that the report renders."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from calnet.calibration.calibrate_network import NetworkPosterior
-from calnet.calibration.diagnostics import import_arviz, kde_mode
+from calnet.calibration.diagnostics import ESS_MIN, RHAT_MAX, import_arviz, kde_mode, summarize
+from calnet.calibration.priors import parameter_prior
 from calnet.calibration.terms import parameter_keys
+from calnet.results import CalibrationResult, PriorPanel
 from calnet.spec import Network
+from calnet.spec.models import SamplerSettings
 
-__all__ = ["posterior_summary"]
+__all__ = ["posterior_summary", "prior_panels", "calibration_result"]
 
 
 def _where_sampled(post, key: str):
@@ -31,11 +35,13 @@ def posterior_summary(network: Network, post: NetworkPosterior) -> dict:
     cache: dict = {}
 
     def diag(stage):
+        """R-hat, ESS and the error of the mean from the calibration's own diagnostics
+        (computed once, where the stage was sampled); the other Monte Carlo errors here."""
         if id(stage) not in cache:
             p = stage.idata.posterior
             cache[id(stage)] = {
-                "rhat": az.rhat(p), "ess_bulk": az.ess(p, method="bulk"),
-                "ess_tail": az.ess(p, method="tail"), "mcse_mean": az.mcse(p, method="mean"),
+                "summary": stage.diagnostics or summarize(stage.idata, hdi_probs=(),
+                                                          warn=False),
                 "mcse_sd": az.mcse(p, method="sd"),
                 "mcse_q2.5": az.mcse(p, method="quantile", prob=0.025),
                 "mcse_q97.5": az.mcse(p, method="quantile", prob=0.975)}
@@ -63,11 +69,13 @@ def posterior_summary(network: Network, post: NetworkPosterior) -> dict:
                 if stage not in stages:
                     stages.append(stage)
                 d = diag(stage)
+                (coord,) = sel.values()
+                scalar = d["summary"][f"{var}[{coord}]"]
+                row["mcse_mean"] = scalar.mcse_mean
                 row.update({k: float(d[k][var].sel(sel)) for k in (
-                    "mcse_mean", "mcse_sd", "mcse_q2.5", "mcse_q97.5")})
-                row.update({"rhat": float(d["rhat"][var].sel(sel)),
-                            "ess_bulk": float(d["ess_bulk"][var].sel(sel)),
-                            "ess_tail": float(d["ess_tail"][var].sel(sel))})
+                    "mcse_sd", "mcse_q2.5", "mcse_q97.5")})
+                row.update({"rhat": scalar.r_hat, "ess_bulk": scalar.ess_bulk,
+                            "ess_tail": scalar.ess_tail})
                 if "." not in key:
                     row["shared"] = True
             rows[p.name] = row
@@ -75,12 +83,52 @@ def posterior_summary(network: Network, post: NetworkPosterior) -> dict:
             out[model] = {"prior_only": True}
             continue
         div = sum(int(np.asarray(s.idata.sample_stats["diverging"]).sum()) for s in stages)
-        all_rhat = max(float(diag(s)["rhat"][v].max()) for s in stages
-                       for v in s.idata.posterior.data_vars)
-        all_ess = min(float(diag(s)["ess_bulk"][v].min()) for s in stages
-                      for v in s.idata.posterior.data_vars)
+        all_rhat = max(diag(s)["summary"].max_r_hat for s in stages)
+        all_ess = min(diag(s)["summary"].min_ess_bulk for s in stages)
         out[model] = {"parameters": rows, "divergences": div, "max_rhat": all_rhat,
                       "min_ess_bulk": all_ess,
                       "stage": " ; ".join("+".join(s.models) for s in stages),
                       "datasets": sorted({d for s in stages for d in s.datasets})}
     return out
+
+
+def prior_panels(network: Network, post: NetworkPosterior, model: str,
+                 summary: dict) -> tuple[PriorPanel, ...]:
+    """Prior density (on 200 points over the range) and posterior draws of each parameter
+    of ``model``; ``summary`` is the model's entry of :func:`posterior_summary`."""
+    panels = []
+    for j, p in enumerate(network.model(model).parameters):
+        xs = np.linspace(p.lower, p.upper, 200)
+        ys = np.exp(np.asarray(parameter_prior(p).log_prob(xs)))
+        panels.append(PriorPanel(p.name, p.unit, p.lower, p.upper, xs, ys,
+                                 post.theta[model][:, j], summary["parameters"][p.name]["mode"]))
+    return tuple(panels)
+
+
+def calibration_result(network: Network, post: NetworkPosterior, *,
+                       sampler: SamplerSettings | None = None) -> CalibrationResult:
+    """The calibration as the report and ``metrics.json`` take it: the posterior summary
+    per model, the prior panels of every model with a posterior, the notes, the
+    surrogate checks and the convergence limits.
+
+    Parameters
+    ----------
+    network : Network
+    post : NetworkPosterior
+        From :func:`calnet.calibration.calibrate_network.calibrate`.
+    sampler : SamplerSettings, optional
+        The sampler used (default: the spec's).
+
+    Returns
+    -------
+    CalibrationResult
+    """
+    summary = posterior_summary(network, post)
+    panels = {model: prior_panels(network, post, model, s) for model, s in summary.items()
+              if not s.get("prior_only")}
+    sampler = sampler or network.settings.sampler
+    return CalibrationResult(
+        mode=post.mode, plug=post.plug, calibrated=post.calibrated, models=summary,
+        theta=post.theta, panels=panels, sampler=sampler.model_dump(), notes=tuple(post.notes),
+        surrogate_check={c.dataset: c.to_dict() for c in post.checks},
+        rhat_max=RHAT_MAX, ess_min=ESS_MIN)

@@ -11,6 +11,8 @@ from typing import Annotated, Any, Literal
 
 import typer
 
+from calnet.errors import CampaignError
+
 
 def campaign(
     spec: Annotated[Path, typer.Argument(
@@ -56,7 +58,6 @@ def campaign(
 
     from calnet.campaign.campaign import import_runs, run_campaign
     from calnet.campaign.table import check_export, export_runs
-    from calnet.errors import CampaignError
     from calnet.spec import load_spec
 
     network = load_spec(spec)

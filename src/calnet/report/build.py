@@ -1,4 +1,5 @@
-"""Assemble ``calnet run``'s outputs: sensitivity, maps, figures, report.html, metrics.json."""
+"""Render ``calnet run``'s results: figures, report.html, metrics.json and the posterior
+CSVs, from :class:`calnet.results.RunResults` (nothing is computed here)."""
 
 from __future__ import annotations
 
@@ -6,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from calnet.report import figures
 from calnet.report.emulation import caption as emulation_caption
 from calnet.report.emulation import emulation_section, slices_figure
 from calnet.report.figures import with_unit
@@ -14,6 +16,7 @@ from calnet.report.html import Section, Table, fmt, write_report
 from calnet.report.metrics import write_metrics
 from calnet.report.posterior_csv import write_posterior_csv
 from calnet.report.reference import reference_rows
+from calnet.results import CalibrationResult, RunResults
 
 
 def _axis_labels(network, input_keys) -> list[str]:
@@ -22,11 +25,9 @@ def _axis_labels(network, input_keys) -> list[str]:
             for model, name in (key.split(".", 1) for key in input_keys)]
 
 
-def _sensitivity_figures(ctx) -> None:
+def _sensitivity_figures(ctx, results: RunResults) -> None:
     """Sobol bars, predictive and process maps of the sensitivity stage's results."""
-    from calnet.report import figures
-
-    for name, e in ctx.explored.items():
+    for name, e in results.sensitivity.items():
         d = ctx.data[name]
         res = e.indices
         ctx.figures[f"sobol {name}"] = figures.sobol_bars(
@@ -55,54 +56,20 @@ def _statuses(counts: dict[str, int]) -> str:
     return ", ".join(f"{n} {k}" for k, n in sorted(counts.items(), key=lambda kv: -kv[1]))
 
 
-def prior_panels(network, post, model, summary):
-    """Prior density and posterior draws of each parameter of ``model`` (for figures)."""
-    from calnet.calibration.priors import parameter_prior
-
-    m = network.model(model)
-    panels = []
-    for j, p in enumerate(m.parameters):
-        xs = np.linspace(p.lower, p.upper, 200)
-        ys = np.exp(np.asarray(parameter_prior(p).log_prob(xs)))
-        panels.append({"name": p.name, "unit": p.unit, "lower": p.lower, "upper": p.upper,
-                       "prior_pdf_x": xs, "prior_pdf_y": ys,
-                       "posterior_samples": post.theta[model][:, j],
-                       "mode": summary["parameters"][p.name]["mode"]})
-    return panels
-
-
-def posterior_figures(network, post, summary, folder) -> dict:
+def posterior_figures(calibration: CalibrationResult, folder) -> dict:
     """Prior-vs-posterior figure of every calibrated model, ``folder/posterior_<model>.png``:
-    ``{model: path}`` (``summary`` from :func:`calnet.calibration.summary.posterior_summary`)."""
-    from calnet.report import figures
-
+    ``{model: path}``."""
     return {model: figures.prior_posterior_grid(
-                prior_panels(network, post, model, s), Path(folder) / f"posterior_{model}.png",
+                [p.to_dict() for p in panels], Path(folder) / f"posterior_{model}.png",
                 title=f"{model}: prior vs posterior")
-            for model, s in summary.items() if not s.get("prior_only")}
+            for model, panels in calibration.panels.items()}
 
 
-def write_outputs(ctx) -> None:
-    """Figures, report.html and metrics.json for a finished run."""
-    from calnet.report import figures
-
+def write_outputs(ctx, results: RunResults) -> None:
+    """Figures, report.html and metrics.json for a finished run (``ctx``: the network,
+    its data, the output folder, the figures drawn so far, the timings)."""
     net, out = ctx.network, ctx.out
-    summary = ctx.summary
-    if ctx.post.calibrated:
-        ctx.metrics["calibration"] = {"mode": ctx.post.mode, "plug": ctx.post.plug,
-                                      "sampler": ctx.sampler.model_dump(), "models": summary,
-                                      "notes": list(ctx.post.notes),
-                                      "surrogate_check": {c.dataset: c.to_dict()
-                                                          for c in ctx.post.checks}}
-    ctx.metrics["predictions"] = {k: p.to_dict() for k, p in ctx.predictions.items()}
-    if ctx.emulated:
-        ctx.metrics["predicted_outputs"] = {k: s.to_dict() for k, s in ctx.emulated.items()}
-    ctx.metrics["warnings"] = sorted(set(ctx.warnings))
-    ctx.metrics["sensitivity"] = {k: e.to_dict() for k, e in ctx.explored.items()}
-    # the axes under the inputs' names (P and v for the case study)
-    ctx.metrics["maps"] = {k: e.map.to_dict() for k, e in ctx.explored.items()
-                           if e.map is not None}
-    _sensitivity_figures(ctx)
+    _sensitivity_figures(ctx, results)
     fig = ctx.figures
     fig["network"] = figures.network_diagram(
         [{"name": m.name, "inputs": list(m.input_names), "outputs": list(m.output_names),
@@ -119,34 +86,41 @@ def write_outputs(ctx) -> None:
         fig["data"] = figures.data_grid(None, None, two_d, out / "figures" / "data.png",
                                         p_label=p_label, v_label=v_label)
     fig.update({f"posterior {model}": path for model, path in
-                posterior_figures(net, ctx.post, summary, out / "figures").items()})
+                posterior_figures(results.calibration, out / "figures").items()})
     for name, d in ctx.data.items():
-        p = ctx.predictions[name]
+        p = results.predictions[name]
         unit = net.model(d.observes.split(".")[0]).output(d.observes.split(".")[1]).unit
         fig[f"predictive {name}"] = figures.predictive_vs_observed(
             d.y, p.mean, p.lower, p.upper, d.is_test, out / "figures" / f"predictive_{name}.png",
             d.observes, unit)
-        v = ctx.metrics.get("validation", {}).get(name, {})
-        if "pit" in v:
+        v = results.validation.get(name)
+        if v is not None:
             fig[f"pit {name}"] = figures.pit_histogram(
-                v.get("loo", {}).get("pit", []), v["pit"], out / "figures" / f"pit_{name}.png",
+                v.loo.get("pit", []), v.pit.tolist(), out / "figures" / f"pit_{name}.png",
                 f"Predictive check: {d.observes}")
-    for key, s in ctx.metrics.get("predicted_outputs", {}).items():
+    for key, s in results.predicted_outputs.items():
         fig[f"predicted {key}"] = slices_figure(
             s, out / "figures" / f"predicted_{key}.png", _output_unit(net, key),
             {k: net.model(k.split(".")[0]).variable(k.split(".")[1]).unit
-             for k in s["inputs"]})
-    write_metrics(out / "metrics.json", ctx.metrics)
-    write_posterior_csv(out / "posterior", ctx.post.theta, summary)
-    sections = _sections(ctx, summary)
+             for k in s.input_keys})
+    write_metrics(out / "metrics.json", results.to_metrics())
+    write_posterior_csv(out / "posterior", results.calibration.theta,
+                        results.calibration.models)
+    sections = _sections(ctx, results)
     titles = [s.title for s in sections]
-    units = {k: net.model(d.observes.split(".")[0]).output(d.observes.split(".")[1]).unit
-             for k, d in ctx.data.items()}
-    box = headline(ctx.metrics, summary, units=units,
+    units = _units(ctx)
+    box = headline(results, units=units,
                    warnings_section=titles.index("Warnings") + 1 if "Warnings" in titles
-                   else None, predicted_units=_predicted_units(ctx))
+                   else None, predicted_units=_predicted_units(ctx, results))
     write_report(out, title=f"calnet report: {net.name}", sections=sections,
                  subtitle=net.description or None, headline=box)
+
+
+def _units(ctx) -> dict[str, str]:
+    """``{data set: unit of its observed output}``."""
+    net = ctx.network
+    return {k: net.model(d.observes.split(".")[0]).output(d.observes.split(".")[1]).unit
+            for k, d in ctx.data.items()}
 
 
 def _output_unit(network, key: str) -> str:
@@ -154,17 +128,17 @@ def _output_unit(network, key: str) -> str:
     return network.model(model).output(output).unit
 
 
-def _predicted_units(ctx) -> dict[str, str]:
-    return {k: _output_unit(ctx.network, k) for k in ctx.metrics.get("predicted_outputs", {})}
+def _predicted_units(ctx, results: RunResults) -> dict[str, str]:
+    return {k: _output_unit(ctx.network, k) for k in results.predicted_outputs}
 
 
-def _caption(ctx, key: str) -> str:
+def _caption(ctx, results: RunResults, key: str) -> str:
     """What a figure shows, in a sentence (figures are keyed ``"kind name"``)."""
     kind, _, name = key.partition(" ")
     d = ctx.data.get(name)
     observes = d.observes if d is not None else name
     if kind == "predicted":
-        return emulation_caption(name, ctx.metrics["predicted_outputs"][name])
+        return emulation_caption(name, results.predicted_outputs[name])
     if kind == "network":
         return ("The model network: one box per model with its inputs and outputs (measured "
                 "outputs in red); an arrow carries an upstream quantity into a downstream "
@@ -203,14 +177,14 @@ def _caption(ctx, key: str) -> str:
     return key
 
 
-def _sections(ctx, summary) -> list[Section]:
-    m, fig = ctx.metrics, ctx.figures
-    net = ctx.network
-    pick = lambda prefix: [(p, _caption(ctx, k)) for k, p in fig.items()  # noqa: E731
-                           if k.startswith(prefix)]
-    how = ((f"Calibration: {ctx.post.mode}" + (f", upstream plugged in by {ctx.post.plug}"
-                                                if ctx.post.mode == "segmented" else ""))
-           if ctx.post.calibrated else "No data sets: emulation only, nothing calibrated")
+def _sections(ctx, results: RunResults) -> list[Section]:
+    fig, net, cal = ctx.figures, ctx.network, results.calibration
+    summary = cal.models
+    pick = lambda prefix: [(p, _caption(ctx, results, k))  # noqa: E731
+                           for k, p in fig.items() if k.startswith(prefix)]
+    how = ((f"Calibration: {cal.mode}" + (f", upstream plugged in by {cal.plug}"
+                                          if cal.mode == "segmented" else ""))
+           if cal.calibrated else "No data sets: emulation only, nothing calibrated")
     data_table = [Table("Data sets (measured points)",
                         ["data set", "observes", "points", "training points", "test points"],
                         [[k, d.observes, len(d.y), int((~d.is_test).sum()),
@@ -223,17 +197,15 @@ def _sections(ctx, summary) -> list[Section]:
                 Table("Simulation campaigns (simulator runs per model)",
                       ["model", "finished runs", "ok runs", "runs not ok (left out)",
                        "outcomes of the finished runs"],
-                      [[k, v["n_total"], v["n_total"] - v["n_excluded"], v["n_excluded"],
-                        _statuses(v["status_counts"])] for k, v in m["campaigns"].items()])],
+                      [[k, c.n_total, c.n_ok, c.n_excluded, _statuses(c.status_counts)]
+                       for k, c in results.campaigns.items()])],
         figures=pick("network") + pick("data"))
     sur = Section("Surrogates (k-fold cross-validation)", tables=[Table(
         "GP surrogates (simulator runs per output)",
         ["output", "training runs", "runs left out (not ok or non-finite)", "CV folds k",
          "CV MAPE %", "CV RMSE", "CV 95% coverage"],
-        [[k, s["n_runs"], s["n_excluded"], s.get("cv", {}).get("k"),
-          fmt(s.get("cv", {}).get("mape")),
-          fmt(s.get("cv", {}).get("rmse")), fmt(s.get("cv", {}).get("coverage95"))]
-         for k, s in m["surrogates"].items()])], figures=pick("cv "))
+        [[k, s.n_runs, s.n_excluded, *_cv_cells(s.cv)]
+         for k, s in results.surrogates.items.items()])], figures=pick("cv "))
     rows = []
     for model, s in summary.items():
         if s.get("prior_only"):
@@ -245,7 +217,7 @@ def _sections(ctx, summary) -> list[Section]:
                          fmt(r.get("rhat")), fmt(r.get("ess_bulk"))])
     diag = [[k, s.get("divergences", ""), fmt(s.get("max_rhat")), fmt(s.get("min_ess_bulk"))]
             for k, s in summary.items()]
-    ref = reference_rows(ctx, summary)  # only where the network is the case study
+    ref = reference_rows(results, _units(ctx))  # only with a reference.json
     cal = Section("Calibration", paragraphs=[
         "Estimates are posterior modes (KDE)"
         + (", as the reference study reports" if ref else "")
@@ -261,13 +233,13 @@ def _sections(ctx, summary) -> list[Section]:
         return [name, predictor, fmt(r.get("rmse")), fmt(r.get("nrmse")), fmt(r.get("mape")),
                 fmt(r.get("crps")), fmt(r.get("coverage95"))]
 
-    for name, v in m["validation"].items():
-        for split in ("train", "test"):
-            if split in v:
-                vrows.append(row(name, f"calnet ({split})", v[split]))
-        for base, r in v.get("baselines_test", {}).items():
+    for name, v in results.validation.items():
+        for split, r in (("train", v.train), ("test", v.test)):
+            if r is not None:
+                vrows.append(row(name, f"calnet ({split})", r))
+        for base, r in (v.baselines_test or {}).items():
             vrows.append(row(name, f"{BASELINES.get(base, base)} (test)", r))
-        loo = v.get("loo", {})
+        loo = v.loo
         if "calnet" in loo:
             vrows.append(row(name, "calnet (leave-one-out)", loo["calnet"]))
             vrows.append(row(name, "training mean (leave-one-out)", loo["training_mean"]))
@@ -283,8 +255,8 @@ def _sections(ctx, summary) -> list[Section]:
                 " / ".join(fmt(c.get(f"pit_coverage{q}")) for q in (50, 80, 95)),
                 ("flagged" if check["flagged"] else "ok")
                 + f" (p = {fmt(min(check['ks_pvalue'], check['outside_pvalue']))})"])
-    brows = [[name, src, fmt(share)] for name, v in m["validation"].items()
-             for src, share in v["variance_shares"].items()]
+    brows = [[name, src, fmt(share)] for name, v in results.validation.items()
+             for src, share in v.variance_shares.items()]
     tables = [
         Table("Predictive accuracy (NRMSE = RMSE / range of the measurements; MAPE only "
               "where the measurements stay away from zero; CRPS in the output's unit)",
@@ -296,16 +268,16 @@ def _sections(ctx, summary) -> list[Section]:
             "scale; points with Pareto k > 0.7 are re-calibrated without the point",
             ["data set", "points", "ELPD ± se", "p_loo", "max k", "k > 0.7 / refitted / "
              "unreliable", "LOO coverage 50 / 80 / 95 %", "calibration (PIT)"], lrows))
-    for name, cmp in m.get("comparison", {}).items():
-        notes = [f"{variant}: {n}" for variant, r in cmp.items() for n in r.get("notes", [])]
+    for name, cmp in (results.comparison or {}).items():
+        notes = [f"{variant}: {n}" for variant, r in cmp.items() for n in r.notes]
         tables.append(Table(
             f"{name}: the spec's discrepancy against variants, by leave-one-out (ELPD "
             "difference to the best, its standard error, stacking weight; the variants are "
             "calibrated beside the spec with fewer draws)"
             + ("".join(f"; {n}" for n in notes)),
             ["model", "ELPD", "difference", "se of difference", "weight", "max k", "draws"],
-            [[variant, fmt(r["elpd_loo"]), fmt(r["elpd_diff"]), fmt(r["dse"]),
-              fmt(r["weight"]), fmt(r["max_pareto_k"]), str(r.get("draws", ""))]
+            [[variant, fmt(r.elpd_loo), fmt(r.elpd_diff), fmt(r.dse),
+              fmt(r.weight), fmt(r.max_pareto_k), str(r.draws)]
              for variant, r in cmp.items()]))
     tables.append(Table(
         "Uncertainty budget (share of predictive variance, averaged over points; the "
@@ -314,26 +286,31 @@ def _sections(ctx, summary) -> list[Section]:
     val = Section("Prediction and validation", tables=tables,
                   figures=pick("predictive ") + pick("pit "))
     srows = []
-    for name, s in m["sensitivity"].items():
-        ind, sp = s["indices"], s["over_draws"]
-        for j, nm in enumerate(ind["names"]):
-            srows.append([name, nm, f"{fmt(ind['S1'][j])} ± {fmt(ind['S1_conf'][j])}",
-                          f"{fmt(ind['ST'][j])} ± {fmt(ind['ST_conf'][j])}",
-                          f"[{fmt(sp['ST_lo'][j])}, {fmt(sp['ST_hi'][j])}]"])
+    for name, e in results.sensitivity.items():
+        ind, sp = e.indices, e.over_draws
+        for j, nm in enumerate(ind.names):
+            srows.append([name, nm, f"{fmt(ind.S1[j])} ± {fmt(ind.S1_conf[j])}",
+                          f"{fmt(ind.ST[j])} ± {fmt(ind.ST_conf[j])}",
+                          f"[{fmt(sp.ST_lo[j])}, {fmt(sp.ST_hi[j])}]"])
     sens = Section("Sensitivity (Sobol indices of the calibrated chain)", tables=[Table(
         "First-order and total-effect indices over the data's process box",
         ["data set", "input", "S1", "ST", "ST over posterior draws (95 %)"], srows)],
         figures=pick("sobol ") + pick("map ") + pick("process "))
     sections = [overview, sur] + ([cal] if rows else []) + ([val, sens] if ctx.data else [])
-    if ctx.emulated:
-        sections.append(emulation_section(m["predicted_outputs"], _predicted_units(ctx),
-                                          pick("predicted ")))
+    if results.predicted_outputs:
+        sections.append(emulation_section(results.predicted_outputs,
+                                          _predicted_units(ctx, results), pick("predicted ")))
     if ref:
-        sections.append(Section("Comparison with the reference study", paragraphs=[
-            "Published values (method.md section 7) beside this run. The reference used a "
-            "commercial FE thermal model and a phase-field model; calnet ships its own "
-            "physics-based replacements, so parameter values need not coincide."],
+        note = results.reference.get("note")
+        sections.append(Section("Comparison with the reference study",
+                                paragraphs=[note] if note else [],
             tables=[Table("Reference vs calnet", ["quantity", "reference study", "calnet"], ref)]))
-    if m["warnings"]:
-        sections.append(Section("Warnings", paragraphs=m["warnings"]))
+    if results.warnings:
+        sections.append(Section("Warnings", paragraphs=list(results.warnings)))
     return sections
+
+
+def _cv_cells(cv) -> list:
+    """k, MAPE, RMSE and 95 % coverage of a surrogate's cross-validation (dashes without)."""
+    m = cv.metrics() if cv is not None else {}
+    return [m.get("k"), fmt(m.get("mape")), fmt(m.get("rmse")), fmt(m.get("coverage95"))]

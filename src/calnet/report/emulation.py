@@ -6,23 +6,26 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from calnet.report.figures import TRAIN_COLOR, _figure, _save, with_unit
 from calnet.report.html import Section, Table, fmt
 
+if TYPE_CHECKING:
+    from calnet.emulation import OutputSlices
 
-def slices_figure(slices: Mapping[str, Any], path: str | Path, unit: str,
+
+def slices_figure(slices: OutputSlices, path: str | Path, unit: str,
                   input_units: Mapping[str, str]) -> Path:
     """One panel per process input: the predicted output (mean and central 95 % band)
     along it, the other inputs at the middle of their bounds.
 
     Parameters
     ----------
-    slices : dict
-        :meth:`calnet.emulation.OutputSlices.to_dict`.
+    slices : OutputSlices
+        The output along each process input.
     path : str or Path
         Destination PNG.
     unit : str
@@ -34,25 +37,24 @@ def slices_figure(slices: Mapping[str, Any], path: str | Path, unit: str,
     -------
     Path
     """
-    keys = list(slices["inputs"])
+    keys = list(slices.input_keys)
     fig = _figure(4.2 * len(keys) + 0.6, 3.6)
     axes = fig.subplots(1, len(keys), squeeze=False)[0]
-    for ax, key in zip(axes, keys, strict=True):
-        s = slices["slices"][key]
-        x = np.asarray(s["x"], float)
-        ax.fill_between(x, s["lower95"], s["upper95"], color=TRAIN_COLOR, alpha=0.25, lw=0,
-                        label="95 % band")
-        ax.plot(x, s["mean"], color=TRAIN_COLOR, lw=1.5, label="mean")
+    for j, (ax, key) in enumerate(zip(axes, keys, strict=True)):
+        x = np.asarray(slices.grids[j], float)
+        ax.fill_between(x, slices.lower[j], slices.upper[j], color=TRAIN_COLOR, alpha=0.25,
+                        lw=0, label="95 % band")
+        ax.plot(x, slices.mean[j], color=TRAIN_COLOR, lw=1.5, label="mean")
         ax.set(xlabel=with_unit(key.split(".", 1)[1], input_units.get(key)),
-               ylabel=with_unit(slices["output"], unit))
+               ylabel=with_unit(slices.output, unit))
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=8)
-    fig.suptitle(f"{slices['output']}: predicted through the chain")
+    fig.suptitle(f"{slices.output}: predicted through the chain")
     return _save(fig, path)
 
 
-def caption(output: str, slices: Mapping[str, Any]) -> str:
-    others = len(slices["inputs"]) > 1
+def caption(output: str, slices: OutputSlices) -> str:
+    others = len(slices.input_keys) > 1
     return (f"{output} predicted through the chain from the surrogates alone (Monte Carlo "
             "through the linked GPs: the surrogates' uncertainty is carried along the links), "
             "mean and central 95 % band of the simulator's output"
@@ -60,12 +62,13 @@ def caption(output: str, slices: Mapping[str, Any]) -> str:
                if others else "."))
 
 
-def _rows(predicted: Mapping[str, Any], units: Mapping[str, str]) -> list[list[Any]]:
+def _rows(predicted: Mapping[str, OutputSlices],
+          units: Mapping[str, str]) -> list[list[Any]]:
     rows = []
     for key, s in predicted.items():
-        for inp, sl in s["slices"].items():
-            mean = np.asarray(sl["mean"], float)
-            width = np.asarray(sl["upper95"], float) - np.asarray(sl["lower95"], float)
+        for j, inp in enumerate(s.input_keys):
+            mean = np.asarray(s.mean[j], float)
+            width = np.asarray(s.upper[j], float) - np.asarray(s.lower[j], float)
             rows.append([key, inp.split(".", 1)[1], f"[{fmt(mean.min())}, {fmt(mean.max())}]",
                          fmt(float(width.mean())), fmt(float(width.max())),
                          units.get(key, "")])
@@ -76,11 +79,11 @@ HEADER = ["output", "along", "predicted mean (range)", "mean 95% band width",
           "widest band", "unit"]
 
 
-def emulation_section(predicted: Mapping[str, Any], units: Mapping[str, str],
+def emulation_section(predicted: Mapping[str, OutputSlices], units: Mapping[str, str],
                       figures: list[tuple[Path, str]]) -> Section:
     """The report section of the outputs predicted through the chain."""
     shares = [[key, src, fmt(v)] for key, s in predicted.items()
-              for src, v in s["variance_shares"].items()]
+              for src, v in s.shares.items()]
     return Section("Predicted outputs (through the chain)", paragraphs=[
         "Outputs listed under settings.predict, predicted at process settings by Monte Carlo "
         "through the linked surrogates: each sample draws the parameters (where there are "
@@ -94,7 +97,7 @@ def emulation_section(predicted: Mapping[str, Any], units: Mapping[str, str],
         figures=figures)
 
 
-def headline_table(predicted: Mapping[str, Any], units: Mapping[str, str]) -> Table:
+def headline_table(predicted: Mapping[str, OutputSlices], units: Mapping[str, str]) -> Table:
     """The headline's table of predicted outputs (empty rows without any)."""
     return Table("Predicted outputs (95 % band of the simulator output)", HEADER,
                  _rows(predicted, units))

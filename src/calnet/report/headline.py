@@ -1,16 +1,19 @@
 """The box at the top of the report: estimates, prediction error and warnings, one screen.
 
-Built from what the stages computed (the posterior summary and ``metrics.json``'s
-``calibration``, ``validation`` and ``warnings`` entries); nothing is recomputed here.
+Built from what the stages computed (:class:`calnet.results.RunResults`: the calibration
+with its posterior summary and convergence limits, the validation of each data set, the
+warnings); nothing is recomputed here.
 
 Examples
 --------
+>>> from calnet.results import CalibrationResult, RunResults
 >>> summary = {"M": {"parameters": {"k": {"unit": "W", "mean": 2.0, "q2.5": 1.5,
 ...                                       "q97.5": 2.5}},
 ...                  "max_rhat": 1.002, "min_ess_bulk": 900.0, "divergences": 0,
 ...                  "stage": "M"}}
->>> box = headline({"calibration": {"mode": "joint"}, "validation": {}, "warnings": []},
-...                summary)
+>>> cal = CalibrationResult(mode="joint", plug="-", calibrated=True, models=summary,
+...                         rhat_max=1.01, ess_min=400)
+>>> box = headline(RunResults("net", False, {}, None, cal))
 >>> box.tables[0].rows
 (('M.k', 2.0, '[1.5, 2.5]', 'W'),)
 """
@@ -21,9 +24,9 @@ import re
 from collections.abc import Mapping
 from typing import Any
 
-from calnet.calibration.diagnostics import ESS_MIN, RHAT_MAX
 from calnet.report.emulation import headline_table
 from calnet.report.html import Headline, Table, fmt
+from calnet.results import CalibrationResult, DatasetValidation, RunResults
 
 #: bullets in the box; the rest are counted and left to the Warnings section
 MAX_WARNINGS = 6
@@ -34,44 +37,42 @@ BASELINES = {"training_mean": "training mean", "power_law": "power law",
              "direct_gp": "direct GP"}
 
 
-def headline(metrics: Mapping[str, Any], summary: Mapping[str, Any], *,
-             units: Mapping[str, str] | None = None,
+def headline(results: RunResults, *, units: Mapping[str, str] | None = None,
              warnings_section: int | None = None,
              predicted_units: Mapping[str, str] | None = None) -> Headline:
     """The report's headline box.
 
     Parameters
     ----------
-    metrics : dict
-        The run's metrics: ``calibration`` (mode, notes, surrogate checks),
-        ``validation`` (per data set: test, leave-one-out and baseline errors) and
-        ``warnings`` (every warning of the run).
-    summary : dict
-        :func:`calnet.calibration.summary.posterior_summary`.
+    results : RunResults
+        The run's results: the calibration (mode, posterior summary, notes, surrogate
+        checks, convergence limits), the validation of each data set (test,
+        leave-one-out and baseline errors), the predicted outputs and every warning.
     units : dict, optional
         ``{data set: unit of its observed output}``, for the RMSE column.
     warnings_section : int, optional
         Number of the report's Warnings section, named in the closing line.
     predicted_units : dict, optional
-        ``{model.output: unit}`` of the outputs in ``metrics["predicted_outputs"]``.
+        ``{model.output: unit}`` of the outputs in ``results.predicted_outputs``.
 
     Returns
     -------
     Headline
     """
-    tables = [_parameter_table(summary),
-              _error_table(metrics.get("validation", {}), units or {}),
-              headline_table(metrics.get("predicted_outputs", {}), predicted_units or {})]
-    warnings = _warnings(metrics, summary)
+    cal = results.calibration
+    tables = [_parameter_table(cal.models),
+              _error_table(results.validation, units or {}),
+              headline_table(results.predicted_outputs, predicted_units or {})]
+    warnings = _warnings(results)
     shown = warnings[:MAX_WARNINGS]
     more = None
-    if warnings_section is not None and metrics.get("warnings"):
+    if warnings_section is not None and results.warnings:
         hidden = len(warnings) - len(shown)
         more = ((f"{hidden} more not shown here. " if hidden else "")
-                + f"The run's {len(metrics['warnings'])} warning(s) in full: section "
+                + f"The run's {len(results.warnings)} warning(s) in full: section "
                 f"{warnings_section}.")
     return Headline(tables=[t for t in tables if t.rows],
-                    lines=_lines(metrics, summary), warnings=shown, more=more)
+                    lines=_lines(results), warnings=shown, more=more)
 
 
 def _unit(unit: str | None) -> str:
@@ -108,22 +109,23 @@ def _cell(m: Mapping[str, Any] | None) -> str:
     return rmse if m.get("mape") is None else f"{rmse} ({fmt(m['mape'], 3)} %)"
 
 
-def _error_table(validation: Mapping[str, Any], units: Mapping[str, str]) -> Table:
+def _error_table(validation: Mapping[str, DatasetValidation],
+                 units: Mapping[str, str]) -> Table:
     """Per data set, calnet's prediction error beside the baselines' on the same points:
     held-out test points where the data set has them, else leave-one-out."""
-    used = [b for b in BASELINES if any(b in v.get("baselines_test", {}) or
-                                        b in v.get("loo", {}) for v in validation.values())]
+    used = [b for b in BASELINES if any(b in (v.baselines_test or {}) or b in v.loo
+                                        for v in validation.values())]
     rows = []
     for name, v in validation.items():
-        loo = v.get("loo", {})
-        if "test" in v:
-            where, calnet, base = (f"{v['test']['n']} held-out points", v["test"],
-                                   v.get("baselines_test", {}))
+        loo = v.loo
+        if v.test is not None:
+            where, calnet, base = (f"{v.test['n']} held-out points", v.test,
+                                   v.baselines_test or {})
         elif "calnet" in loo:
             where, calnet = f"leave-one-out, {loo['calnet']['n']} points", loo["calnet"]
             base = {b: loo[b] for b in used if b in loo}
         else:
-            where, calnet, base = f"{v['train']['n']} training points (no test)", v["train"], {}
+            where, calnet, base = f"{v.train['n']} training points (no test)", v.train, {}
         rows.append([name, where, _unit(units.get(name)), _cell(calnet)]
                     + [_cell(base.get(b)) for b in used])
     return Table("Prediction error: RMSE (MAPE)",
@@ -136,30 +138,30 @@ def _stages(summary: Mapping[str, Any]) -> dict[str, Mapping[str, Any]]:
     return {s["stage"]: s for s in summary.values() if not s.get("prior_only")}
 
 
-def _lines(metrics: Mapping[str, Any], summary: Mapping[str, Any]) -> list[str]:
-    if "calibration" not in metrics:
+def _lines(results: RunResults) -> list[str]:
+    cal, summary = results.calibration, results.calibration.models
+    if not cal.calibrated:
         return ["No data sets: emulation only, nothing calibrated; the surrogates predict "
-                + (", ".join(metrics.get("predicted_outputs", {})) or "nothing (settings."
+                + (", ".join(results.predicted_outputs) or "nothing (settings."
                    "predict is empty)") + " through the chain." + (
-                    " Quick run: fewer restarts and folds." if metrics.get("quick") else "")]
-    cal = metrics.get("calibration", {})
+                    " Quick run: fewer restarts and folds." if results.quick else "")]
     if not summary:
-        return [f"Calibration: {cal.get('mode', '?')}; no calibration parameters, so only "
+        return [f"Calibration: {cal.mode}; no calibration parameters, so only "
                 "the data sets' discrepancy and unknown noise are calibrated."]
     calibrated = [m for m, s in summary.items() if not s.get("prior_only")]
     prior = [m for m, s in summary.items() if s.get("prior_only")]
-    lines = [f"Calibration: {cal.get('mode', '?')}, {len(calibrated)} model(s) with data"
+    lines = [f"Calibration: {cal.mode}, {len(calibrated)} model(s) with data"
              + (f"; at their prior (no data): {', '.join(prior)}" if prior else "")
-             + "." + (" Quick run: fewer draws, restarts and folds." if metrics.get("quick")
+             + "." + (" Quick run: fewer draws, restarts and folds." if results.quick
                       else "")]
     stages = _stages(summary)
     if stages:
         rhat = max(s["max_rhat"] for s in stages.values())
         ess = min(s["min_ess_bulk"] for s in stages.values())
         div = sum(s["divergences"] for s in stages.values())
-        ok = rhat <= RHAT_MAX and ess >= ESS_MIN and div == 0
-        lines.append(f"Sampler: max R-hat {rhat:.3f} (limit {RHAT_MAX}), min bulk ESS "
-                     f"{ess:.0f} (limit {ESS_MIN}), {div} divergent transitions: "
+        ok = rhat <= cal.rhat_max and ess >= cal.ess_min and div == 0
+        lines.append(f"Sampler: max R-hat {rhat:.3f} (limit {cal.rhat_max}), min bulk ESS "
+                     f"{ess:.0f} (limit {cal.ess_min}), {div} divergent transitions: "
                      + ("within the limits." if ok else "see the warnings."))
     return lines
 
@@ -173,12 +175,12 @@ def _surrogate_warning(name: str, check: Mapping[str, Any]) -> str:
             f"{check['runs'][worst]}) would fix that.")
 
 
-def _sampler_warning(stage: str, s: Mapping[str, Any]) -> str | None:
+def _sampler_warning(stage: str, s: Mapping[str, Any], cal: CalibrationResult) -> str | None:
     problems = []
-    if s["max_rhat"] > RHAT_MAX:
-        problems.append(f"max R-hat {s['max_rhat']:.3f} > {RHAT_MAX}")
-    if s["min_ess_bulk"] < ESS_MIN:
-        problems.append(f"min bulk ESS {s['min_ess_bulk']:.0f} < {ESS_MIN}")
+    if s["max_rhat"] > cal.rhat_max:
+        problems.append(f"max R-hat {s['max_rhat']:.3f} > {cal.rhat_max}")
+    if s["min_ess_bulk"] < cal.ess_min:
+        problems.append(f"min bulk ESS {s['min_ess_bulk']:.0f} < {cal.ess_min}")
     if s["divergences"]:
         problems.append(f"{s['divergences']} divergent transitions")
     if not problems:
@@ -186,15 +188,17 @@ def _sampler_warning(stage: str, s: Mapping[str, Any]) -> str | None:
     return f"{stage}: the sampler has not converged ({', '.join(problems)}); run more draws."
 
 
-def _warnings(metrics: Mapping[str, Any], summary: Mapping[str, Any]) -> list[str]:
+def _warnings(results: RunResults) -> list[str]:
     """Surrogate checks, then sampler problems, calibration notes and the other warnings."""
-    cal = metrics.get("calibration", {})
-    checks = {k: c for k, c in cal.get("surrogate_check", {}).items() if c.get("warning")}
-    notes = list(cal.get("notes", []))
+    cal = results.calibration
+    if not cal.calibrated:  # nothing calibrated: no checks, notes or sampler
+        return [w for w in results.warnings if not _CONVERGENCE.search(w)]
+    checks = {k: c for k, c in cal.surrogate_check.items() if c.get("warning")}
+    notes = list(cal.notes)
     out = [_surrogate_warning(k, c) for k, c in checks.items()]
-    out += [w for w in (_sampler_warning(k, s) for k, s in _stages(summary).items()) if w]
+    out += [w for w in (_sampler_warning(k, s, cal) for k, s in _stages(cal.models).items())
+            if w]
     out += notes
     known = {c["warning"] for c in checks.values()} | set(notes)
-    out += [w for w in metrics.get("warnings", [])
-            if w not in known and not _CONVERGENCE.search(w)]
+    out += [w for w in results.warnings if w not in known and not _CONVERGENCE.search(w)]
     return out

@@ -9,8 +9,6 @@ between them (timings, paths, host, versions) goes to ``run_info.json`` beside i
 Examples
 --------
 >>> import numpy as np
-
-from calnet.files import make_folder, replacing
 >>> to_jsonable({"a": np.float32(1.5), "b": np.array([1.0, np.nan])})
 {'a': 1.5, 'b': [1.0, None]}
 """
@@ -30,6 +28,7 @@ from typing import Any
 
 import numpy as np
 
+import calnet
 from calnet.files import make_folder, replacing
 
 
@@ -112,9 +111,7 @@ def write_run_info(path: str | Path, info: Mapping[str, Any]) -> Path:
 def run_environment() -> dict[str, Any]:
     """Where and with what this process runs: versions of calnet, Python and the
     numerical libraries, the platform, the host, the XLA devices."""
-    import jax
-
-    import calnet
+    import jax  # jax only where a run's environment is written
 
     versions = {"calnet": calnet.__version__, "python": platform.python_version()}
     for name in ("jax", "jaxlib", "numpy", "scipy", "blackjax", "arviz", "SALib"):

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from calnet.campaign import load_runs
 from calnet.errors import SurrogateError
 from calnet.files import make_folder, replacing
 from calnet.parallel import map_threads
@@ -125,8 +126,6 @@ def fit_surrogates(network: Network, *, stores: Mapping[str, Path] | None = None
     -------
     Surrogates
     """
-    from calnet.campaign import load_runs
-
     seed = network.settings.seed if seed is None else seed
     jobs = []
     for name in network.order:
