@@ -257,7 +257,10 @@ def compare_variants(network: Network, surrogates: Surrogates, posterior: Networ
             with _quiet_pareto():
                 loos[name] = az.loo(az.from_dict(log_likelihood={ds: ll[None]}),
                                     pointwise=True, reff=1.0)
-        with _quiet_pareto():
+        with _quiet_pareto(), warnings.catch_warnings():
+            # ArviZ 0.23's compare sorts in place, which pandas >= 3.1 deprecates: not
+            # the user's to act on
+            warnings.filterwarnings("ignore", message="The inplace keyword")
             table = az.compare(loos, ic="loo")
         out[ds] = {name: VariantScore(
                        elpd_loo=float(row["elpd_loo"]), p_loo=float(row["p_loo"]),
