@@ -57,7 +57,7 @@ def main():
         emit(dict(side="numpyro", rep=REP, run=run, t_total=t_total,
                   t_compile=COMPILE_S[0] - c0, t_sample=None, cpu_s=cm.cpu_s,
                   mean_n_steps=float(np.asarray(extra["num_steps"]).mean()),
-                  **diagnostics(idata)))
+                  **diagnostics(idata, names=("theta_m", "ell_obs", "sd2_obs", "se2_obs"))))
 
 
 if __name__ == "__main__":
