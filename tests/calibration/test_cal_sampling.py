@@ -95,6 +95,30 @@ def test_linear_gaussian_posterior_matches_closed_form(oracle_run):
     assert np.all(np.abs(est_sd - sd) < 5 * mcse_sd), (est_sd, sd, mcse_sd)
 
 
+@pytest.mark.parametrize("kwargs", [dict(chain_method="sequential"),
+                                    dict(chain_method="vectorized"),
+                                    dict(dense_mass=True),
+                                    dict(num_warmup=15)])  # below Stan's smallest schedule
+def test_every_sampler_setting_matches_closed_form(kwargs):
+    """Chains one after another or in lock-step, a dense mass matrix, a warm-up too short
+    for the mass-matrix windows: the same closed-form posterior, within 5 Monte Carlo
+    standard errors."""
+    import arviz as az
+
+    ld, mean, sd = _build(1)
+    idata = sample_nuts(ld, seed=5, **{**SETTINGS, **kwargs})
+    post = idata.posterior["theta"]
+    mcse_mean = az.mcse(idata.posterior, method="mean")["theta"].values
+    mcse_sd = az.mcse(idata.posterior, method="sd")["theta"].values
+    est_mean = post.mean(("chain", "draw")).values
+    est_sd = post.std(("chain", "draw")).values
+    assert np.all(np.abs(est_mean - mean) < 5 * mcse_mean), (est_mean, mean, mcse_mean)
+    assert np.all(np.abs(est_sd - sd) < 5 * mcse_sd), (est_sd, sd, mcse_sd)
+    assert not idata.sample_stats["diverging"].values.any()
+    assert np.all(az.ess(idata.posterior, method="bulk")["theta"].values > 500)
+    assert idata.posterior.attrs["chain_method"] == kwargs.get("chain_method", "parallel")
+
+
 def test_inference_data_layout(oracle_run):
     ld, _, _, idata = oracle_run
     post = idata.posterior
