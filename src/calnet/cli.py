@@ -308,8 +308,8 @@ def surrogates(
     for key, s in sur.items.items():
         cv = s.cv.metrics() if s.cv else {}
         table.add_row(key, str(s.n_runs), str(s.n_excluded), str(cv.get("k", "-")),
-                      *(f"{cv[k]:.4g}" if k in cv else "-" for k in ("mape", "rmse",
-                                                                      "coverage95")))
+                      *(f"{cv[k]:.4g}" if cv.get(k) is not None else "-"
+                        for k in ("mape", "rmse", "coverage95")))
     console.print(table)
     console.print(f"surrogates and plots written to {out}")
 
@@ -339,10 +339,11 @@ def calibrate(
     from calnet.pipeline import record_calibration
     from calnet.report.build import posterior_figures
     from calnet.spec import load_spec
-    from calnet.surrogates.fit_network import Surrogates
+    from calnet.surrogates.fit_network import Surrogates, check_surrogates
 
     network = load_spec(spec)
     sur = Surrogates.load(surrogates_dir)
+    check_surrogates(network, sur, surrogates_dir)
     out.mkdir(parents=True, exist_ok=True)  # a bad --out fails now, not after sampling
     with _working("calibrating") as note:
         post = run_calibration(network, sur, mode=mode, plug=plug, progress=note)
@@ -403,7 +404,7 @@ def predict(
     ] = Path("out"),
     draws: Annotated[int, typer.Option(metavar="N", min=1, help="posterior draws used")] = 200,
     seed: Annotated[int | None, typer.Option(
-        metavar="SEED", help="default: the spec's")] = None,
+        metavar="SEED", min=0, help="default: the spec's")] = None,
     as_json: Annotated[bool, typer.Option("--json", help="print JSON, not a table")] = False,
     output: Annotated[Path | None, typer.Option(
         metavar="FILE", help="also write the predictions as CSV")] = None,
@@ -437,6 +438,10 @@ def predict(
     sur, post = load_run(network, run_dir)
     names = prediction_targets(network, sur, post, dataset)
     seed = network.settings.seed if seed is None else seed
+    if post.n_draws and draws > post.n_draws:  # more would repeat draws, at their cost
+        warnings.warn(f"--draws {draws} is more than the posterior's {post.n_draws} draws; "
+                      f"using {post.n_draws}", stacklevel=1)
+        draws = post.n_draws
     results, table_rows = [], []
     # without -d, a point may carry inputs that only some of the targets take
     skip = set() if dataset else shared_inputs(network, names, rows)
@@ -495,7 +500,7 @@ def verify(
     k: Annotated[int, typer.Option(
         "-k", "--points", metavar="K", min=1, help="posterior points to run")] = 8,
     seed: Annotated[int | None, typer.Option(
-        metavar="SEED", help="default: the spec's")] = None,
+        metavar="SEED", min=0, help="default: the spec's")] = None,
     as_json: Annotated[bool, typer.Option("--json", help="print JSON, not tables")] = False,
 ) -> None:
     """Run the simulators at posterior points; check the surrogates.
@@ -507,7 +512,7 @@ def verify(
 
     from calnet.calibration.persist import load_posterior
     from calnet.spec import load_spec
-    from calnet.surrogates.fit_network import Surrogates
+    from calnet.surrogates.fit_network import Surrogates, check_surrogates
     from calnet.verify import Z_LIMIT
     from calnet.verify import verify as run_verify
 
@@ -516,8 +521,9 @@ def verify(
     if not (sur_dir / "surrogates.json").is_file():
         raise CalnetError(f"no fitted surrogates in '{sur_dir}'; run 'calnet run SPEC --out "
                           f"{run_dir}' first, or pass --run DIR")
-    post = load_posterior(run_dir / "posterior", network)
     sur = Surrogates.load(sur_dir)
+    check_surrogates(network, sur, sur_dir)
+    post = load_posterior(run_dir / "posterior", network)
     seed = network.settings.seed if seed is None else seed
     with _working("running the simulators") as note:
         result = run_verify(network, sur, post, k=k, seed=seed, workdir=run_dir / "verify",

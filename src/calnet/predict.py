@@ -29,7 +29,7 @@ from calnet.chain import ChainPlan
 from calnet.errors import CalnetError
 from calnet.spec import Network
 from calnet.surrogates.cv import mape_meaningful
-from calnet.surrogates.fit_network import Surrogates
+from calnet.surrogates.fit_network import Surrogates, check_surrogates
 
 Z95 = 1.959963984540054
 
@@ -529,13 +529,15 @@ def load_run(network: Network, run_dir: str | Path) -> tuple[Surrogates, Network
     if not (sur_dir / "surrogates.json").is_file():
         raise CalnetError(f"no fitted surrogates in '{sur_dir}'; run 'calnet run SPEC --out "
                           f"{run_dir}' first, or pass --run DIR")
+    sur = Surrogates.load(sur_dir)
+    check_surrogates(network, sur, sur_dir)  # a run folder of another spec fails here
     folder = run_dir / "posterior"
     if (not (folder / f"{POSTERIOR_FILE}.json").is_file()
             and not any(m.parameters for m in network.models)):
         post = uncalibrated(network)
     else:
         post = load_posterior(folder, network)
-    return Surrogates.load(sur_dir), post
+    return sur, post
 
 
 def prediction_targets(network: Network, surrogates: Surrogates, posterior: NetworkPosterior,

@@ -118,3 +118,15 @@ def test_cli_calibrate_and_predict_with_data_but_no_parameters(tmp_path, monkeyp
     assert "noise" in preds["yd"]["variance_shares"]
     assert "parameters" not in preds["yd"]["variance_shares"]  # the network has none
     assert "noise" not in preds["M3.y"]["variance_shares"]  # the simulator's output
+
+
+@pytest.mark.integration
+def test_cli_surrogates_table_when_a_mape_is_meaningless(tmp_path, monkeypatch):
+    """M2.w2 crosses zero, so its CV MAPE is None: the table shows '-', as the report does."""
+    work = tmp_path / "chain3"
+    shutil.copytree(CHAIN3, work)
+    monkeypatch.setenv("COLUMNS", "200")
+    res = CliRunner().invoke(app, ["surrogates", str(work), "--out", str(tmp_path / "s")])
+    assert res.exit_code == 0, res.output
+    row = next(line for line in res.output.splitlines() if "M2.w2" in line and "│" in line)
+    assert [c.strip() for c in row.split("│")][5] == "-"  # output, runs, excluded, k, MAPE

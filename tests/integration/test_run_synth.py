@@ -109,6 +109,19 @@ def _check_predict(work: Path, out: Path, tmp_path: Path) -> None:
     res = runner.invoke(app, ["predict", str(work), "--run", str(tmp_path / "none"),
                               "--at", "P=200,v=1"])
     assert res.exit_code == 1 and "no fitted surrogates" in res.output
+    res = runner.invoke(app, ["predict", str(work), "--run", str(out), "--at", "P=200,v=1",
+                              "--seed", "-5"])
+    assert res.exit_code == 2  # a usage error, not a crash
+    # the run folder of another spec: one line that says so, from predict, verify, calibrate
+    ninb = Path(__file__).parents[2] / "examples" / "ninb"
+    for argv in (["predict", str(ninb), "--run", str(out), "--at", "P=200,v=0.5"],
+                 ["verify", str(ninb), "--run", str(out), "-k", "1"],
+                 ["calibrate", str(ninb), "--surrogates", str(out / "surrogates"),
+                  "--out", str(tmp_path / "cal")]):
+        res = runner.invoke(app, argv)
+        assert res.exit_code == 1, (argv, res.output)
+        assert "were not fitted for network 'ninb'" in res.output
+        assert "Traceback" not in res.output
 
 
 BANNER = "undergoing a major refactor"  # ArviZ's once-a-day notice (tests/test_cli.py)

@@ -101,6 +101,28 @@ class Surrogates:
                     for k, v in index.items()})
 
 
+def check_surrogates(network: Network, surrogates: Surrogates, where: str | Path) -> None:
+    """Raise :class:`~calnet.errors.SurrogateError` unless ``surrogates`` (read from
+    ``where``) hold a GP for every output ``network`` needs, each on that model's inputs
+    and parameters, and nothing for outputs the network does not have."""
+    needed = {f"{m}.{o.name}": len(network.model(m).inputs) + len(network.model(m).parameters)
+              for m in network.order for o in network.needed_outputs(m)}
+    missing = [k for k in needed if k not in surrogates.items]
+    foreign = [k for k in surrogates.items
+               if k.split(".")[0] not in network.order
+               or k.split(".", 1)[1] not in network.model(k.split(".")[0]).output_names]
+    other = [k for k, n in needed.items()
+             if k in surrogates.items and surrogates.items[k].gp.n_inputs != n]
+    if missing or foreign or other:
+        what = "; ".join(x for x in (
+            f"no GP for {missing}" if missing else "",
+            f"GPs of outputs the network does not have {foreign}" if foreign else "",
+            f"GPs on other inputs for {other}" if other else "") if x)
+        raise SurrogateError(f"the surrogates in '{where}' were not fitted for network "
+                             f"'{network.name}' ({what}); fit them with 'calnet surrogates' "
+                             "or 'calnet run' on this spec, or pass the folder of its run")
+
+
 def fit_surrogates(network: Network, *, stores: Mapping[str, Path] | None = None,
                    seed: int | None = None, cv: bool = True, restarts: int | None = None,
                    cv_folds: int | None = None,
