@@ -511,18 +511,13 @@ def verify(
     from rich.table import Table
 
     from calnet.calibration.persist import load_posterior
+    from calnet.predict import load_surrogates
     from calnet.spec import load_spec
-    from calnet.surrogates.fit_network import Surrogates, check_surrogates
     from calnet.verify import Z_LIMIT
     from calnet.verify import verify as run_verify
 
     network = load_spec(spec)
-    sur_dir = run_dir / "surrogates"
-    if not (sur_dir / "surrogates.json").is_file():
-        raise CalnetError(f"no fitted surrogates in '{sur_dir}'; run 'calnet run SPEC --out "
-                          f"{run_dir}' first, or pass --run DIR")
-    sur = Surrogates.load(sur_dir)
-    check_surrogates(network, sur, sur_dir)
+    sur = load_surrogates(network, run_dir)
     post = load_posterior(run_dir / "posterior", network)
     seed = network.settings.seed if seed is None else seed
     with _working("running the simulators") as note:

@@ -520,17 +520,25 @@ def _names(keys: list[str]) -> str:
     return ", ".join(bare if len(set(bare)) == len(bare) else keys)
 
 
-def load_run(network: Network, run_dir: str | Path) -> tuple[Surrogates, NetworkPosterior]:
-    """The surrogates and posterior that ``calnet run`` (or ``calnet surrogates`` and
-    ``calnet calibrate``) wrote to ``run_dir``; for a network without parameters that was
-    never calibrated, the empty posterior."""
+def load_surrogates(network: Network, run_dir: str | Path) -> Surrogates:
+    """The surrogates that ``calnet run`` (or ``calnet surrogates``) wrote to ``run_dir``,
+    checked to be ``network``'s (a run folder of another spec fails here)."""
     run_dir = Path(run_dir)
     sur_dir = run_dir / "surrogates"
     if not (sur_dir / "surrogates.json").is_file():
         raise CalnetError(f"no fitted surrogates in '{sur_dir}'; run 'calnet run SPEC --out "
                           f"{run_dir}' first, or pass --run DIR")
     sur = Surrogates.load(sur_dir)
-    check_surrogates(network, sur, sur_dir)  # a run folder of another spec fails here
+    check_surrogates(network, sur, sur_dir)
+    return sur
+
+
+def load_run(network: Network, run_dir: str | Path) -> tuple[Surrogates, NetworkPosterior]:
+    """The surrogates and posterior that ``calnet run`` (or ``calnet surrogates`` and
+    ``calnet calibrate``) wrote to ``run_dir``; for a network without parameters that was
+    never calibrated, the empty posterior."""
+    run_dir = Path(run_dir)
+    sur = load_surrogates(network, run_dir)
     folder = run_dir / "posterior"
     if (not (folder / f"{POSTERIOR_FILE}.json").is_file()
             and not any(m.parameters for m in network.models)):
