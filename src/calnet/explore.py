@@ -1,5 +1,6 @@
-"""The sensitivity stage: Sobol indices of the calibrated chain and predictive maps over
-each data set's process box (method.md section 6).
+"""The sensitivity of a calibrated network: Sobol indices of the calibrated chain and
+predictive maps over each data set's process box (method.md section 6); ``calnet run``
+computes it in its validation stage, beside the leave-one-out.
 
 For every data set: first-order and total Sobol indices of the posterior predictive mean
 over its process inputs (SALib, :mod:`calnet.sensitivity`), their spread over posterior

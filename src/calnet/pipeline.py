@@ -1,7 +1,8 @@
 """``calnet run``: every stage in order, from the spec to the report.
 
-campaign (shipped store unless ``fresh``) -> surrogates -> calibration -> prediction and
-validation -> sensitivity -> process map -> report (HTML, metrics.json, posteriors, figures).
+campaign (shipped store unless ``fresh``) -> surrogates -> calibration -> prediction ->
+validation, with the sensitivity (Sobol indices, process maps) beside it -> report (HTML,
+metrics.json, posteriors, figures).
 A network without data sets is emulated only: nothing is calibrated or validated, and the
 report shows the outputs of ``settings.predict`` predicted through the chain.
 """
@@ -13,6 +14,7 @@ import warnings
 from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
+from dataclasses import replace
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -41,8 +43,8 @@ from calnet.surrogates.fit_network import Surrogates, fit_surrogates
 from calnet.surrogates.plots import parity_plots
 from calnet.validation import baselines, compare_variants, validate_dataset
 
-STAGES = ("campaign", "surrogates", "calibration", "prediction", "validation",
-          "sensitivity", "report")
+STAGES = ("campaign", "surrogates", "calibration", "prediction", "validation", "report")
+"""The stages of ``calnet run``, in order; ``validation`` also computes the sensitivity."""
 
 
 def _quick_sampler(s: SamplerSettings) -> SamplerSettings:
@@ -280,27 +282,35 @@ class _Context:
                                                seed=self.seed)
 
     def validation(self, note) -> None:
-        # the naive baselines' GP fits run beside the leave-one-out (one more core)
-        with one_blas_thread(), ThreadPoolExecutor(max_workers=1) as pool:
-            naive = {name: pool.submit(baselines, self.network, d.train, d.test,
-                                       seed=self.seed)
+        """Leave-one-out, checks and the comparison of variants; beside them, in a second
+        thread, the naive baselines' GP fits and then the sensitivity (Sobol indices and
+        process maps), which need only the posterior: the leave-one-out and the Sobol
+        programs compile on one core each. Everything ends inside this stage, so that
+        the warnings of both threads are recorded with it."""
+        def beside():
+            naive = {name: baselines(self.network, d.train, d.test, seed=self.seed)
                      for name, d in self.data.items() if d.is_test.any()}
+            explored = explore(self.network, self.sur, self.post, self.data,
+                               seed=self.seed, quick=self.quick, progress=note)
+            return naive, explored
+
+        with one_blas_thread(), ThreadPoolExecutor(max_workers=1) as pool:
+            other = pool.submit(beside)
+            loo = {}
             for name, d in self.data.items():
                 note(f"leave-one-out {name}")
-                self.validated[name] = validate_dataset(
+                loo[name] = validate_dataset(
                     self.network, self.sur, self.post, d, self.predictions[name],
                     sampler=self.sampler, seed=self.seed, loo_max=self.loo_max,
-                    baselines_test=naive[name].result() if name in naive else None,
                     progress=note)
-        if self.variants:
-            note("comparison with " + ", ".join(self.variants))
-            self.comparison = compare_variants(
-                self.network, self.sur, self.post, tuple(self.variants),
-                sampler=self.sampler, seed=self.seed, calibrated=self.variants)
-
-    def sensitivity(self, note) -> None:
-        self.explored = explore(self.network, self.sur, self.post, self.data, seed=self.seed,
-                                quick=self.quick, progress=note)
+            if self.variants:
+                note("comparison with " + ", ".join(self.variants))
+                self.comparison = compare_variants(
+                    self.network, self.sur, self.post, tuple(self.variants),
+                    sampler=self.sampler, seed=self.seed, calibrated=self.variants)
+            naive, self.explored = other.result()
+        self.validated = {name: replace(v, baselines_test=naive.get(name))
+                          for name, v in loo.items()}
 
     def report(self, note) -> None:
         note("figures, report.html, metrics.json")

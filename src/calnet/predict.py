@@ -125,12 +125,12 @@ predictive programs compile once for its data, leave-one-out points and test poi
 and once for its Sobol points and map grid (1024), whatever the number of draws."""
 
 
-def _padded(a, n: int, axis: int):
+def _padded(a: np.ndarray, n: int, axis: int) -> np.ndarray:
     """``a`` repeated at its last entry along ``axis`` to length ``n``."""
     k = a.shape[axis]
     if k == n:
         return a
-    return jnp.take(a, np.r_[np.arange(k), np.full(n - k, k - 1)], axis=axis)
+    return np.take(a, np.r_[np.arange(k), np.full(n - k, k - 1)], axis=axis)
 
 
 def _block(tree, where: tuple[slice, ...], sizes: tuple[int, ...]):
@@ -151,9 +151,12 @@ def _blocked(fn, n_draws: int, n_rows: int, draws, rows, both=None):
     ``draws``: pytree of arrays with the draws first; ``rows``: with the rows first;
     ``both``: (draws, rows, ...). A short block is padded with copies of its last draw or
     row, whose results are dropped: the rows and draws of the predictive are independent.
+    The blocks are cut on the host (NumPy): eager JAX slicing would compile a program per
+    block shape.
     """
+    draws, rows, both = jax.tree.map(np.asarray, (draws, rows, both or {}))
     if not n_rows or not n_draws:
-        return jax.tree.map(np.asarray, fn(draws, rows, both or {}))
+        return jax.tree.map(np.asarray, fn(draws, rows, both))
     R = next((b for b in ROW_BLOCKS if n_rows <= b), ROW_BLOCKS[-1])
     D = DRAW_BLOCK
     columns = []
@@ -162,8 +165,9 @@ def _blocked(fn, n_draws: int, n_rows: int, draws, rows, both=None):
         blocks = []
         for d0 in range(0, n_draws, D):
             d = slice(d0, min(d0 + D, n_draws))
-            res = fn(_block(draws, (d,), (D,)), _block(rows, (r,), (R,)),
-                     _block(both or {}, (d, r), (D, R)))
+            res = jax.tree.map(np.asarray, fn(_block(draws, (d,), (D,)),
+                                              _block(rows, (r,), (R,)),
+                                              _block(both, (d, r), (D, R))))
             blocks.append(_block(res, (slice(0, d.stop - d.start), slice(0, r.stop - r.start)),
                                  ()))
         columns.append(jax.tree.map(lambda *a: np.concatenate(a, axis=0), *blocks))

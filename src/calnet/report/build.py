@@ -26,7 +26,7 @@ def _axis_labels(network, input_keys) -> list[str]:
 
 
 def _sensitivity_figures(ctx, results: RunResults) -> None:
-    """Sobol bars, predictive and process maps of the sensitivity stage's results."""
+    """Sobol bars, predictive and process maps of the sensitivity results."""
     for name, e in results.sensitivity.items():
         d = ctx.data[name]
         res = e.indices
