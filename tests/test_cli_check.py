@@ -55,3 +55,21 @@ def test_each_output_says_surrogate_once_with_its_scale(spec):
     assert roles["y"].count("surrogate") == 1, roles
     assert "surrogate" not in roles["z"], roles  # unused: no surrogate, on any scale
     assert roles["w"].endswith("; surrogate"), roles  # settings.predict, linear scale
+
+
+def test_tables_keep_their_full_width_in_a_pipe(spec):
+    result = CliRunner().invoke(app, ["check", str(spec)], env={"COLUMNS": None})
+    assert result.exit_code == 0, result.output
+    table = [line for line in result.output.splitlines() if "│" in line]
+    # one line per variable (5), none wrapped onto a second line
+    assert len(table) == 5, table
+    assert max(len(line) for line in table) > 80
+    assert "a_data_set_with_a_rather_long_name_that_fills_the_role_column; surrogate" \
+        in result.output
+
+
+def test_tables_respect_columns_when_set(spec):
+    result = CliRunner().invoke(app, ["check", str(spec)], env={"COLUMNS": "70"})
+    assert result.exit_code == 0, result.output
+    table = [line for line in result.output.splitlines() if "│" in line]
+    assert len(table) > 5 and max(len(line) for line in table) <= 70

@@ -22,6 +22,8 @@ from typing import Annotated, Any, Literal
 import typer
 from rich.console import Console
 from rich.markup import escape
+from rich.measure import Measurement
+from rich.table import Table
 from typer.core import TyperCommand, TyperGroup
 
 from calnet import __version__
@@ -83,7 +85,29 @@ class App(typer.Typer):
 
 app = App(no_args_is_help=True,
           help="Bayesian calibration of networks of coupled simulation models.")
-console = Console(stderr=False, highlight=False, emoji=False)  # ":x:" in python:x:f is text
+
+
+class _Console(Console):
+    """A Rich console that prints a table at its full width where stdout is not a
+    terminal (a pipe, a file) and ``COLUMNS`` is not set; Rich would cut it to 80
+    columns there. ``COLUMNS``, when set, is the width on a terminal or off it."""
+
+    def print(self, *objects: Any, **kwargs: Any) -> None:
+        if self.is_terminal or self._environ.get("COLUMNS", "").isdigit() or not any(
+                isinstance(o, Table) for o in objects):
+            super().print(*objects, **kwargs)
+            return
+        options = self.options.update_width(1 << 16)
+        natural = max(Measurement.get(self, options, o).maximum for o in objects)
+        held = self._width
+        self.width = max(natural, 1)
+        try:
+            super().print(*objects, **kwargs)
+        finally:
+            self._width = held
+
+
+console = _Console(stderr=False, highlight=False, emoji=False)  # ":x:" in python:x:f is text
 err_console = Console(stderr=True, highlight=False, emoji=False)
 
 SpecArg = Annotated[Path, typer.Argument(
@@ -294,7 +318,6 @@ def surrogates(
     no_cv: Annotated[bool, typer.Option("--no-cv", help="skip cross-validation")] = False,
 ) -> None:
     """Fit a GP surrogate per output needed; print the CV table."""
-    from rich.table import Table
 
     from calnet.pipeline import surrogate_stage
     from calnet.spec import load_spec
@@ -333,7 +356,6 @@ def calibrate(
     Writes the posteriors (ArviZ netCDF), a summary table with diagnostics, and
     prior-vs-posterior plots per model.
     """
-    from rich.table import Table
 
     from calnet.calibration.calibrate_network import calibrate as run_calibration
     from calnet.pipeline import record_calibration
@@ -466,7 +488,6 @@ def predict(
     if as_json:
         print(json.dumps({"predictions": results}, indent=2, default=_json_default))
         return
-    from rich.table import Table
 
     table = Table("output", "settings", "mean", "95% band", "unit", "largest variance shares")
     for r in table_rows:
@@ -508,7 +529,6 @@ def verify(
     z = (simulator - mean) / sd on the modelled scale; writes RUN/verify.json.
     Disagreements are reported, not errors.
     """
-    from rich.table import Table
 
     from calnet.calibration.persist import load_posterior
     from calnet.predict import load_surrogates
