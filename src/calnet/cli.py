@@ -1,7 +1,8 @@
 """The ``calnet`` command line: thin Typer commands over the stage verbs.
 
 Every user error (:class:`calnet.errors.CalnetError`) is printed as one line, without a
-traceback; spec errors exit with code 2, other errors with code 1.
+traceback; spec errors and malformed option values (:class:`UsageError`) exit with code
+2, as Typer's own usage errors do, other errors with code 1.
 """
 
 from __future__ import annotations
@@ -10,6 +11,7 @@ import csv as csv_mod
 import functools
 import inspect
 import json
+import math
 import os
 import sys
 import time
@@ -131,6 +133,11 @@ def _main(
     enable_compilation_cache()  # compiled samplers and predictors reused across runs
 
 
+class UsageError(CalnetError):
+    """A malformed option value (``--at P=abc``): one line naming it, exit code 2, as
+    Typer's own usage errors exit."""
+
+
 def user_errors(func: Callable[..., Any]) -> Callable[..., Any]:
     """Turn calnet errors into one-line messages with exit codes; show warnings briefly."""
 
@@ -146,6 +153,10 @@ def user_errors(func: Callable[..., Any]) -> Callable[..., Any]:
                 for line in err.more:  # the spec's other problems, one line each
                     err_console.print(f"[bold red]error:[/] {escape(f'{err.file}: {line}')}",
                                       soft_wrap=True)
+                raise typer.Exit(2) from None
+            except UsageError as err:
+                _show_warnings(caught)
+                err_console.print(f"[bold red]error:[/] {escape(str(err))}", soft_wrap=True)
                 raise typer.Exit(2) from None
             except CalnetError as err:
                 _show_warnings(caught)
@@ -223,13 +234,17 @@ def _parse_sets(values: list[str], flag: str = "--set") -> dict[str, float]:
     for item in values:
         key, sep, val = item.partition("=")
         if not sep or not key.strip():
-            raise CalnetError(f"{flag} expects NAME=VALUE, got '{item}'")
+            raise UsageError(f"{flag} expects NAME=VALUE, got '{item}'")
         if key.strip() in out:
-            raise CalnetError(f"{flag} gives {key.strip()} twice; give each name once")
+            raise UsageError(f"{flag} gives {key.strip()} twice; give each name once")
         try:
-            out[key.strip()] = float(val)
+            value = float(val)
         except ValueError:
-            raise CalnetError(f"{flag} {key.strip()}: '{val}' is not a number") from None
+            raise UsageError(f"{flag} {key.strip()}: '{val}' is not a number; write e.g. "
+                             f"{flag} {key.strip()}=0.5") from None
+        if not math.isfinite(value):
+            raise UsageError(f"{flag} {key.strip()}: '{val}' is not a finite number")
+        out[key.strip()] = value
     return out
 
 
@@ -237,7 +252,7 @@ def _parse_at(text: str) -> dict[str, float]:
     """``"P=200,v=0.5"`` -> ``{"P": 200.0, "v": 0.5}`` (the ``--at`` syntax)."""
     out = _parse_sets([s.strip() for s in text.split(",") if s.strip()], "--at")
     if not out:
-        raise CalnetError("--at is empty; write e.g. --at P=200,v=0.5")
+        raise UsageError("--at is empty; write e.g. --at P=200,v=0.5")
     return out
 
 
@@ -246,7 +261,7 @@ def _parse_options(values: list[str]) -> dict[str, Any]:
     for item in values:
         key, sep, val = item.partition("=")
         if not sep:
-            raise CalnetError(f"--option expects NAME=VALUE, got '{item}'")
+            raise UsageError(f"--option expects NAME=VALUE, got '{item}'")
         try:
             out[key] = json.loads(val)
         except json.JSONDecodeError:
@@ -455,7 +470,7 @@ def predict(
     network = load_spec(spec)
     rows = [_parse_at(a) for a in at] + (read_points(csv) if csv else [])
     if not rows:
-        raise CalnetError("give the settings to predict at: --at P=200,v=0.5 (repeatable) "
+        raise UsageError("give the settings to predict at: --at P=200,v=0.5 (repeatable) "
                           "or --csv points.csv")
     sur, post = load_run(network, run_dir)
     names = prediction_targets(network, sur, post, dataset)
