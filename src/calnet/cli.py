@@ -459,7 +459,6 @@ def predict(
         largest_shares,
         load_run,
         prediction_targets,
-        read_points,
         settings_matrix,
         shared_inputs,
         shares_per_point,
@@ -468,7 +467,7 @@ def predict(
     from calnet.spec import load_spec
 
     network = load_spec(spec)
-    rows = [_parse_at(a) for a in at] + (read_points(csv) if csv else [])
+    rows = [_parse_at(a) for a in at] + (_read_points(csv) if csv else [])
     if not rows:
         raise UsageError("give the settings to predict at: --at P=200,v=0.5 (repeatable) "
                           "or --csv points.csv")
@@ -510,6 +509,18 @@ def predict(
     console.print(table)
     if output:
         console.print(f"predictions written to {output}")
+
+
+def _read_points(path: Path) -> list[dict[str, float]]:
+    """:func:`calnet.predict.read_points`, refusing a header that names a column twice."""
+    from calnet.predict import read_points
+    from calnet.spec.data import repeated_header
+
+    twice = repeated_header(path) if path.is_file() else None
+    if twice:
+        raise CalnetError(f"--csv {path}: column '{twice}' appears twice in the header; give "
+                          "each column its own name")
+    return read_points(path)
 
 
 def _write_predictions(path: Path, results: list[dict]) -> None:

@@ -84,6 +84,10 @@ def read_dataset(network: Network, ds: Dataset) -> ExperimentalData:
     if frame.empty:
         raise SpecError("the CSV has a header but no data rows; add the measurements",
                         file=str(path), field=field)
+    twice = repeated_header(path)
+    if twice:
+        raise SpecError(f"column '{twice}' appears twice in the header; give each column its "
+                        "own name", file=str(path), field=field)
     wanted = network.process_input_keys(ds.observed_model)
     resolved = {network.resolve_column_key(ds, k, wanted + [ds.observes]): col
                 for k, col in ds.columns.items()}
@@ -104,6 +108,16 @@ def read_dataset(network: Network, ds: Dataset) -> ExperimentalData:
     noise_sd = _noise_sd(frame, ds, path, field)
     return ExperimentalData(ds.name, ds.observes, tuple(wanted), x, y, is_test, labels,
                             noise_sd)
+
+
+def repeated_header(path) -> str | None:
+    """The first column name that ``path``'s CSV header holds twice, else None (pandas
+    would rename the second ``P`` to ``P.1``)."""
+    import csv
+
+    with open(path, newline="") as fh:
+        header = [h.strip() for h in next(csv.reader(fh), [])]
+    return next((h for i, h in enumerate(header) if h in header[:i]), None)
 
 
 def _noise_sd(frame, ds: Dataset, path, field: str) -> np.ndarray | None:
