@@ -1,5 +1,6 @@
 """``calnet predict`` on a calibrated two-model chain: a point's prediction depends on the
-seed and the point only."""
+seed and the point only, extra columns and names are ignored alike (one warning), and a
+target asked for twice is predicted once."""
 
 from __future__ import annotations
 
@@ -104,3 +105,22 @@ def test_a_points_prediction_depends_on_the_seed_and_the_point_only(run):
     other_seed, _ = _predict(run, "--at", "x=0.3", "--seed", "5")
     band = np.subtract(*_at(alone[0], 0.3)[:0:-1])
     assert abs(_at(other_seed[0], 0.3)[1] - _at(alone[0], 0.3)[1]) > 1e-6 * band  # seeded
+
+
+def test_extra_columns_and_names_are_ignored_alike(run, tmp_path):
+    plain, _ = _predict(run, "--at", "x=0.3")
+    points = tmp_path / "points.csv"
+    points.write_text("x,id,y_measured\n0.3,7,0.1\n")
+    from_csv, warned_csv = _predict(run, "--csv", str(points))
+    from_at, warned_at = _predict(run, "--at", "x=0.3,id=7,y_measured=0.1")
+    assert from_csv == from_at == plain
+    for warned in (warned_csv, warned_at):
+        lines = [line for line in warned.splitlines() if "ignored" in line]
+        assert lines == ["warning: ignored id, y_measured: not process inputs of yd (it takes "
+                         "x)"], warned
+
+
+def test_a_target_asked_twice_is_predicted_once(run):
+    preds, warned = _predict(run, "--at", "x=0.3", "-d", "yd", "-d", "yd")
+    assert [p["dataset"] for p in preds] == ["yd"]
+    assert "warning: -d yd is given twice; it is predicted once" in warned

@@ -431,7 +431,8 @@ def predict(
         "--at", metavar="NAME=VALUE,...", help="one point, e.g. P=200,v=0.5 (repeatable)")
     ] = [],  # noqa: B006
     csv: Annotated[Path | None, typer.Option(
-        metavar="FILE", help="CSV of points, one column per input")] = None,
+        metavar="FILE", help="CSV of points, one column per input (others are ignored)")
+    ] = None,
     dataset: Annotated[list[str], typer.Option(
         "--dataset", "-d", metavar="NAME", help="data set, or model.output with a surrogate, "
         "to predict (repeatable; default: every data set and settings.predict output)")
@@ -472,15 +473,20 @@ def predict(
         raise UsageError("give the settings to predict at: --at P=200,v=0.5 (repeatable) "
                           "or --csv points.csv")
     sur, post = load_run(network, run_dir)
-    names = prediction_targets(network, sur, post, dataset)
+    for name in sorted({d for d in dataset if dataset.count(d) > 1}):
+        warnings.warn(f"-d {name} is given twice; it is predicted once", stacklevel=1)
+    names = prediction_targets(network, sur, post, list(dict.fromkeys(dataset)))
     seed = network.settings.seed if seed is None else seed
     if post.n_draws and draws > post.n_draws:  # more would repeat draws, at their cost
         warnings.warn(f"--draws {draws} is more than the posterior's {post.n_draws} draws; "
                       f"using {post.n_draws}", stacklevel=1)
         draws = post.n_draws
     results, table_rows = [], []
-    # without -d, a point may carry inputs that only some of the targets take
-    skip = set() if dataset else shared_inputs(network, names, rows)
+    # a point may carry inputs that only some of the targets take, and names (CSV
+    # columns) that none takes: those are ignored, with a warning
+    skip = {k for row in rows for k in row}
+    _warn_extra(network, names, [k for k in dict.fromkeys(k for row in rows for k in row)
+                                 if k not in shared_inputs(network, names, rows)])
     for name in names:
         x, notes = settings_matrix(network, name, rows, skip=skip)
         for note in dict.fromkeys(notes):
@@ -509,6 +515,22 @@ def predict(
     console.print(table)
     if output:
         console.print(f"predictions written to {output}")
+
+
+def _warn_extra(network: Any, targets: list[str], extra: list[str]) -> None:
+    """One warning naming the given names (``--at`` or ``--csv`` columns) that no target
+    takes."""
+    if not extra:
+        return
+    from calnet.predict import target_model
+
+    keys = list(dict.fromkeys(k for t in targets for k in
+                              network.process_input_keys(target_model(network, t))))
+    bare = [k.split(".", 1)[1] for k in keys]
+    takes = ", ".join(bare if len(set(bare)) == len(bare) else keys)
+    warnings.warn(f"ignored {', '.join(extra)}: not process inputs of {', '.join(targets)} "
+                  f"({'it takes' if len(targets) == 1 else 'they take'} {takes})",
+                  stacklevel=1)
 
 
 def _read_points(path: Path) -> list[dict[str, float]]:
