@@ -618,7 +618,7 @@ def verify(
         console.print(f"{c.surrogate}: " + (c.verdict if c.agrees else f"[yellow]{c.verdict}[/]"),
                       soft_wrap=True)
     for note in result.notes:
-        console.print(f"note: {note}")
+        console.print(f"note: {escape(note)}", soft_wrap=True)
     console.print(f"written to {run_dir / 'verify.json'}")
 
 
