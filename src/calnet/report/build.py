@@ -268,22 +268,13 @@ def _sections(ctx, results: RunResults) -> list[Section]:
             "scale; points with Pareto k > 0.7 are re-calibrated without the point",
             ["data set", "points", "ELPD ± se", "p_loo", "max k", "k > 0.7 / refitted / "
              "unreliable", "LOO coverage 50 / 80 / 95 %", "calibration (PIT)"], lrows))
-    for name, cmp in (results.comparison or {}).items():
-        notes = [f"{variant}: {n}" for variant, r in cmp.items() for n in r.notes]
-        tables.append(Table(
-            f"{name}: the spec's discrepancy against variants, by leave-one-out (ELPD "
-            "difference to the best, its standard error, stacking weight; the variants are "
-            "calibrated beside the spec with fewer draws)"
-            + ("".join(f"; {n}" for n in notes)),
-            ["model", "ELPD", "difference", "se of difference", "weight", "max k", "draws"],
-            [[variant, fmt(r.elpd_loo), fmt(r.elpd_diff), fmt(r.dse),
-              fmt(r.weight), fmt(r.max_pareto_k), str(r.draws)]
-             for variant, r in cmp.items()]))
+    comparison, variant_notes = comparison_tables(results.comparison or {})
+    tables += comparison
     tables.append(Table(
         "Uncertainty budget (share of predictive variance, averaged over points; the "
         "discrepancy's share is what the model itself does not explain)",
         ["data set", "source", "share"], brows))
-    val = Section("Prediction and validation", tables=tables,
+    val = Section("Prediction and validation", paragraphs=variant_notes, tables=tables,
                   figures=pick("predictive ") + pick("pit "))
     srows = []
     for name, e in results.sensitivity.items():
@@ -308,6 +299,25 @@ def _sections(ctx, results: RunResults) -> list[Section]:
     if results.warnings:
         sections.append(Section("Warnings", paragraphs=list(results.warnings)))
     return sections
+
+
+def comparison_tables(comparison) -> tuple[list[Table], list[str]]:
+    """The comparison of discrepancy variants (``{data set: {model: VariantScore}}``): a
+    table per data set, and one paragraph with the variants' notes (convergence and
+    surrogate checks), each said once: a variant's notes are its calibration's, the same
+    for every data set."""
+    tables = [Table(
+        f"{name}: the spec's discrepancy against variants, by leave-one-out (ELPD "
+        "difference to the best, its standard error, stacking weight; the variants are "
+        "calibrated beside the spec with fewer draws)",
+        ["model", "ELPD", "difference", "se of difference", "weight", "max k", "draws"],
+        [[variant, fmt(r.elpd_loo), fmt(r.elpd_diff), fmt(r.dse),
+          fmt(r.weight), fmt(r.max_pareto_k), str(r.draws)] for variant, r in cmp.items()])
+        for name, cmp in comparison.items()]
+    notes = list(dict.fromkeys(f"{variant}: {n}" for cmp in comparison.values()
+                               for variant, r in cmp.items() for n in r.notes))
+    return tables, (["Notes on the variants compared below: " + "; ".join(notes) + "."]
+                    if notes else [])
 
 
 def _cv_cells(cv) -> list:
