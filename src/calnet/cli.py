@@ -629,8 +629,9 @@ def run(
     out: Annotated[Path, typer.Option(metavar="DIR", help="output folder")] = Path("out"),
     fresh: Annotated[bool, typer.Option(
         "--fresh", help="re-simulate instead of using the shipped runs")] = False,
-    quick: Annotated[bool, typer.Option("--quick", help="fewer draws, for a fast look")
-                     ] = False,
+    quick: Annotated[bool, typer.Option(
+        "--quick", help="fewer draws, restarts and folds, for a fast look (the report says "
+        "which results are indicative only)")] = False,
 ) -> None:
     """Run every stage on SPEC and write the report to OUT."""
     from calnet.pipeline import run_pipeline

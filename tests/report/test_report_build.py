@@ -1,7 +1,7 @@
 """Pieces of the report's text: the comparison of discrepancy variants says each
-variant's notes once."""
+variant's notes once, and a quick run's Sobol spread is labelled indicative."""
 
-from calnet.report.build import comparison_tables
+from calnet.report.build import comparison_tables, quick_spread_note
 from calnet.results import VariantScore
 
 NOTE = "M: bulk ESS 179 < 400 for se2_d1; increase num_draws"
@@ -28,3 +28,10 @@ def test_variants_without_notes_add_no_paragraph():
     tables, paragraphs = comparison_tables({"d1": {"spec": score(1.0),
                                                    "reference": score(2.0)}})
     assert len(tables) == 1 and paragraphs == []
+
+
+def test_a_quick_runs_spread_is_labelled_indicative():
+    assert quick_spread_note({"d1": 3, "d2": 3}).startswith(
+        "Quick run: the spread of ST over posterior draws comes from 3 posterior draws only, "
+        "so it is indicative, not a 95 % interval")
+    assert "d1: 3, d2: 5 posterior draws only" in quick_spread_note({"d1": 3, "d2": 5})

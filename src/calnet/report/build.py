@@ -276,14 +276,17 @@ def _sections(ctx, results: RunResults) -> list[Section]:
         ["data set", "source", "share"], brows))
     val = Section("Prediction and validation", paragraphs=variant_notes, tables=tables,
                   figures=pick("predictive ") + pick("pit "))
-    srows = []
+    srows, few = [], {}
     for name, e in results.sensitivity.items():
+        if results.quick:
+            few[name] = e.over_draws.n_draws
         ind, sp = e.indices, e.over_draws
         for j, nm in enumerate(ind.names):
             srows.append([name, nm, f"{fmt(ind.S1[j])} ± {fmt(ind.S1_conf[j])}",
                           f"{fmt(ind.ST[j])} ± {fmt(ind.ST_conf[j])}",
                           f"[{fmt(sp.ST_lo[j])}, {fmt(sp.ST_hi[j])}]"])
-    sens = Section("Sensitivity (Sobol indices of the calibrated chain)", tables=[Table(
+    sens = Section("Sensitivity (Sobol indices of the calibrated chain)",
+                   paragraphs=[quick_spread_note(few)] if few else [], tables=[Table(
         "First-order and total-effect indices over the data's process box",
         ["data set", "input", "S1", "ST", "ST over posterior draws (95 %)"], srows)],
         figures=pick("sobol ") + pick("map ") + pick("process "))
@@ -299,6 +302,17 @@ def _sections(ctx, results: RunResults) -> list[Section]:
     if results.warnings:
         sections.append(Section("Warnings", paragraphs=list(results.warnings)))
     return sections
+
+
+def quick_spread_note(draws: dict[str, int]) -> str:
+    """What a quick run's spread of the total indices over posterior draws is worth:
+    ``draws`` gives the number of draws per data set."""
+    counts = sorted(set(draws.values()))
+    n = (f"{counts[0]} posterior draws" if len(counts) == 1
+         else ", ".join(f"{k}: {v}" for k, v in draws.items()) + " posterior draws")
+    return (f"Quick run: the spread of ST over posterior draws comes from {n} only, so it "
+            "is indicative, not a 95 % interval; run without --quick for a meaningful "
+            "spread.")
 
 
 def comparison_tables(comparison) -> tuple[list[Table], list[str]]:
