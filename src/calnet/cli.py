@@ -333,7 +333,6 @@ def surrogates(
     no_cv: Annotated[bool, typer.Option("--no-cv", help="skip cross-validation")] = False,
 ) -> None:
     """Fit a GP surrogate per output needed; print the CV table."""
-
     from calnet.pipeline import surrogate_stage
     from calnet.spec import load_spec
 
@@ -371,7 +370,6 @@ def calibrate(
     Writes the posteriors (ArviZ netCDF), a summary table with diagnostics, and
     prior-vs-posterior plots per model.
     """
-
     from calnet.calibration.calibrate_network import calibrate as run_calibration
     from calnet.pipeline import record_calibration
     from calnet.report.build import posterior_figures
@@ -508,7 +506,6 @@ def predict(
     if as_json:
         print(json.dumps({"predictions": results}, indent=2, default=_json_default))
         return
-
     table = Table("output", "settings", "mean", "95% band", "unit", "largest variance shares")
     for r in table_rows:
         table.add_row(*r)
@@ -577,7 +574,6 @@ def verify(
     z = (simulator - mean) / sd on the modelled scale; writes RUN/verify.json.
     Disagreements are reported, not errors.
     """
-
     from calnet.calibration.persist import load_posterior
     from calnet.predict import load_surrogates
     from calnet.spec import load_spec
