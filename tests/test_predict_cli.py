@@ -107,6 +107,13 @@ def test_a_points_prediction_depends_on_the_seed_and_the_point_only(run):
     assert abs(_at(other_seed[0], 0.3)[1] - _at(alone[0], 0.3)[1]) > 1e-6 * band  # seeded
 
 
+def test_a_simulator_outputs_prediction_depends_on_the_point_only(run):
+    """``-d model.output``: Monte Carlo through the linked surrogates, per point."""
+    alone, _ = _predict(run, "-d", "down.y", "--at", "x=0.3")
+    among, _ = _predict(run, "-d", "down.y", "--at", "x=1.7", "--at", "x=0.3")
+    np.testing.assert_allclose(_at(alone[0], 0.3), _at(among[0], 0.3), rtol=1e-12)
+
+
 def test_extra_columns_and_names_are_ignored_alike(run, tmp_path):
     plain, _ = _predict(run, "--at", "x=0.3")
     points = tmp_path / "points.csv"
