@@ -100,13 +100,22 @@ def test_arviz_banner_is_kept_out(tmp_path):
     assert BANNER not in stderr_of(code, "calnet")
 
 
-@pytest.mark.parametrize("argv", [
-    ["simulate", "solidification", "--set", "S=0.3", "--set", "S=0.4"],
-    ["predict", "examples/ninb", "--at", "P=200,P=210,v=0.5"],
+@pytest.mark.parametrize(("argv", "message"), [
+    (["simulate", "solidification", "--set", "S=0.3", "--set", "S=0.4"],
+     "--set gives S twice; give each name once"),
+    (["predict", "examples/ninb", "--at", "P=200,P=210,v=0.5"],
+     "--at gives P twice; give each name once"),
+    (["predict", "examples/ninb", "--at", "P=abc,v=0.5"], "--at P: 'abc' is not a number"),
+    (["predict", "examples/ninb", "--at", "P=200,v=inf"], "--at v: 'inf' is not a finite"),
+    (["predict", "examples/ninb", "--at", "P200"], "--at expects NAME=VALUE, got 'P200'"),
+    (["predict", "examples/ninb", "--at", ","], "--at is empty"),
+    (["predict", "examples/ninb"], "give the settings to predict at"),
+    (["simulate", "solidification", "--set", "S=fast"], "--set S: 'fast' is not a number"),
+    (["simulate", "solidification", "--option", "variant"], "--option expects NAME=VALUE"),
 ])
-def test_a_name_given_twice_is_a_one_line_error(argv):
-    from typer.testing import CliRunner
-
-    result = CliRunner().invoke(app, argv)
-    assert result.exit_code == 1, result.output
-    assert "twice; give each name once" in result.output
+def test_a_malformed_option_value_is_a_one_line_usage_error(argv, message):
+    """Exit code 2, as Typer's own usage errors, and one line naming the bad value."""
+    result = CliRunner().invoke(app, argv, terminal_width=400)
+    assert result.exit_code == 2, result.output
+    assert result.output.startswith(f"error: {message}"), result.output
+    assert len(result.output.strip().splitlines()) == 1, result.output

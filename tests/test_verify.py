@@ -239,3 +239,46 @@ def test_verify_after_a_real_calibration(calibrated, tmp_path):
     for p in result.points:
         model = p.surrogate.split(".")[0]
         assert p.inputs["a" if model == "up" else "b"] == post.theta[model][p.draw, 0]
+
+
+NO_DATA_SPEC = '''
+name: no_data
+models:
+  only:
+    simulator: python:no_data_sims:f
+    inputs: {x: {lower: 0, upper: 1}}
+    outputs: {y: {}}
+    campaign: {runs: 12}
+settings:
+  predict: [only.y]
+'''
+
+
+def test_a_network_without_data_or_parameters_is_verified_at_settings(tmp_path):
+    """No data and no parameters: the posterior is empty, but the surrogates can still be
+    checked; the settings come from the bounds, and the notes say how to use data."""
+    from typer.testing import CliRunner
+
+    from calnet.calibration.calibrate_network import uncalibrated
+    from calnet.cli import app
+
+    (tmp_path / "no_data_sims.py").write_text(
+        "import math\n\n\ndef f(inputs):\n    return {'y': math.sin(3.0 * inputs['x'])}\n")
+    (tmp_path / "network.yaml").write_text(textwrap.dedent(NO_DATA_SPEC))
+    with on_path(tmp_path):
+        network, sur = fitted_network(tmp_path)
+    run = tmp_path / "out"
+    sur.save(run / "surrogates")
+    save_posterior(uncalibrated(network), run / "posterior")
+    with on_path(tmp_path):
+        res = CliRunner().invoke(app, ["verify", str(tmp_path), "--run", str(run), "-k", "4",
+                                       "--json"], terminal_width=400)
+    assert res.exit_code == 0, res.output
+    doc = json.loads(res.stdout)
+    assert doc["draws"] == [None] * 4 and doc["checks"]["only.y"]["n"] == 4
+    for p in doc["points"]:  # the simulator's values: the function at the drawn settings
+        x = p["setting"]["only.x"]
+        assert 0 <= x <= 1 and p["simulator"] == pytest.approx(math.sin(3 * x), abs=1e-12)
+    assert any("no data sets" in n and "add data sets (data: in the spec" in n
+               for n in doc["notes"]), doc["notes"]
+    assert any("no calibration parameters" in n for n in doc["notes"]), doc["notes"]

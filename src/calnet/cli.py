@@ -1,7 +1,8 @@
 """The ``calnet`` command line: thin Typer commands over the stage verbs.
 
 Every user error (:class:`calnet.errors.CalnetError`) is printed as one line, without a
-traceback; spec errors exit with code 2, other errors with code 1.
+traceback; spec errors and malformed option values (:class:`UsageError`) exit with code
+2, as Typer's own usage errors do, other errors with code 1.
 """
 
 from __future__ import annotations
@@ -10,6 +11,7 @@ import csv as csv_mod
 import functools
 import inspect
 import json
+import math
 import os
 import sys
 import time
@@ -22,6 +24,8 @@ from typing import Annotated, Any, Literal
 import typer
 from rich.console import Console
 from rich.markup import escape
+from rich.measure import Measurement
+from rich.table import Table
 from typer.core import TyperCommand, TyperGroup
 
 from calnet import __version__
@@ -83,7 +87,29 @@ class App(typer.Typer):
 
 app = App(no_args_is_help=True,
           help="Bayesian calibration of networks of coupled simulation models.")
-console = Console(stderr=False, highlight=False, emoji=False)  # ":x:" in python:x:f is text
+
+
+class _Console(Console):
+    """A Rich console that prints a table at its full width where stdout is not a
+    terminal (a pipe, a file) and ``COLUMNS`` is not set; Rich would cut it to 80
+    columns there. ``COLUMNS``, when set, is the width on a terminal or off it."""
+
+    def print(self, *objects: Any, **kwargs: Any) -> None:
+        if self.is_terminal or self._environ.get("COLUMNS", "").isdigit() or not any(
+                isinstance(o, Table) for o in objects):
+            super().print(*objects, **kwargs)
+            return
+        options = self.options.update_width(1 << 16)
+        natural = max(Measurement.get(self, options, o).maximum for o in objects)
+        held = self._width
+        self.width = max(natural, 1)
+        try:
+            super().print(*objects, **kwargs)
+        finally:
+            self._width = held
+
+
+console = _Console(stderr=False, highlight=False, emoji=False)  # ":x:" in python:x:f is text
 err_console = Console(stderr=True, highlight=False, emoji=False)
 
 SpecArg = Annotated[Path, typer.Argument(
@@ -107,6 +133,11 @@ def _main(
     enable_compilation_cache()  # compiled samplers and predictors reused across runs
 
 
+class UsageError(CalnetError):
+    """A malformed option value (``--at P=abc``): one line naming it, exit code 2, as
+    Typer's own usage errors exit."""
+
+
 def user_errors(func: Callable[..., Any]) -> Callable[..., Any]:
     """Turn calnet errors into one-line messages with exit codes; show warnings briefly."""
 
@@ -122,6 +153,10 @@ def user_errors(func: Callable[..., Any]) -> Callable[..., Any]:
                 for line in err.more:  # the spec's other problems, one line each
                     err_console.print(f"[bold red]error:[/] {escape(f'{err.file}: {line}')}",
                                       soft_wrap=True)
+                raise typer.Exit(2) from None
+            except UsageError as err:
+                _show_warnings(caught)
+                err_console.print(f"[bold red]error:[/] {escape(str(err))}", soft_wrap=True)
                 raise typer.Exit(2) from None
             except CalnetError as err:
                 _show_warnings(caught)
@@ -199,13 +234,17 @@ def _parse_sets(values: list[str], flag: str = "--set") -> dict[str, float]:
     for item in values:
         key, sep, val = item.partition("=")
         if not sep or not key.strip():
-            raise CalnetError(f"{flag} expects NAME=VALUE, got '{item}'")
+            raise UsageError(f"{flag} expects NAME=VALUE, got '{item}'")
         if key.strip() in out:
-            raise CalnetError(f"{flag} gives {key.strip()} twice; give each name once")
+            raise UsageError(f"{flag} gives {key.strip()} twice; give each name once")
         try:
-            out[key.strip()] = float(val)
+            value = float(val)
         except ValueError:
-            raise CalnetError(f"{flag} {key.strip()}: '{val}' is not a number") from None
+            raise UsageError(f"{flag} {key.strip()}: '{val}' is not a number; write e.g. "
+                             f"{flag} {key.strip()}=0.5") from None
+        if not math.isfinite(value):
+            raise UsageError(f"{flag} {key.strip()}: '{val}' is not a finite number")
+        out[key.strip()] = value
     return out
 
 
@@ -213,7 +252,7 @@ def _parse_at(text: str) -> dict[str, float]:
     """``"P=200,v=0.5"`` -> ``{"P": 200.0, "v": 0.5}`` (the ``--at`` syntax)."""
     out = _parse_sets([s.strip() for s in text.split(",") if s.strip()], "--at")
     if not out:
-        raise CalnetError("--at is empty; write e.g. --at P=200,v=0.5")
+        raise UsageError("--at is empty; write e.g. --at P=200,v=0.5")
     return out
 
 
@@ -222,7 +261,7 @@ def _parse_options(values: list[str]) -> dict[str, Any]:
     for item in values:
         key, sep, val = item.partition("=")
         if not sep:
-            raise CalnetError(f"--option expects NAME=VALUE, got '{item}'")
+            raise UsageError(f"--option expects NAME=VALUE, got '{item}'")
         try:
             out[key] = json.loads(val)
         except json.JSONDecodeError:
@@ -294,8 +333,6 @@ def surrogates(
     no_cv: Annotated[bool, typer.Option("--no-cv", help="skip cross-validation")] = False,
 ) -> None:
     """Fit a GP surrogate per output needed; print the CV table."""
-    from rich.table import Table
-
     from calnet.pipeline import surrogate_stage
     from calnet.spec import load_spec
 
@@ -333,8 +370,6 @@ def calibrate(
     Writes the posteriors (ArviZ netCDF), a summary table with diagnostics, and
     prior-vs-posterior plots per model.
     """
-    from rich.table import Table
-
     from calnet.calibration.calibrate_network import calibrate as run_calibration
     from calnet.pipeline import record_calibration
     from calnet.report.build import posterior_figures
@@ -394,7 +429,8 @@ def predict(
         "--at", metavar="NAME=VALUE,...", help="one point, e.g. P=200,v=0.5 (repeatable)")
     ] = [],  # noqa: B006
     csv: Annotated[Path | None, typer.Option(
-        metavar="FILE", help="CSV of points, one column per input")] = None,
+        metavar="FILE", help="CSV of points, one column per input (others are ignored)")
+    ] = None,
     dataset: Annotated[list[str], typer.Option(
         "--dataset", "-d", metavar="NAME", help="data set, or model.output with a surrogate, "
         "to predict (repeatable; default: every data set and settings.predict output)")
@@ -422,7 +458,6 @@ def predict(
         largest_shares,
         load_run,
         prediction_targets,
-        read_points,
         settings_matrix,
         shared_inputs,
         shares_per_point,
@@ -431,20 +466,25 @@ def predict(
     from calnet.spec import load_spec
 
     network = load_spec(spec)
-    rows = [_parse_at(a) for a in at] + (read_points(csv) if csv else [])
+    rows = [_parse_at(a) for a in at] + (_read_points(csv) if csv else [])
     if not rows:
-        raise CalnetError("give the settings to predict at: --at P=200,v=0.5 (repeatable) "
+        raise UsageError("give the settings to predict at: --at P=200,v=0.5 (repeatable) "
                           "or --csv points.csv")
     sur, post = load_run(network, run_dir)
-    names = prediction_targets(network, sur, post, dataset)
+    for name in sorted({d for d in dataset if dataset.count(d) > 1}):
+        warnings.warn(f"-d {name} is given twice; it is predicted once", stacklevel=1)
+    names = prediction_targets(network, sur, post, list(dict.fromkeys(dataset)))
     seed = network.settings.seed if seed is None else seed
     if post.n_draws and draws > post.n_draws:  # more would repeat draws, at their cost
         warnings.warn(f"--draws {draws} is more than the posterior's {post.n_draws} draws; "
                       f"using {post.n_draws}", stacklevel=1)
         draws = post.n_draws
     results, table_rows = [], []
-    # without -d, a point may carry inputs that only some of the targets take
-    skip = set() if dataset else shared_inputs(network, names, rows)
+    # a point may carry inputs that only some of the targets take, and names (CSV
+    # columns) that none takes: those are ignored, with a warning
+    skip = {k for row in rows for k in row}
+    _warn_extra(network, names, [k for k in dict.fromkeys(k for row in rows for k in row)
+                                 if k not in shared_inputs(network, names, rows)])
     for name in names:
         x, notes = settings_matrix(network, name, rows, skip=skip)
         for note in dict.fromkeys(notes):
@@ -466,14 +506,40 @@ def predict(
     if as_json:
         print(json.dumps({"predictions": results}, indent=2, default=_json_default))
         return
-    from rich.table import Table
-
     table = Table("output", "settings", "mean", "95% band", "unit", "largest variance shares")
     for r in table_rows:
         table.add_row(*r)
     console.print(table)
     if output:
         console.print(f"predictions written to {output}")
+
+
+def _warn_extra(network: Any, targets: list[str], extra: list[str]) -> None:
+    """One warning naming the given names (``--at`` or ``--csv`` columns) that no target
+    takes."""
+    if not extra:
+        return
+    from calnet.predict import target_model
+
+    keys = list(dict.fromkeys(k for t in targets for k in
+                              network.process_input_keys(target_model(network, t))))
+    bare = [k.split(".", 1)[1] for k in keys]
+    takes = ", ".join(bare if len(set(bare)) == len(bare) else keys)
+    warnings.warn(f"ignored {', '.join(extra)}: not process inputs of {', '.join(targets)} "
+                  f"({'it takes' if len(targets) == 1 else 'they take'} {takes})",
+                  stacklevel=1)
+
+
+def _read_points(path: Path) -> list[dict[str, float]]:
+    """:func:`calnet.predict.read_points`, refusing a header that names a column twice."""
+    from calnet.predict import read_points
+    from calnet.spec.data import repeated_header
+
+    twice = repeated_header(path) if path.is_file() else None
+    if twice:
+        raise CalnetError(f"--csv {path}: column '{twice}' appears twice in the header; give "
+                          "each column its own name")
+    return read_points(path)
 
 
 def _write_predictions(path: Path, results: list[dict]) -> None:
@@ -508,8 +574,6 @@ def verify(
     z = (simulator - mean) / sd on the modelled scale; writes RUN/verify.json.
     Disagreements are reported, not errors.
     """
-    from rich.table import Table
-
     from calnet.calibration.persist import load_posterior
     from calnet.predict import load_surrogates
     from calnet.spec import load_spec
@@ -550,7 +614,7 @@ def verify(
         console.print(f"{c.surrogate}: " + (c.verdict if c.agrees else f"[yellow]{c.verdict}[/]"),
                       soft_wrap=True)
     for note in result.notes:
-        console.print(f"note: {note}")
+        console.print(f"note: {escape(note)}", soft_wrap=True)
     console.print(f"written to {run_dir / 'verify.json'}")
 
 
@@ -561,8 +625,9 @@ def run(
     out: Annotated[Path, typer.Option(metavar="DIR", help="output folder")] = Path("out"),
     fresh: Annotated[bool, typer.Option(
         "--fresh", help="re-simulate instead of using the shipped runs")] = False,
-    quick: Annotated[bool, typer.Option("--quick", help="fewer draws, for a fast look")
-                     ] = False,
+    quick: Annotated[bool, typer.Option(
+        "--quick", help="fewer draws, restarts and folds, for a fast look (the report says "
+        "which results are indicative only)")] = False,
 ) -> None:
     """Run every stage on SPEC and write the report to OUT."""
     from calnet.pipeline import run_pipeline

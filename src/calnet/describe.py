@@ -139,8 +139,6 @@ def _output_role(network: Network, model: str, var, uses: dict[str, tuple[str, .
     links = [ln.target for ln in network.links if ln.source == f"{model}.{var.name}"]
     if links:
         parts.append(f"-> {', '.join(links)}")
-    if var.transform:
-        parts.append(f"surrogate on {var.transform} scale")
-    if uses[var.name]:
-        parts.append("surrogate")
+    if uses[var.name]:  # an unused output gets no surrogate, on any scale
+        parts.append("surrogate" + (f" on {var.transform} scale" if var.transform else ""))
     return "; ".join(parts)

@@ -23,7 +23,7 @@ from calnet.calibration.calibrate_network import NetworkPosterior
 from calnet.calibration.terms import draw_index, links_into
 from calnet.chain import ChainPlan
 from calnet.errors import CalnetError
-from calnet.predict import Prediction
+from calnet.predict import Prediction, point_normals
 from calnet.spec import Network
 from calnet.surrogates.fit_network import Surrogates
 
@@ -77,7 +77,8 @@ def predict_output(network: Network, surrogates: Surrogates, posterior: NetworkP
     n_samples : int
         Monte Carlo samples per point; the mean's error is about sd / sqrt(n_samples).
     seed : int
-        Seeds the parameter rows' GP draws; same seed, same prediction.
+        Seeds each point's GP draws (:func:`calnet.predict.point_normals`): a point's
+        prediction depends on the seed and the point, not on the other rows of ``x``.
 
     Returns
     -------
@@ -106,8 +107,8 @@ def predict_output(network: Network, surrogates: Surrogates, posterior: NetworkP
     gps = {k: s.gp for k, s in surrogates.items.items()}
     thetas = _thetas(network, posterior, plan, (*network.ancestors(model), model), n_samples)
     xp = {k: jnp.asarray(x[:, j]) for j, k in enumerate(keys)}
-    rng = np.random.default_rng(seed)
-    eps = {k: jnp.asarray(rng.standard_normal((n_samples, len(x)))) for k in links}
+    eps = {k: jnp.asarray(point_normals(seed, x, f"emulator {k}", (n_samples,)))
+           for k in links}
 
     def run(eps_on):
         on = {k: jnp.asarray(float(k in eps_on)) for k in links}
@@ -123,7 +124,8 @@ def predict_output(network: Network, surrogates: Surrogates, posterior: NetworkP
         mean_k, _ = run((k,))
         budget[f"emulator {k}"] = np.mean((mean_k - mean0) ** 2, axis=0)
     budget[f"emulator {output}"] = var_all.mean(axis=0)
-    samples = mean_all + np.sqrt(np.maximum(var_all, 0.0)) * rng.standard_normal(mean_all.shape)
+    z = point_normals(seed, x, f"emulator {output}", (n_samples,))
+    samples = mean_all + np.sqrt(np.maximum(var_all, 0.0)) * z
     if surrogates[output].transform == "log":
         samples = np.exp(samples)
     lo, hi = np.percentile(samples, [2.5, 97.5], axis=0)

@@ -39,6 +39,17 @@ def write_error(path: str | Path, err: OSError) -> CalnetError:
     return CalnetError(f"cannot write '{path}': {why(err)}")
 
 
+def shown_path(path: str | Path, root: str | Path) -> str:
+    """``path`` as a message names it: relative to the spec's folder ``root`` where it lies
+    inside it, else its file name. A message kept in a result (``metrics.json``) then reads
+    the same wherever the spec folder and the output folder are."""
+    path, root = Path(path).resolve(), Path(root).resolve()
+    try:
+        return path.relative_to(root).as_posix()
+    except ValueError:
+        return path.name
+
+
 def make_folder(path: str | Path) -> Path:
     """``mkdir -p path``; a CalnetError naming it when it cannot be made."""
     path = Path(path)

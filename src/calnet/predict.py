@@ -11,6 +11,7 @@ gives the predictive distribution; the variance is split into its sources.
 
 from __future__ import annotations
 
+import hashlib
 from collections.abc import Collection, Sequence
 from dataclasses import dataclass, field
 from functools import partial
@@ -317,6 +318,24 @@ def mean_function(network: Network, surrogates: Surrogates, posterior: NetworkPo
     return f
 
 
+def point_normals(seed: int, x: np.ndarray, stream: str, shape: tuple[int, ...]) -> np.ndarray:
+    """Standard normal draws ``(*shape, n)`` for the points ``x`` (n, k), column ``i`` from
+    its own generator, seeded by ``seed``, ``stream`` and the point's input values.
+
+    A point's draws, and so its prediction, depend on the seed and the point only, not on
+    which other points are predicted with it or in what order (method.md section 5).
+    The point's values enter as the bytes of little-endian float64 (-0.0 as 0.0), hashed
+    with BLAKE2b, so the draws are the same on every platform.
+    """
+    x = np.atleast_2d(np.asarray(x, dtype="<f8")) + 0.0
+    out = np.empty((*shape, len(x)))
+    for i, row in enumerate(x):
+        digest = hashlib.blake2b(row.tobytes() + stream.encode(), digest_size=16).digest()
+        words = np.frombuffer(digest, dtype="<u4").tolist()
+        out[..., i] = np.random.default_rng([seed, *words]).standard_normal(shape)
+    return out
+
+
 def predict(network: Network, surrogates: Surrogates, posterior: NetworkPosterior,
             dataset: str, x: np.ndarray, *, n_draws: int = 200, seed: int = 0,
             n_samples: int = 20,
@@ -333,6 +352,10 @@ def predict(network: Network, surrogates: Surrogates, posterior: NetworkPosterio
         fewer), each with its own draw of the upstream surrogates.
     n_samples : int
         Predictive samples per draw used for the 95 % interval.
+    seed : int
+        Seeds each point's draws of the upstream surrogates and of the new measurement
+        (:func:`point_normals`): a point's prediction depends on the seed and the point,
+        not on the other rows of ``x``.
     within : (lower, upper), optional
         Also return the probability that a new measurement lies in this range (either
         end may be None).
@@ -350,8 +373,8 @@ def predict(network: Network, surrogates: Surrogates, posterior: NetworkPosterio
                           f"{list(st.keys)}, got {x.shape[1]} columns")
     xp_new = {k: jnp.asarray(x[:, j]) for j, k in enumerate(st.keys)}
     links = _link_keys(st.spec.plan)
-    rng = np.random.default_rng(seed)
-    eps = {k: jnp.asarray(rng.standard_normal((len(idx), len(x)))) for k in links}
+    eps = {k: jnp.asarray(point_normals(seed, x, f"emulator {k}", (len(idx),)))
+           for k in links}
     noise_new = _noise_at(st, len(x), noise_var)
     key = network.dataset(dataset).observes
 
@@ -379,7 +402,7 @@ def predict(network: Network, surrogates: Surrogates, posterior: NetworkPosterio
     budget["discrepancy"] = var_delta.mean(axis=0)
     budget["noise"] = noise.mean(axis=0)
     sd = np.sqrt(var_delta + var_emu + noise)
-    z = rng.standard_normal((n_samples,) + mean_all.shape)
+    z = point_normals(seed, x, "new measurement", (n_samples, len(idx)))
     s, mu = float(st.tdata["y_sd"]), float(st.tdata["y_mean"])
     samples = (mean_all[None] + sd[None] * z).reshape(-1, len(x)) * s + mu
     if st.log:

@@ -44,8 +44,8 @@ class VerifyPoint:
         ``model.output``.
     point : int
         Index of the (draw, setting) pair, ``0 .. k - 1``.
-    draw : int
-        Row of ``posterior.theta``.
+    draw : int or None
+        Row of ``posterior.theta``; None in a network without calibration parameters.
     setting : dict of str to float
         Process inputs (``model.input``) the point was taken at, declared units.
     inputs : dict of str to float
@@ -63,7 +63,7 @@ class VerifyPoint:
 
     surrogate: str
     point: int
-    draw: int
+    draw: int | None
     setting: dict[str, float]
     inputs: dict[str, float]
     status: str
@@ -129,7 +129,7 @@ class VerifyResult:
     Attributes
     ----------
     k, seed : int
-    draws : tuple of int
+    draws : tuple of int or None
         Posterior rows used, one per point.
     points : tuple of VerifyPoint
         Grouped by surrogate, then by point.
@@ -141,7 +141,7 @@ class VerifyResult:
 
     k: int
     seed: int
-    draws: tuple[int, ...]
+    draws: tuple[int | None, ...]
     points: tuple[VerifyPoint, ...]
     checks: Mapping[str, SurrogateCheck]
     notes: tuple[str, ...] = field(default=())
@@ -193,18 +193,27 @@ def verify(network: Network, surrogates: Surrogates, posterior: NetworkPosterior
     """
     if k < 1:
         raise CalnetError(f"k must be at least 1, got {k}")
-    if not surrogates.items or posterior.n_draws == 0:
-        raise CalnetError("nothing to verify: no surrogates or no posterior draws; run "
-                          "calnet surrogates and calnet calibrate first")
+    if not surrogates.items:
+        raise CalnetError("nothing to verify: no surrogates; run calnet surrogates SPEC "
+                          "(or calnet run) first")
+    has_parameters = any(m.parameters for m in network.models)
+    if posterior.n_draws == 0 and has_parameters:
+        raise CalnetError("nothing to verify: the posterior has no draws; run calnet "
+                          "calibrate SPEC (or calnet run) first")
     plan = ChainPlan.from_network(network)
     gps = {key: s.gp for key, s in surrogates.items.items()}
     _check_links(plan, gps)
     models = [m for m in network.order if any(s.model == m for s in surrogates.items.values())]
     rng = np.random.default_rng(seed)
-    draws = tuple(int(i) for i in rng.choice(posterior.n_draws, size=k,
-                                              replace=k > posterior.n_draws))
+    # without parameters a point is a setting only: the posterior has no draws to pick
+    draws = (tuple(int(i) for i in rng.choice(posterior.n_draws, size=k,
+                                               replace=k > posterior.n_draws))
+             if has_parameters else (None,) * k)
     needed = list(dict.fromkeys(key for m in models for key in network.process_input_keys(m)))
     settings, notes = pick_settings(network, posterior.data, needed, k, rng)
+    if not has_parameters:
+        notes.append("the network has no calibration parameters: each point is a setting "
+                      "only, the simulators against the surrogates there")
     points: list[VerifyPoint] = []
     for m in models:
         if progress:
@@ -242,8 +251,13 @@ def pick_settings(network: Network, data: Mapping, needed: Sequence[str], k: int
         for key in unseen:
             setting[key] = _within_bounds(network, key, rng)
         settings.append({key: setting[key] for key in needed})
-    notes = [f"inputs {unseen} appear in no calibration data set; drawn within their "
-             "declared bounds"] if unseen else []
+    if not data and unseen:
+        notes = [f"no data sets: the settings of {unseen} are drawn within their declared "
+                 "bounds; add data sets (data: in the spec, then calnet calibrate) to check "
+                 "the surrogates at the experiments' settings"]
+    else:
+        notes = [f"inputs {unseen} appear in no calibration data set; drawn within their "
+                 "declared bounds"] if unseen else []
     return settings, notes
 
 
@@ -306,7 +320,7 @@ def _compare(sur, i, draw, setting, inputs, rec, mean, sd) -> VerifyPoint:
                        value, mean, sd, z if status == "ok" else math.nan)
 
 
-def _thetas(plan: ChainPlan, posterior: NetworkPosterior, draw: int) -> dict:
+def _thetas(plan: ChainPlan, posterior: NetworkPosterior, draw: int | None) -> dict:
     """Parameter vector of every model at one draw (empty for models without any)."""
     return {m.name: jnp.asarray(posterior.theta[m.name][draw]) if m.name in posterior.theta
             else jnp.zeros(m.n_parameters) for m in plan.models}

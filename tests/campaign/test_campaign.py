@@ -182,6 +182,26 @@ def test_a_store_made_by_another_simulator_version_is_not_mixed(tmp_path):
     assert summary.status_counts == {"ok": 9}
 
 
+def test_the_old_version_warning_reads_the_same_wherever_the_spec_is(tmp_path):
+    """``calnet run`` keeps the warning in metrics.json, whose bytes must not depend on
+    the spec folder's place: the store is named relative to the spec's folder."""
+    from calnet.errors import CampaignWarning
+
+    messages = []
+    for folder in (tmp_path / "a", tmp_path / "deep" / "er" / "b"):
+        net = toy_network(folder, runs=4)
+        path = run_campaign(net, "toy", progress=False).store_path
+        with sqlite3.connect(path) as db:
+            db.execute("UPDATE runs SET simulator_version = 'toy-0'")
+        db.close()
+        with pytest.warns(CampaignWarning) as caught:
+            run_campaign(net, "toy", progress=False)
+        messages += [str(w.message) for w in caught]
+    assert len(messages) == 2 and messages[0] == messages[1]
+    assert "the campaign store of 'toy' (campaigns/toy.sqlite) holds 4 runs" in messages[0]
+    assert str(tmp_path) not in messages[0]
+
+
 def test_resume_keeps_stored_inputs_bit_for_bit(tmp_path):
     """A stored design is never recomputed: points whose last bits would not survive a
     round trip through the unit cube (another machine, another SciPy) still resume, and

@@ -55,7 +55,7 @@ from calnet.campaign.store import (
     store_errors,
 )
 from calnet.errors import CampaignError, CampaignWarning, SpecError
-from calnet.files import why
+from calnet.files import shown_path, why
 from calnet.spec.models import Model
 from calnet.spec.network import Network
 
@@ -192,7 +192,8 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
         if retry_failed:
             db.reset_failed()
         todo = _reuse_imported(db, db.unfinished())
-        _check_versions(db, sim.name, version, bool(todo))
+        _check_versions(db, model.name, shown_path(path, network.root), sim.name, version,
+                        bool(todo))
         skipped = total - len(todo)
         in_flight = sum(was for _, _, was in todo)
         timeout = run_timeout(network, model)
@@ -290,7 +291,8 @@ def _spec_table(network: Network, model: Model) -> ImportedRuns | None:
         raise SpecError(f"no run table '{table}'; give a .csv or .parquet file of finished "
                         "runs, relative to the spec", file=network.source or None,
                         field=f"models.{model.name}.campaign.import")
-    return read_runs(table, model, strict=network.settings.strict)
+    return read_runs(table, model, strict=network.settings.strict,
+                     shown=shown_path(table, network.root))
 
 
 def _complete_readonly(path: Path, network: Network, model: Model, seed: int,
@@ -313,7 +315,8 @@ def _complete_readonly(path: Path, network: Network, model: Model, seed: int,
                     or target_runs(runs, network, model, choice, planned, imported) > planned
                     or db.unfinished()):
                 return None
-            _check_versions(db, simulator, version, False)
+            _check_versions(db, model.name, shown_path(path, network.root), simulator,
+                            version, False)
             counts = db.status_counts()
     except (CampaignError, sqlite3.DatabaseError):
         return None  # let the writing path give the full diagnosis
@@ -322,13 +325,19 @@ def _complete_readonly(path: Path, network: Network, model: Model, seed: int,
                            meta.get("design_kind") or choice.label)
 
 
-def _check_versions(db: RunStore, simulator: str, version: str, more_to_run: bool) -> None:
-    """Refuse to mix simulator versions in one design; warn when a finished store is old."""
+def _check_versions(db: RunStore, model: str, shown: str, simulator: str, version: str,
+                    more_to_run: bool) -> None:
+    """Refuse to mix simulator versions in one design; warn when a finished store is old.
+
+    ``shown`` names the store in the message (:func:`calnet.files.shown_path`), so that
+    the warning, which ``calnet run`` keeps in metrics.json, does not depend on where the
+    spec folder is."""
     other = {v: n for v, n in db.versions().items() if v and version and v != version}
     if not other:
         return
     made = ", ".join(f"{n} runs with {simulator} {v}" for v, n in sorted(other.items()))
-    msg = f"the store '{db.path}' holds {made}; the installed {simulator} is {version}"
+    msg = (f"the campaign store of '{model}' ({shown}) holds {made}; the installed "
+           f"{simulator} is {version}")
     if more_to_run:
         raise CampaignError(msg + "; finishing it would mix two versions in one design. "
                             "Re-simulate with --fresh (or a new --store), or install the "

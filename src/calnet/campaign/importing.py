@@ -86,23 +86,26 @@ def read_points(path: Path, model: Model, *, strict: bool) -> np.ndarray:
     return X
 
 
-def read_runs(path: Path, model: Model, *, strict: bool) -> ImportedRuns:
-    """The finished runs of a run table, validated (see the module docstring)."""
+def read_runs(path: Path, model: Model, *, strict: bool,
+              shown: str | None = None) -> ImportedRuns:
+    """The finished runs of a run table, validated (see the module docstring). ``shown``
+    names the table in messages (default: ``path``)."""
     frame = read_frame(path)
     _check_meta(path, model)
+    where = Path(shown) if shown is not None else path
     columns = design_columns(model)
-    _check_columns(frame, (*columns, *model.output_names), path, model, "a run table")
-    status = _statuses(frame, path)
+    _check_columns(frame, (*columns, *model.output_names), where, model, "a run table")
+    status = _statuses(frame, where)
     done = status != "unfinished"
     frame, status = frame[done].reset_index(drop=True), status[done]
     rows = np.flatnonzero(done) + 1  # file rows of the kept ones
-    X = np.column_stack([_numbers(frame, c, path, rows) for c in columns])
-    _check_inputs(X, columns, model, path, strict=strict, rows=rows)
-    Y = {o: _numbers(frame, o, path, rows, finite=False) for o in model.output_names}
+    X = np.column_stack([_numbers(frame, c, where, rows) for c in columns])
+    _check_inputs(X, columns, model, where, strict=strict, rows=rows)
+    Y = {o: _numbers(frame, o, where, rows, finite=False) for o in model.output_names}
     for o, y in Y.items():
         bad = np.flatnonzero((status == "ok") & ~np.isfinite(y))
         if bad.size:
-            raise CampaignError(f"{path}: column '{o}', row {rows[bad[0]]}: {y[bad[0]]} in a "
+            raise CampaignError(f"{where}: column '{o}', row {rows[bad[0]]}: {y[bad[0]]} in a "
                                 "run with status ok; give its value, or set that row's "
                                 "status to failed")
     runs = tuple({"inputs": {c: float(v) for c, v in zip(columns, X[i], strict=True)},

@@ -191,7 +191,8 @@ def _sections(ctx, results: RunResults) -> list[Section]:
                           int(d.is_test.sum())] for k, d in ctx.data.items()])] if ctx.data else []
     overview = Section("Network and data", paragraphs=[
         f"Models in topological order: {' -> '.join(net.order)}. {how}"
-        f". Total wall time {ctx.run_info['timings_s']['total']:.1f} s." +
+        f". Wall time {_before_report(ctx.run_info['timings_s']):.1f} s for the stages "
+        "before this report (run_info.json: each stage's time, and the total)." +
         (" Quick run: fewer draws, restarts and folds." if ctx.quick else "")],
         tables=[*data_table,
                 Table("Simulation campaigns (simulator runs per model)",
@@ -268,31 +269,25 @@ def _sections(ctx, results: RunResults) -> list[Section]:
             "scale; points with Pareto k > 0.7 are re-calibrated without the point",
             ["data set", "points", "ELPD ± se", "p_loo", "max k", "k > 0.7 / refitted / "
              "unreliable", "LOO coverage 50 / 80 / 95 %", "calibration (PIT)"], lrows))
-    for name, cmp in (results.comparison or {}).items():
-        notes = [f"{variant}: {n}" for variant, r in cmp.items() for n in r.notes]
-        tables.append(Table(
-            f"{name}: the spec's discrepancy against variants, by leave-one-out (ELPD "
-            "difference to the best, its standard error, stacking weight; the variants are "
-            "calibrated beside the spec with fewer draws)"
-            + ("".join(f"; {n}" for n in notes)),
-            ["model", "ELPD", "difference", "se of difference", "weight", "max k", "draws"],
-            [[variant, fmt(r.elpd_loo), fmt(r.elpd_diff), fmt(r.dse),
-              fmt(r.weight), fmt(r.max_pareto_k), str(r.draws)]
-             for variant, r in cmp.items()]))
+    comparison, variant_notes = comparison_tables(results.comparison or {})
+    tables += comparison
     tables.append(Table(
         "Uncertainty budget (share of predictive variance, averaged over points; the "
         "discrepancy's share is what the model itself does not explain)",
         ["data set", "source", "share"], brows))
-    val = Section("Prediction and validation", tables=tables,
+    val = Section("Prediction and validation", paragraphs=variant_notes, tables=tables,
                   figures=pick("predictive ") + pick("pit "))
-    srows = []
+    srows, few = [], {}
     for name, e in results.sensitivity.items():
+        if results.quick:
+            few[name] = e.over_draws.n_draws
         ind, sp = e.indices, e.over_draws
         for j, nm in enumerate(ind.names):
             srows.append([name, nm, f"{fmt(ind.S1[j])} ± {fmt(ind.S1_conf[j])}",
                           f"{fmt(ind.ST[j])} ± {fmt(ind.ST_conf[j])}",
                           f"[{fmt(sp.ST_lo[j])}, {fmt(sp.ST_hi[j])}]"])
-    sens = Section("Sensitivity (Sobol indices of the calibrated chain)", tables=[Table(
+    sens = Section("Sensitivity (Sobol indices of the calibrated chain)",
+                   paragraphs=[quick_spread_note(few)] if few else [], tables=[Table(
         "First-order and total-effect indices over the data's process box",
         ["data set", "input", "S1", "ST", "ST over posterior draws (95 %)"], srows)],
         figures=pick("sobol ") + pick("map ") + pick("process "))
@@ -308,6 +303,42 @@ def _sections(ctx, results: RunResults) -> list[Section]:
     if results.warnings:
         sections.append(Section("Warnings", paragraphs=list(results.warnings)))
     return sections
+
+
+def _before_report(timings: dict[str, float]) -> float:
+    """Seconds of the stages finished before the report, from the stage timings that
+    run_info.json holds: the report's wall time is their sum, not a second clock."""
+    return sum(v for k, v in timings.items() if k not in ("total", "report"))
+
+
+def quick_spread_note(draws: dict[str, int]) -> str:
+    """What a quick run's spread of the total indices over posterior draws is worth:
+    ``draws`` gives the number of draws per data set."""
+    counts = sorted(set(draws.values()))
+    n = (f"{counts[0]} posterior draws" if len(counts) == 1
+         else ", ".join(f"{k}: {v}" for k, v in draws.items()) + " posterior draws")
+    return (f"Quick run: the spread of ST over posterior draws comes from {n} only, so it "
+            "is indicative, not a 95 % interval; run without --quick for a meaningful "
+            "spread.")
+
+
+def comparison_tables(comparison) -> tuple[list[Table], list[str]]:
+    """The comparison of discrepancy variants (``{data set: {model: VariantScore}}``): a
+    table per data set, and one paragraph with the variants' notes (convergence and
+    surrogate checks), each said once: a variant's notes are its calibration's, the same
+    for every data set."""
+    tables = [Table(
+        f"{name}: the spec's discrepancy against variants, by leave-one-out (ELPD "
+        "difference to the best, its standard error, stacking weight; the variants are "
+        "calibrated beside the spec with fewer draws)",
+        ["model", "ELPD", "difference", "se of difference", "weight", "max k", "draws"],
+        [[variant, fmt(r.elpd_loo), fmt(r.elpd_diff), fmt(r.dse),
+          fmt(r.weight), fmt(r.max_pareto_k), str(r.draws)] for variant, r in cmp.items()])
+        for name, cmp in comparison.items()]
+    notes = list(dict.fromkeys(f"{variant}: {n}" for cmp in comparison.values()
+                               for variant, r in cmp.items() for n in r.notes))
+    return tables, (["Notes on the variants compared below: " + "; ".join(notes) + "."]
+                    if notes else [])
 
 
 def _cv_cells(cv) -> list:

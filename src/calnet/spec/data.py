@@ -84,6 +84,10 @@ def read_dataset(network: Network, ds: Dataset) -> ExperimentalData:
     if frame.empty:
         raise SpecError("the CSV has a header but no data rows; add the measurements",
                         file=str(path), field=field)
+    twice = repeated_header(path)
+    if twice:
+        raise SpecError(f"column '{twice}' appears twice in the header; give each column its "
+                        "own name", file=str(path), field=field)
     wanted = network.process_input_keys(ds.observed_model)
     resolved = {network.resolve_column_key(ds, k, wanted + [ds.observes]): col
                 for k, col in ds.columns.items()}
@@ -102,8 +106,60 @@ def read_dataset(network: Network, ds: Dataset) -> ExperimentalData:
     _check_bounds(network, ds, wanted, x, path, field)
     labels = tuple(str(v) for v in frame.iloc[:, 0]) if len(frame.columns) else ()
     noise_sd = _noise_sd(frame, ds, path, field)
-    return ExperimentalData(ds.name, ds.observes, tuple(wanted), x, y, is_test, labels,
+    data = ExperimentalData(ds.name, ds.observes, tuple(wanted), x, y, is_test, labels,
                             noise_sd)
+    return _once(data, _repeats(_rows(data)), f"{ds.path}: {field}")
+
+
+def repeated_header(path) -> str | None:
+    """The first column name that ``path``'s CSV header holds twice, else None (pandas
+    would rename the second ``P`` to ``P.1``)."""
+    import csv
+
+    with open(path, newline="") as fh:
+        header = [h.strip() for h in next(csv.reader(fh), [])]
+    return next((h for i, h in enumerate(header) if h in header[:i]), None)
+
+
+def _rows(data: ExperimentalData) -> list[tuple]:
+    """Each row's settings, observation, split and known noise sd: what makes it a
+    measurement."""
+    sd = [None] * len(data.y) if data.noise_sd is None else data.noise_sd.tolist()
+    return [(*data.x[i].tolist(), float(data.y[i]), bool(data.is_test[i]), sd[i])
+            for i in range(len(data.y))]
+
+
+def _repeats(rows: list[tuple]) -> dict[int, str]:
+    """``{row index: the earlier row it repeats}`` for the rows equal to an earlier one."""
+    first: dict[tuple, int] = {}
+    out = {}
+    for i, row in enumerate(rows):
+        j = first.setdefault(row, i)
+        if j != i:
+            out[i] = f"line {i + 2} repeats line {j + 2}"
+    return out
+
+
+def _settings(data: ExperimentalData, i: int) -> str:
+    """Row ``i``'s inputs and value, ``"x=0.3, y=1.2"``."""
+    names = [k.split(".", 1)[1] for k in data.input_keys] + [data.observes.split(".")[1]]
+    values = [*data.x[i].tolist(), float(data.y[i])]
+    return ", ".join(f"{n}={v:g}" for n, v in zip(names, values, strict=True))
+
+
+def _once(data: ExperimentalData, repeats: dict[int, str], where: str) -> ExperimentalData:
+    """``data`` without the rows ``repeats`` (a SpecWarning names them): a measurement
+    given twice would count twice in the likelihood."""
+    if not repeats:
+        return data
+    pairs = [f"{_settings(data, i)} ({first})" for i, first in repeats.items()]
+    shown = "; ".join(pairs[:5]) + ("; ..." if len(pairs) > 5 else "")
+    warnings.warn(f"{where}: {len(pairs)} row(s) repeat an earlier measurement (inputs, "
+                  f"value and split): {shown}; each is kept once, so that it does not count "
+                  "twice (remove the copies to silence this)", SpecWarning, stacklevel=3)
+    keep = np.ones(len(data.y), dtype=bool)
+    keep[list(repeats)] = False
+    return data.subset(keep)
 
 
 def _noise_sd(frame, ds: Dataset, path, field: str) -> np.ndarray | None:
@@ -196,5 +252,28 @@ def _check_bounds(network: Network, ds: Dataset, keys: list[str], x: np.ndarray,
 
 
 def read_all(network: Network) -> dict[str, ExperimentalData]:
-    """Read every data set of ``network``, keyed by name."""
-    return {ds.name: read_dataset(network, ds) for ds in network.data}
+    """Read every data set of ``network``, keyed by name.
+
+    A measurement is counted once: two data sets reading the same file for the same
+    output are a :class:`SpecError`, and a row (inputs, value and split) repeated within a
+    data set, or in an earlier data set of the same output, is left out with a
+    :class:`SpecWarning` that names it."""
+    files: dict[tuple, str] = {}
+    for ds in network.data:
+        key = (network.path(ds.path).resolve(), ds.observes)
+        if key in files:
+            raise SpecError(f"data sets '{files[key]}' and '{ds.name}' both read '{ds.path}' "
+                            f"for {ds.observes}, so each measurement would count twice; "
+                            "remove one of them", file=network.source or None,
+                            field=f"data.{ds.name}.path")
+        files[key] = ds.name
+    out, seen = {}, {}
+    for ds in network.data:
+        data = read_dataset(network, ds)
+        held = seen.setdefault(ds.observes, {})
+        repeats = {i: f"also in data set '{held[row]}'" for i, row in enumerate(_rows(data))
+                   if row in held}
+        out[ds.name] = _once(data, repeats, f"{ds.path}: data.{ds.name}")
+        for row in _rows(out[ds.name]):
+            held.setdefault(row, ds.name)
+    return out

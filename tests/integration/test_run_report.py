@@ -1,0 +1,59 @@
+"""``calnet run --quick`` on one model observed by two data sets, with a discrepancy
+variant compared: the report says each variant note once, says that a quick run's Sobol
+spread is indicative only, and its wall time is the stage timings of run_info.json."""
+
+from __future__ import annotations
+
+import html
+import json
+import re
+import shutil
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from calnet.cli import app
+
+TWODATA = Path(__file__).parent / "twodata"
+
+
+def report_text(out: Path) -> str:
+    """report.html's text as a reader sees it (tags, styles and images left out)."""
+    page = (out / "report.html").read_text()
+    page = re.sub(r"<(style|script)[^>]*>.*?</\1>|<img[^>]*>", " ", page, flags=re.S)
+    return re.sub(r"\s+", " ", html.unescape(re.sub(r"<[^>]+>", " ", page)))
+
+
+def check_report(out: Path) -> None:
+    text = report_text(out)
+    metrics = json.loads((out / "metrics.json").read_text())
+    info = json.loads((out / "run_info.json").read_text())
+    # each note of the variant once, though both data sets' comparisons carry it
+    notes = {n for ds in metrics["comparison"].values() for n in
+             ds["no_discrepancy"]["notes"]}
+    assert notes, "the variant has no notes: the check below would test nothing"
+    for note in notes:
+        assert text.count(note) == 1, note
+    # the quick run's spread over 3 draws is labelled indicative
+    draws = {s["over_draws"]["n_draws"] for s in metrics["sensitivity"].values()}
+    assert draws == {3}
+    assert ("Quick run: the spread of ST over posterior draws comes from 3 posterior draws "
+            "only, so it is indicative, not a 95 % interval") in text
+    # the report's wall time is run_info.json's stage timings, not a second clock
+    shown = re.search(r"Wall time ([0-9.]+) s for the stages before this report", text)
+    stages = {k: v for k, v in info["timings_s"].items() if k not in ("total", "report")}
+    assert shown and float(shown.group(1)) == round(sum(stages.values()), 1), shown
+
+
+@pytest.mark.integration
+@pytest.mark.slow
+def test_quick_run_report_of_two_data_sets_and_a_variant(tmp_path, monkeypatch):
+    work = tmp_path / "twodata"
+    shutil.copytree(TWODATA, work, ignore=shutil.ignore_patterns("campaigns", "__pycache__"))
+    monkeypatch.syspath_prepend(str(work))
+    monkeypatch.setenv("PYTHONPATH", str(work))
+    out = tmp_path / "out"
+    result = CliRunner().invoke(app, ["run", str(work), "--out", str(out), "--quick"])
+    assert result.exit_code == 0, result.output
+    check_report(out)

@@ -1,0 +1,37 @@
+"""Pieces of the report's text: the comparison of discrepancy variants says each
+variant's notes once, and a quick run's Sobol spread is labelled indicative."""
+
+from calnet.report.build import comparison_tables, quick_spread_note
+from calnet.results import VariantScore
+
+NOTE = "M: bulk ESS 179 < 400 for se2_d1; increase num_draws"
+
+
+def score(elpd, notes=()):
+    return VariantScore(elpd_loo=elpd, p_loo=1.0, elpd_diff=0.0, dse=0.0, weight=0.5,
+                        max_pareto_k=0.4, draws=400, notes=tuple(notes))
+
+
+def test_a_variants_notes_are_said_once_for_every_data_set():
+    comparison = {ds: {"spec": score(10.0), "no_discrepancy": score(11.0, [NOTE]),
+                       "non_orthogonal": score(9.0, ["other note"])}
+                  for ds in ("d1", "d2", "d3")}
+    tables, paragraphs = comparison_tables(comparison)
+    assert [t.caption.split(":")[0] for t in tables] == ["d1", "d2", "d3"]
+    assert all(NOTE not in t.caption for t in tables)
+    assert paragraphs == [f"Notes on the variants compared below: no_discrepancy: {NOTE}; "
+                          "non_orthogonal: other note."]
+    assert [r[0] for r in tables[0].rows] == ["spec", "no_discrepancy", "non_orthogonal"]
+
+
+def test_variants_without_notes_add_no_paragraph():
+    tables, paragraphs = comparison_tables({"d1": {"spec": score(1.0),
+                                                   "reference": score(2.0)}})
+    assert len(tables) == 1 and paragraphs == []
+
+
+def test_a_quick_runs_spread_is_labelled_indicative():
+    assert quick_spread_note({"d1": 3, "d2": 3}).startswith(
+        "Quick run: the spread of ST over posterior draws comes from 3 posterior draws only, "
+        "so it is indicative, not a 95 % interval")
+    assert "d1: 3, d2: 5 posterior draws only" in quick_spread_note({"d1": 3, "d2": 5})

@@ -1,0 +1,66 @@
+"""Data files that would mislead the calibration: a column name given twice in a header
+(pandas would rename the second one ``P.1``) and a measurement given twice (it would
+count twice in the likelihood)."""
+
+from __future__ import annotations
+
+import pytest
+from typer.testing import CliRunner
+
+from calnet.cli import app
+from calnet.errors import SpecError, SpecWarning
+from calnet.spec import load_spec, read_all
+
+SPACING_TWICE_P = "id,power,speed,power,pdas\n1,100,0.5,120,0.3\n2,150,1.0,160,0.35\n"
+
+
+def test_a_column_named_twice_is_a_one_line_error(base_spec, write_spec):
+    path = write_spec(base_spec, spacing=SPACING_TWICE_P)
+    with pytest.raises(SpecError, match=r"column 'power' appears twice in the header") as err:
+        load_spec(path)
+    assert err.value.file.endswith("spacing.csv")
+    result = CliRunner().invoke(app, ["check", str(path)], terminal_width=400)
+    assert result.exit_code == 2, result.output
+    lines = result.output.strip().splitlines()
+    assert len(lines) == 1 and "spacing.csv" in lines[0] and "'power'" in lines[0], lines
+
+
+def test_a_points_file_with_a_column_named_twice_is_refused(tmp_path):
+    points = tmp_path / "points.csv"
+    points.write_text("P,v,P\n200,0.5,210\n")
+    result = CliRunner().invoke(app, ["predict", "examples/ninb", "--csv", str(points)],
+                                terminal_width=400)
+    assert result.exit_code == 1, result.output
+    assert result.output.strip() == (f"error: --csv {points}: column 'P' appears twice in the "
+                                     "header; give each column its own name")
+
+
+WIDTH_REPEATED = ("id,power,speed,width,split\n1,100,0.5,90,train\n2,150,1.0,80,train\n"
+                  "3,100,0.5,90,train\n4,200,1.5,85,test\n5,100,0.5,91,train\n")
+
+
+def test_a_measurement_given_twice_in_a_file_counts_once(base_spec, write_spec):
+    path = write_spec(base_spec, width=WIDTH_REPEATED)
+    with pytest.warns(SpecWarning, match=r"width.csv: data.width: 1 row\(s\) repeat an earlier "
+                      r"measurement .*: P=100, v=0.5, W=90 \(line 4 repeats line 2\)"):
+        data = read_all(load_spec(path))["width"]
+    # the copy is left out; a second measurement at the same setting (91) is kept
+    assert data.y.tolist() == [90, 80, 85, 91]
+
+
+def test_the_same_file_twice_for_one_output_is_an_error(base_spec, write_spec):
+    base_spec["data"]["width_again"] = dict(base_spec["data"]["width"])
+    with pytest.raises(SpecError, match="data sets 'width' and 'width_again' both read "
+                       "'width.csv' for heat.W, so each measurement would count twice"):
+        load_spec(write_spec(base_spec))
+
+
+def test_rows_of_another_data_set_of_the_same_output_count_once(base_spec, write_spec,
+                                                                   tmp_path):
+    (tmp_path / "more.csv").write_text("power,speed,width\n150,1.0,80\n180,1.2,83\n")
+    base_spec["data"]["more"] = {"path": "more.csv", "observes": "heat.W",
+                                 "columns": {"P": "power", "v": "speed", "W": "width"}}
+    with pytest.warns(SpecWarning, match=r"more.csv: data.more: 1 row\(s\) .*P=150, v=1, W=80 "
+                      r"\(also in data set 'width'\)"):
+        data = read_all(load_spec(write_spec(base_spec)))
+    assert data["more"].y.tolist() == [83] and len(data["width"].y) == 3

@@ -1,0 +1,75 @@
+"""``calnet check``'s rendering of a network: each output's role once, and tables at
+their full width in a pipe (Rich cuts them to 80 columns off a terminal)."""
+
+from __future__ import annotations
+
+import textwrap
+
+import pytest
+from typer.testing import CliRunner
+
+from calnet.cli import app
+
+SPEC = """
+name: roles
+models:
+  M:
+    simulator: python:roles_sims:f
+    inputs: {x: {lower: 0.5, upper: 2, description: "the one process input"}}
+    parameters: {a: {lower: 0.5, upper: 2.0}}
+    outputs:
+      y: {measurable: true, transform: log}
+      z: {transform: log}
+      w: {}
+    campaign: {runs: 10}
+data:
+  a_data_set_with_a_rather_long_name_that_fills_the_role_column:
+    {path: y.csv, observes: M.y, columns: {x: x, y: y}}
+settings:
+  predict: [M.w]
+"""
+
+
+@pytest.fixture
+def spec(tmp_path):
+    (tmp_path / "network.yaml").write_text(textwrap.dedent(SPEC))
+    (tmp_path / "roles_sims.py").write_text(
+        "def f(inputs):\n    x, a = inputs['x'], inputs['a']\n"
+        "    return {'y': a * x, 'z': x, 'w': x + a}\n")
+    (tmp_path / "y.csv").write_text("x,y\n0.6,0.7\n1.0,1.2\n1.5,1.7\n")
+    return tmp_path
+
+
+def _roles(output: str) -> dict[str, str]:
+    """``{output name: its range / role cell}`` of the model table (one line per row)."""
+    rows = [[c.strip() for c in line.split("│")] for line in output.splitlines()
+            if "│ output" in line]
+    return {r[0]: r[3] for r in rows}
+
+
+def test_each_output_says_surrogate_once_with_its_scale(spec):
+    result = CliRunner().invoke(app, ["check", str(spec)], env={"COLUMNS": None})
+    assert result.exit_code == 0, result.output
+    roles = _roles(result.output)
+    assert roles["y"].endswith("; surrogate on log scale"), roles
+    assert roles["y"].count("surrogate") == 1, roles
+    assert "surrogate" not in roles["z"], roles  # unused: no surrogate, on any scale
+    assert roles["w"].endswith("; surrogate"), roles  # settings.predict, linear scale
+
+
+def test_tables_keep_their_full_width_in_a_pipe(spec):
+    result = CliRunner().invoke(app, ["check", str(spec)], env={"COLUMNS": None})
+    assert result.exit_code == 0, result.output
+    table = [line for line in result.output.splitlines() if "│" in line]
+    # one line per variable (5), none wrapped onto a second line
+    assert len(table) == 5, table
+    assert max(len(line) for line in table) > 80
+    assert "a_data_set_with_a_rather_long_name_that_fills_the_role_column; surrogate" \
+        in result.output
+
+
+def test_tables_respect_columns_when_set(spec):
+    result = CliRunner().invoke(app, ["check", str(spec)], env={"COLUMNS": "70"})
+    assert result.exit_code == 0, result.output
+    table = [line for line in result.output.splitlines() if "│" in line]
+    assert len(table) > 5 and max(len(line) for line in table) <= 70
