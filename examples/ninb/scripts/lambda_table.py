@@ -3,7 +3,8 @@
 Runs the built-in melt_pool at each (P, v) of data/ninb_pdas.csv, feeds G0 and v (S0 = v
 at the tail) into solidification, and prints a Markdown table with the measured PDAS
 beside it. Parameters: the middle of their bounds, or with ``--metrics out/ninb/metrics.json``
-the posterior modes of a ``calnet run``. One M1 run takes 5-90 s.
+the posterior modes of a ``calnet run``. One M1 run takes 5-90 s (``--time-limit``
+2 minutes by default).
 
     .venv/bin/python examples/ninb/scripts/lambda_table.py [--metrics FILE] > lambda.md
 """
@@ -25,6 +26,8 @@ HERE = Path(__file__).resolve().parents[1]
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--metrics", help="metrics.json of a calnet run (posterior modes)")
+    parser.add_argument("--time-limit", type=float, default=120.0,
+                        help="wall-clock seconds an M1 run may take (default 120)")
     args = parser.parse_args()
     m1, m2 = builtin_info("melt_pool"), builtin_info("solidification")
     theta1, theta2 = m1.defaults(), m2.defaults()
@@ -42,7 +45,7 @@ def main() -> int:
     for r in rows:
         P, v = float(r["power_W"]), float(r["speed_m_per_s"])
         t0 = time.perf_counter()
-        res1 = m1.simulate({**theta1, "P": P, "v": v}, time_limit=120)
+        res1 = m1.simulate({**theta1, "P": P, "v": v}, time_limit=args.time_limit)
         wall = time.perf_counter() - t0
         if res1.status != "ok":
             print(f"| {r['sample']} | {r['split']} | {P:g} | {v:g} | {res1.status} | - | - | - "

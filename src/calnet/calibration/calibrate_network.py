@@ -171,23 +171,20 @@ def build_koh(network: Network, surrogates: Surrogates, *, free: list[str],
         tdata.append(td)
         if t.discrepancy:
             names[f"ell_{ds_name}"] = network.model(t.model).input_names
-    theta_fixed = {m: jnp.asarray([fixed.get(k, 0.0) for k in parameter_keys(network, m)],
-                                  dtype=float) for m in network.order}
+    # host arrays handed over whole: an eager JAX operation would compile a program
+    theta_fixed = {m: jnp.asarray(np.array([fixed.get(k, 0.0)
+                                            for k in parameter_keys(network, m)], dtype=float))
+                   for m in network.order}
     spec = KOHModel(plan, params, theta_index, groups, tuple(terms))
     data = {"gps": {k: s.gp for k, s in surrogates.items.items()}, "theta_fixed": theta_fixed,
             "terms": tdata,
-            "y": jnp.concatenate([t["y"] for t in tdata]) if tdata else jnp.zeros(0)}
+            "y": jnp.asarray(np.concatenate([np.asarray(t["y"]) for t in tdata])
+                             if tdata else np.zeros(0))}
     index = dict(theta_index)
     for term, td in zip(terms, tdata, strict=True):
         if all(i < 0 for m in network.ancestors(term.model) for i in index[m]):
             # no sampled parameter upstream: the model's inputs are computed once
-            x, dx, corr = _fixed_inputs(spec, term, data["gps"], td["xp"], theta_fixed)
-            td["x_fixed"] = x
-            td["gp_fixed"] = plan.at_controls(data["gps"], term.model, term.key, x)
-            u = plan.unit_inputs(term.model, x)
-            td["d2u_fixed"] = (u[:, None, :] - u[None]) ** 2  # discrepancy distances
-            if dx is not None:
-                td["dx_fixed"], td["corr_fixed"] = dx, corr
+            td.update(_fixed_inputs(spec, term, data["gps"], td["xp"], theta_fixed))
     keys = {m: tuple(parameter_keys(network, m)) for m in network.order}
     ld = KOHDensity(spec, data, name, names, keys)
     n_obs = sum(len(d.y) for d in datasets.values())
@@ -199,10 +196,22 @@ def build_koh(network: Network, surrogates: Surrogates, *, free: list[str],
 
 
 @partial(jax.jit, static_argnums=(0, 1))
-def _fixed_inputs(spec: KOHModel, term: Term, gps, xp, thetas):
-    """:meth:`KOHModel.inputs` compiled once per network and shapes (leave-one-out folds
-    and stages share it)."""
-    return spec.inputs({"gps": gps}, term, xp, thetas)
+def _fixed_inputs(spec: KOHModel, term: Term, gps, xp, thetas) -> dict:
+    """What a term whose inputs have no sampled parameter upstream precomputes: the
+    model's inputs ``x_fixed`` (:meth:`KOHModel.inputs`, with the links' ``dx_fixed`` and
+    ``corr_fixed`` where it has links), the observed GP at those control inputs
+    ``gp_fixed`` (:meth:`ChainPlan.at_controls`) and the discrepancy's squared distances
+    per input ``d2u_fixed`` (n, n, q). One compiled program per network and shapes
+    (leave-one-out folds and stages share it), instead of the set-up's many small eager
+    operations, each of which JAX would compile."""
+    x, dx, corr = spec.inputs({"gps": gps}, term, xp, thetas)
+    plan = spec.plan
+    u = plan.unit_inputs(term.model, x)
+    out = {"x_fixed": x, "gp_fixed": plan.at_controls(gps, term.model, term.key, x),
+           "d2u_fixed": (u[:, None, :] - u[None]) ** 2}
+    if dx is not None:
+        out["dx_fixed"], out["corr_fixed"] = dx, corr
+    return out
 
 
 def key_draws(stage: StageResult) -> dict[str, np.ndarray]:
