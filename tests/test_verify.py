@@ -282,3 +282,25 @@ def test_a_network_without_data_or_parameters_is_verified_at_settings(tmp_path):
     assert any("no data sets" in n and "add data sets (data: in the spec" in n
                for n in doc["notes"]), doc["notes"]
     assert any("no calibration parameters" in n for n in doc["notes"]), doc["notes"]
+
+
+def test_verify_command_counts_the_points_a_verdict_rests_on(calibrated, tmp_path):
+    from typer.testing import CliRunner
+
+    from calnet.cli import app
+
+    _, _, _, root = calibrated
+    flaky = root / "flaky_cli.yaml"
+    flaky.write_text(textwrap.dedent(SPEC).replace("python:verify_sims:up\n",
+                                                   "python:verify_sims:up_flaky\n"))
+    res = CliRunner().invoke(app, ["verify", str(flaky), "--run", str(root / "out"),
+                                   "-k", "8"])
+    assert res.exit_code == 0, res.output
+    doc = json.loads((root / "out" / "verify.json").read_text())
+    up = doc["checks"]["up.y"]
+    assert up["n_failed"] > 0 and up["n"] > 0
+    line = next(s for s in res.output.splitlines() if s.startswith("up.y:"))
+    assert line.endswith(f"at the {up['n']} of {up['n'] + up['n_failed']} points whose "
+                         "simulator run finished")
+    down = next(s for s in res.output.splitlines() if s.startswith("down.w:"))
+    assert "points whose" not in down  # every run of down finished

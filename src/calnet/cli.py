@@ -611,7 +611,12 @@ def verify(
                         f"{c.max_abs_z:.2f}", f"{c.share_beyond:.0%}")
     console.print(summary)
     for c in result.checks.values():
-        console.print(f"{c.surrogate}: " + (c.verdict if c.agrees else f"[yellow]{c.verdict}[/]"),
+        text = c.verdict
+        if c.n and c.n_failed:  # a verdict on fewer points than were asked for says so
+            text += (f" at the {c.n} of {c.n + c.n_failed} points whose simulator run "
+                     "finished")
+        console.print(f"{c.surrogate}: " + (escape(text) if c.agrees
+                                            else f"[yellow]{escape(text)}[/]"),
                       soft_wrap=True)
     for note in result.notes:
         console.print(f"note: {escape(note)}", soft_wrap=True)
