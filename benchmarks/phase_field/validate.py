@@ -13,6 +13,9 @@ grid2d   spacing, k_V and undercooling at resolution default (5 nm) and fine (2.
          the same 1.92 x 0.64 um domain (the fine run needs about 16 times the default's
          time per simulated microsecond)
 compare  phase_field against the closed-form ``solidification`` over the ninb box
+seeds    0.3 m/s, 1e7 K/m and 0.3 m/s, 5e6 K/m with seeds 0, 1, 2 of the initial noise
+coarsen  the cell count of one run at 0.3 m/s, 1e7 K/m over 6 freezing-range lengths of
+         isotherm travel: does the array coarsen after the steady test accepts it?
 """
 
 from __future__ import annotations
@@ -161,6 +164,32 @@ def compare() -> None:
               f"{c['lambda']:.3f} | {r['lambda'] / c['lambda']:.2f} | {r['k_V']:.3f} | "
               f"{c['k_V']:.3f} | {r['dT']:.2f} | {r['steps']} | {r['wall']:.0f} |",
               flush=True)
+
+
+def seeds() -> None:
+    rows = [_pf(0.3, G, seed=k) for G in (1e7, 5e6) for k in (0, 1, 2)]
+    print("| G (K/m) | seed | status | lambda (um) | cells | steps | wall (s) |\n"
+          "|---|---|---|---|---|---|---|")
+    for r, k in zip(rows, (0, 1, 2) * 2, strict=True):
+        print(f"| {r['G']:.3g} | {k} | {r['status']} | {r['lambda']:.3f} | {r['cells']:.1f} | "
+              f"{r['steps']} | {r['wall']:.0f} |")
+
+
+def coarsen() -> None:
+    p = phase_field.parameters({"S": 0.3, "G": 1e7, **PARAMS})
+    opts = phase_field.PhaseFieldOptions(min_travel=6.0, steady_travel=4.0)
+    t0 = time.perf_counter()
+    rec = run(p, opts)
+    length = model.CONSTANTS.freezing_range / p.G / p.S  # time for dT0 / G of travel
+    print("| travel (dT0/G) | cells (mean over 0.5 dT0/G) | min | max | lambda (um) |\n"
+          "|---|---|---|---|---|")
+    t = np.array([s.t for s in rec.history]) / length
+    cells = np.array([s.cells for s in rec.history])
+    for a in np.arange(0.5, t[-1], 0.5):
+        sel = cells[(t > a - 0.5) & (t <= a)]
+        print(f"| {a - 0.5:.1f}-{a:.1f} | {sel.mean():.1f} | {sel.min()} | {sel.max()} | "
+              f"{opts.nx * opts.dx * 1e6 / sel.mean():.3f} |")
+    print(f"\n{rec.status} after {rec.steps} steps, {time.perf_counter() - t0:.0f} s")
 
 
 if __name__ == "__main__":
