@@ -13,6 +13,7 @@ grid2d   spacing, k_V and undercooling at resolution default (5 nm) and fine (2.
          the same 1.92 x 0.64 um domain (the fine run needs about 16 times the default's
          time per simulated microsecond)
 compare  phase_field against the closed-form ``solidification`` over the ninb box
+fine_g   fine resolution at 0.3 m/s and 2e7, 5e6 K/m (1e7 K/m is in grid2d)
 seeds    0.3 m/s, 1e7 K/m and 0.3 m/s, 5e6 K/m with seeds 0, 1, 2 of the initial noise
 coarsen  the cell count of one run at 0.3 m/s, 1e7 K/m over 6 freezing-range lengths of
          isotherm travel: does the array coarsen after the steady test accepts it?
@@ -103,10 +104,14 @@ def _table(rows) -> None:
           "| dT (K) | steps | simulated (us) | travel (dT0/G) | wall (s) |\n"
           "|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
-        print(f"| {r['S']} | {r['G']:.3g} | {r['status']} | {r['lambda']:.3f} | "
-              f"{r['cells']:.1f} | {r['tip_mode']} ({r['tip_lambda']:.3f}) | {r['k_V']:.3f} | "
-              f"{r['dT']:.2f} | {r['steps']} | {r['sim_us']:.1f} | {r['travel']:.1f} | "
-              f"{r['wall']:.0f} |", flush=True)
+        _table_row(r)
+
+
+def _table_row(r) -> None:
+    print(f"| {r['S']} | {r['G']:.3g} | {r['status']} | {r['lambda']:.3f} | "
+          f"{r['cells']:.1f} | {r['tip_mode']} ({r['tip_lambda']:.3f}) | {r['k_V']:.3f} | "
+          f"{r['dT']:.2f} | {r['steps']} | {r['sim_us']:.1f} | {r['travel']:.1f} | "
+          f"{r['wall']:.0f} |", flush=True)
 
 
 def _slope(x, y) -> float:
@@ -164,6 +169,12 @@ def compare() -> None:
               f"{c['lambda']:.3f} | {r['lambda'] / c['lambda']:.2f} | {r['k_V']:.3f} | "
               f"{c['k_V']:.3f} | {r['dT']:.2f} | {r['steps']} | {r['wall']:.0f} |",
               flush=True)
+
+
+def fine_g() -> None:
+    _table([])
+    for G in (2e7, 5e6):
+        _table_row(_pf(0.3, G, resolution="fine"))
 
 
 def seeds() -> None:

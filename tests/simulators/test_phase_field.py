@@ -301,6 +301,8 @@ def test_bad_options_name_the_problem():
         phase_field.simulate(WORKED, resolutoin="fine")
     with pytest.raises(ValueError, match="resolution must be one of"):
         phase_field.simulate(WORKED, resolution="coarse")
+    with pytest.raises(ValueError, match="steady_travel > 0"):
+        phase_field.simulate(WORKED, steady_travel=0)
 
 
 def test_registered_and_runs_from_the_cli():

@@ -39,8 +39,8 @@ class PhaseFieldOptions:
         Steps are taken in jitted chunks during which the isotherms move this many cells;
         the frame shifts and the front is measured between chunks.
     window : int, default 12
-        The outputs are means over the last ``window`` chunks (the spacing: that of the
-        most frequent cell count among them).
+        The outputs are means over the last ``window`` chunks (the spacing: the domain
+        width over the mean cell count).
     start : {"solidus", "equilibrium"}, default "solidus"
         Initial state: a flat front at the solidus isotherm of ``c0`` with the planar
         steady boundary layer ahead, or the reference's equilibrium start (front at the
@@ -57,10 +57,10 @@ class PhaseFieldOptions:
         Minimum isotherm travel before a steady state is accepted, in units of the
         freezing-range length ``dT0 / G`` (1.5 um at 1e7 K/m).
     steady_travel : float, default 1.0
-        Isotherm travel, in freezing-range lengths, over which the cell count, the tip
-        speed and the undercooling must have stayed constant for the front to count as
-        steady (``calnet.simulators.phase_field.outputs.steady``); the window ends at the
-        last chunk and may overlap ``min_travel``.
+        Isotherm travel, in freezing-range lengths, over which the mean cell count (within
+        5 %), the tip speed and the undercooling must have stayed constant for the front
+        to count as steady (``calnet.simulators.phase_field.outputs.steady``); the window
+        ends at the last chunk and may overlap ``min_travel``.
     """
 
     resolution: str = "default"
