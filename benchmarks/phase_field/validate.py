@@ -6,12 +6,17 @@ planar   flat front in a 1-cell-wide strip: k_V and undercooling against Aziz's 
          growth model (V_D = P eta f''/8 as in ``solidification``), with and without the
          anti-trapping current
 perm     flat front at p_int 1500, 5000 and 15000: does the permeability set the trapping?
-scaling  spacing against G (factor 4) and S (factor 4): log-log slopes
+scaling  spacing (counted cells) against G (factor 4) and S (factor 4): log-log slopes
 grid     flat front (1-cell strip) at 5, 2.5 and 1.25 nm cells: k_V and undercooling
 converge flat front at 0.3 m/s down to 0.625 nm cells, p_int 1500 and 15000
 grid2d   spacing, k_V and undercooling at resolution default (5 nm) and fine (2.5 nm),
-         the same 1.92 x 0.64 um domain
+         the same 1.92 x 0.64 um domain (the fine run needs about 16 times the default's
+         time per simulated microsecond)
 compare  phase_field against the closed-form ``solidification`` over the ninb box
+fine_g   fine resolution at 0.3 m/s and 2e7, 5e6 K/m (1e7 K/m is in grid2d)
+seeds    0.3 m/s, 1e7 K/m and 0.3 m/s, 5e6 K/m with seeds 0, 1, 2 of the initial noise
+coarsen  the cell count of one run at 0.3 m/s, 1e7 K/m over 6 freezing-range lengths of
+         isotherm travel: does the array coarsen after the steady test accepts it?
 """
 
 from __future__ import annotations
@@ -23,21 +28,32 @@ import time
 import numpy as np
 
 from calnet.simulators import phase_field, solidification
+from calnet.simulators.phase_field import model
 from calnet.simulators.phase_field.outputs import summary
 from calnet.simulators.phase_field.solver import run
 
 PARAMS = {"sigma": 2e-6, "M": 7.5, "p_int": 15000.0}  # physics.md worked check
 
 
+_RUNS: dict[tuple, dict] = {}  # scaling and compare share two points
+
+
 def _pf(S, G, **opts):
+    key = (S, G, tuple(sorted(opts.items())))
+    if key in _RUNS:
+        return _RUNS[key]
     t0 = time.perf_counter()
     res = phase_field.simulate({"S": S, "G": G, **PARAMS}, **opts)
     o, d = res.outputs, res.diagnostics
-    return {"S": S, "G": G, "status": res.status, "lambda": o.get("lambda"),
-            "k_V": o.get("k_V"), "dT": o.get("undercooling"), "cells": d.get("cells"),
-            "amp": o.get("amplitude"),
-            "steps": d["steps"], "sim_us": d["simulated_time_s"] * 1e6,
-            "wall": time.perf_counter() - t0}
+    travel = S * d["simulated_time_s"] * G / model.CONSTANTS.freezing_range
+    _RUNS[key] = {"S": S, "G": G, "status": res.status, "lambda": o.get("lambda"),
+                  "k_V": o.get("k_V"), "dT": o.get("undercooling"),
+                  "cells": d.get("cells"), "amp": o.get("amplitude"),
+                  "tip_mode": d.get("tip_mode"), "tip_lambda": d.get("tip_wavelength_um"),
+                  "steps": d["steps"], "sim_us": d["simulated_time_s"] * 1e6,
+                  "travel": travel, "wall": time.perf_counter() - t0}
+    print(json.dumps(_RUNS[key]), file=sys.stderr, flush=True)
+    return _RUNS[key]
 
 
 def _flat(S, p_int=PARAMS["p_int"], **opts):
@@ -84,12 +100,18 @@ def perm() -> None:
 
 
 def _table(rows) -> None:
-    print("| S (m/s) | G (K/m) | status | lambda (um) | cells | amplitude (um) | k_V | dT (K) "
-          "| steps | simulated (us) | wall (s) |\n|---|---|---|---|---|---|---|---|---|---|---|")
+    print("| S (m/s) | G (K/m) | status | lambda (um) | cells | tip-height mode (um) | k_V "
+          "| dT (K) | steps | simulated (us) | travel (dT0/G) | wall (s) |\n"
+          "|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
-        print(f"| {r['S']} | {r['G']:.3g} | {r['status']} | {r['lambda']:.3f} | {r['cells']} "
-              f"| {r['amp']:.3f} | {r['k_V']:.3f} | {r['dT']:.2f} | {r['steps']} | "
-              f"{r['sim_us']:.1f} | {r['wall']:.0f} |", flush=True)
+        _table_row(r)
+
+
+def _table_row(r) -> None:
+    print(f"| {r['S']} | {r['G']:.3g} | {r['status']} | {r['lambda']:.3f} | "
+          f"{r['cells']:.1f} | {r['tip_mode']} ({r['tip_lambda']:.3f}) | {r['k_V']:.3f} | "
+          f"{r['dT']:.2f} | {r['steps']} | {r['sim_us']:.1f} | {r['travel']:.1f} | "
+          f"{r['wall']:.0f} |", flush=True)
 
 
 def _slope(x, y) -> float:
@@ -135,18 +157,50 @@ def grid2d() -> None:
 
 
 def compare() -> None:
-    print("| S (m/s) | G (K/m) | status | lambda PF (um) | cells | amplitude (um) | "
-          "lambda closed form (um) | k_V PF | k_V closed form | dT PF (K) | steps | wall (s) |"
+    print("| S (m/s) | G (K/m) | status | lambda PF (um) | cells | lambda closed form (um) | "
+          "PF / closed form | k_V PF | k_V closed form | dT PF (K) | steps | wall (s) |"
           "\n|---|---|---|---|---|---|---|---|---|---|---|---|")
     # the reference box of solidification.BOUNDS (S 0.05-0.6 m/s, G 7e6-1.5e7 K/m)
     for S, G in ((0.05, 7e6), (0.05, 1.5e7), (0.15, 1e7), (0.3, 1e7), (0.6, 7e6),
                  (0.6, 1.5e7)):
         r = _pf(S, G)
         c = solidification.simulate_batch(S, G, **PARAMS)
-        print(f"| {S} | {G:.3g} | {r['status']} | {r['lambda']:.3f} | {r['cells']} | "
-              f"{r['amp']:.4f} | {c['lambda']:.3f} | {r['k_V']:.3f} | {c['k_V']:.3f} | "
-              f"{r['dT']:.2f} | {r['steps']} | {r['wall']:.0f} |", flush=True)
-        print(json.dumps(r), file=sys.stderr)
+        print(f"| {S} | {G:.3g} | {r['status']} | {r['lambda']:.3f} | {r['cells']:.1f} | "
+              f"{c['lambda']:.3f} | {r['lambda'] / c['lambda']:.2f} | {r['k_V']:.3f} | "
+              f"{c['k_V']:.3f} | {r['dT']:.2f} | {r['steps']} | {r['wall']:.0f} |",
+              flush=True)
+
+
+def fine_g() -> None:
+    _table([])
+    for G in (2e7, 5e6):
+        _table_row(_pf(0.3, G, resolution="fine"))
+
+
+def seeds() -> None:
+    rows = [_pf(0.3, G, seed=k) for G in (1e7, 5e6) for k in (0, 1, 2)]
+    print("| G (K/m) | seed | status | lambda (um) | cells | steps | wall (s) |\n"
+          "|---|---|---|---|---|---|---|")
+    for r, k in zip(rows, (0, 1, 2) * 2, strict=True):
+        print(f"| {r['G']:.3g} | {k} | {r['status']} | {r['lambda']:.3f} | {r['cells']:.1f} | "
+              f"{r['steps']} | {r['wall']:.0f} |")
+
+
+def coarsen() -> None:
+    p = phase_field.parameters({"S": 0.3, "G": 1e7, **PARAMS})
+    opts = phase_field.PhaseFieldOptions(min_travel=6.0, steady_travel=4.0)
+    t0 = time.perf_counter()
+    rec = run(p, opts)
+    length = model.CONSTANTS.freezing_range / p.G / p.S  # time for dT0 / G of travel
+    print("| travel (dT0/G) | cells (mean over 0.5 dT0/G) | min | max | lambda (um) |\n"
+          "|---|---|---|---|---|")
+    t = np.array([s.t for s in rec.history]) / length
+    cells = np.array([s.cells for s in rec.history])
+    for a in np.arange(0.5, t[-1], 0.5):
+        sel = cells[(t > a - 0.5) & (t <= a)]
+        print(f"| {a - 0.5:.1f}-{a:.1f} | {sel.mean():.1f} | {sel.min()} | {sel.max()} | "
+              f"{opts.nx * opts.dx * 1e6 / sel.mean():.3f} |")
+    print(f"\n{rec.status} after {rec.steps} steps, {time.perf_counter() - t0:.0f} s")
 
 
 if __name__ == "__main__":

@@ -133,6 +133,89 @@ def test_front_heights_and_dominant_mode_on_a_known_profile():
     assert outputs.dominant_mode(np.full(nx, 1e-7), dx)[0] == 0
 
 
+def _cell_array(edges, tips, *, dx, ny, groove_cells=2, groove_phi=0.7):
+    """A synthetic cell array ``(ny, nx)`` and its heights: cells between the periodic
+    ``edges`` (column indices), each a parabolic cap topped at ``tips[i]`` (m) and 10 nm
+    lower at its sides, separated by grooves ``groove_cells`` wide that open 60 nm below
+    the lowest tip and hold ``phi = groove_phi`` below that (a narrow groove of a diffuse
+    interface never reaches ``phi = 0``); sine profiles of width eta along y."""
+    nx = edges[-1] - edges[0]
+    top = np.empty(nx)
+    groove = np.zeros(nx, dtype=bool)
+    for i, (a, b) in enumerate(zip(edges[:-1], edges[1:], strict=True)):
+        cols = np.arange(a, b)
+        half = 0.5 * (b - a) * dx
+        xc = (cols + 0.5) * dx - a * dx - half
+        top[cols % nx] = tips[i] - 10e-9 * (xc / half) ** 2
+        groove[np.arange(b - groove_cells, b) % nx] = True
+    top[groove] = min(tips) - 60e-9
+    y = (np.arange(ny) + 0.5) * dx
+    arg = np.clip((y[:, None] - top[None, :]) / C.eta, -0.5, 0.5) * np.pi
+    phi = 0.5 * (1.0 - np.sin(arg))
+    phi[:, groove] = np.minimum(phi[:, groove], groove_phi)
+    return phi, y
+
+
+def test_grooves_counts_runs_of_not_fully_solid_cells_around_the_period():
+    assert outputs.grooves(np.array([1, 1, 0.5, 1, 1, 0.2, 0.3, 1.0])) == 2
+    assert outputs.grooves(np.array([0.5, 1, 1, 0.9])) == 1  # one groove across the seam
+    assert outputs.grooves(np.ones(8)) == 0
+    assert outputs.grooves(np.full(8, 0.99)) is None  # no solid: cannot separate cells
+
+
+def test_cell_count_counts_cells_whose_tips_are_modulated_at_another_wavelength():
+    # 23 cells of uneven width (seeded), tips 30 nm high modulated over 7 periods: the
+    # front height sees the modulation, the count behind the tips sees the 23 cells
+    dx, nx, ny, n = 5e-9, 384, 128, 23
+    rng = np.random.default_rng(11)
+    widths = rng.multinomial(nx - 10 * n, np.full(n, 1 / n)) + 10
+    edges = np.concatenate([[0], np.cumsum(widths)]) + 5  # cells also cross the seam
+    centres = 0.5 * (edges[:-1] + edges[1:]) / nx
+    tips = 0.45e-6 + 15e-9 * np.cos(2 * np.pi * 7 * centres)
+    phi, y = _cell_array(edges, tips, dx=dx, ny=ny)
+    h = outputs.front_heights(phi, y)
+    assert outputs.dominant_mode(h, dx)[0] == 7
+    tip = float(h.max())
+    assert outputs.cell_count(phi, y, tip, C.eta) == n
+    # rows just behind the leading tip cut above the lagging ones and merge grooves
+    assert outputs.cell_count(phi, y, tip, C.eta, band=(0.6, 1.0)) < n
+    st = outputs.measure(phi, phi * 0 + 0.02, phi * 0 + 0.03, y=y, t=1e-6, dx=dx,
+                         eta=C.eta, temperature_at=lambda yy, tt: 1690.0, T0=1695.0)
+    assert st.cells == n and st.spacing == pytest.approx(nx * dx / n, rel=1e-12)
+    assert st.mode == 7
+
+
+def test_cell_count_of_a_flat_front_and_of_a_single_cell():
+    dx, nx, ny = 5e-9, 64, 96
+    y = (np.arange(ny) + 0.5) * dx
+    flat = 0.5 * (1.0 - np.sin(np.clip((y - 0.3e-6) / C.eta, -0.5, 0.5) * np.pi))
+    phi = np.tile(flat[:, None], (1, nx))
+    assert outputs.cell_count(phi, y, 0.3e-6, C.eta) == 0
+    one, _ = _cell_array(np.array([0, nx]), np.array([0.35e-6]), dx=dx, ny=ny)
+    assert outputs.cell_count(one, y, 0.35e-6, C.eta) == 1
+
+
+def _history(cells, *, dt=1e-7, speed=0.3, du=12.0):
+    """States every ``dt`` with the given cell counts, moving at ``speed``."""
+    return [outputs.FrontState(t=i * dt, tip=speed * i * dt, undercooling=du, k_V=0.7,
+                               cells=c, spacing=1e-7, mode=c, wavelength=1e-7,
+                               amplitude=1e-8) for i, c in enumerate(cells)]
+
+
+def test_steady_needs_the_same_mean_cell_count_over_the_whole_window():
+    kw = {"speed": 0.3, "min_time": 2e-6, "window_time": 1e-6}  # window: last 11 states
+    assert outputs.steady(_history([30] * 10 + [24] * 21), **kw)
+    assert outputs.steady(_history([30] * 10 + [24, 25, 23, 24, 26] * 4 + [24]), **kw)
+    assert not outputs.steady(_history([30] * 25 + [24] * 6), **kw)  # coarsened inside
+    assert not outputs.steady(_history([24] * 26 + [22] * 5), **kw)  # lost 2 of 24 cells
+    assert not outputs.steady(_history([0] * 24 + [3] * 7), **kw)  # cells appeared
+    assert not outputs.steady(_history([24] * 11), **kw)  # too short a run
+    assert not outputs.steady(_history([24] * 31, speed=0.285), **kw)  # 5 % too slow
+    hist = _history([24] * 31)
+    hist[-3] = outputs.FrontState(**{**hist[-3].to_dict(), "undercooling": 14.0})
+    assert not outputs.steady(hist, **kw)  # the undercooling jumped by 2 K
+
+
 def test_tip_partition_reads_x_l_at_the_half_crossing():
     phi = np.array([1.0, 1.0, 1.0, 0.8, 0.3, 0.0, 0.0])
     xs = np.array([0.030, 0.031, 0.032, 0.033, 0.034, 0.035, 0.036])
@@ -218,6 +301,8 @@ def test_bad_options_name_the_problem():
         phase_field.simulate(WORKED, resolutoin="fine")
     with pytest.raises(ValueError, match="resolution must be one of"):
         phase_field.simulate(WORKED, resolution="coarse")
+    with pytest.raises(ValueError, match="steady_travel > 0"):
+        phase_field.simulate(WORKED, steady_travel=0)
 
 
 def test_registered_and_runs_from_the_cli():

@@ -5,7 +5,8 @@ Two phase concentrations and a solid fraction on a periodic-sided grid, explicit
 differences in JAX (x64, jitted chunks of steps), frozen temperature
 ``T = T0 + G (y - S t)`` and a frame that follows the front. Inputs, parameters and units
 are those of :mod:`calnet.simulators.solidification`; outputs are the spacing of the
-steady cell array, the partition at the tip, the tip undercooling and a steady flag.
+steady cell array (domain width over the number of cells counted behind the tips), the
+partition at the tip, the tip undercooling and a steady flag.
 
 Examples
 --------
@@ -29,7 +30,7 @@ from calnet.simulators.solidification import BOUNDS as _M2_BOUNDS
 from calnet.simulators.solidification import TO_SI
 
 NAME = "phase_field"
-VERSION = "0.2.0"
+VERSION = "0.3.0"
 INPUTS: tuple[str, ...] = ("S", "G")
 PARAMETERS: tuple[str, ...] = ("sigma", "M", "p_int")
 OUTPUTS: tuple[str, ...] = ("lambda", "k_V", "undercooling", "amplitude", "steady")
@@ -77,14 +78,18 @@ def simulate(inputs: Mapping[str, float], **options: Any) -> SimResult:
     Returns
     -------
     SimResult
-        ``outputs``: ``lambda`` (um, the dominant wavelength of the front),
-        ``k_V``, ``undercooling`` (K), ``amplitude`` (um, of the dominant mode of the front
-        height: how deep the cells are) and ``steady`` (1.0), means over the last
+        ``outputs``: ``lambda`` (um, domain width over the number of cells counted along
+        rows 4-8 interface widths behind the leading tip,
+        :func:`~calnet.simulators.phase_field.outputs.cell_count`), ``k_V``,
+        ``undercooling`` (K), ``amplitude`` (um, of the dominant Fourier mode of the tip
+        heights: how unevenly the tips lead) and ``steady`` (1.0), over the last
         ``window`` chunks. Status ``"ok"`` for a steady cell array; ``"nonconverged"``
         (outputs of the last window, ``steady`` 0.0) when the step budget ran out first;
         ``"failed"`` for diverged fields or a steady front that stayed flat (no spacing). The
         message says which. ``diagnostics``: steps, simulated time (s), time step (s), wall
-        time (s), tip speed (m/s), cell count, options.
+        time (s), tip speed (m/s), ``cells`` (the count), ``tip_mode`` and
+        ``tip_wavelength_um`` (dominant mode of the tip heights and its wavelength),
+        options.
 
     Raises
     ------
@@ -103,15 +108,16 @@ def simulate(inputs: Mapping[str, float], **options: Any) -> SimResult:
                          f"concentrations) after {rec.steps} steps at dt {rec.dt:.3g} s; "
                          "report it with the inputs and options", diag)
     s = summary(rec.history, opts.window)
-    diag.update(tip_speed=s["tip_speed"], cells=s["mode"])
-    out = {"lambda": s["wavelength"] * 1e6, "k_V": s["k_V"],
+    diag.update(tip_speed=s["tip_speed"], cells=s["cells"], tip_mode=s["mode"],
+                tip_wavelength_um=s["wavelength"] * 1e6)
+    out = {"lambda": s["spacing"] * 1e6, "k_V": s["k_V"],
            "undercooling": s["undercooling"], "amplitude": s["amplitude"] * 1e6,
            "steady": 1.0 if rec.status == "steady" else 0.0}
     if rec.status != "steady":
         return SimResult(out, "nonconverged", f"{NAME}: not steady within max_steps "
                          f"{opts.max_steps} ({rec.time * 1e6:.2f} us simulated); raise "
                          "max_steps", diag)
-    if s["mode"] == 0:
+    if s["cells"] == 0:
         return SimResult(out, "failed", f"{NAME}: the front stayed flat (no cell array, so "
                          f"no spacing); k_V {s['k_V']:.3f}, undercooling "
                          f"{s['undercooling']:.2f} K", diag)

@@ -39,8 +39,8 @@ class PhaseFieldOptions:
         Steps are taken in jitted chunks during which the isotherms move this many cells;
         the frame shifts and the front is measured between chunks.
     window : int, default 12
-        Steady when the last ``window`` chunks agree (see ``calnet.simulators.phase_field
-        .outputs.steady``).
+        The outputs are means over the last ``window`` chunks (the spacing: the domain
+        width over the mean cell count).
     start : {"solidus", "equilibrium"}, default "solidus"
         Initial state: a flat front at the solidus isotherm of ``c0`` with the planar
         steady boundary layer ahead, or the reference's equilibrium start (front at the
@@ -53,9 +53,14 @@ class PhaseFieldOptions:
         (:func:`calnet.simulators.phase_field.model.antitrapping_divergence`); 0.5 cancels
         the diffuse interface's own solute trapping to first order in ``V eta / D_l``, 0
         gives the reference's equations as written (docs/physics.md).
-    min_travel : float, default 1.0
+    min_travel : float, default 2.0
         Minimum isotherm travel before a steady state is accepted, in units of the
-        freezing-range length ``dT0 / G``.
+        freezing-range length ``dT0 / G`` (1.5 um at 1e7 K/m).
+    steady_travel : float, default 1.0
+        Isotherm travel, in freezing-range lengths, over which the mean cell count (within
+        5 %), the tip speed and the undercooling must have stayed constant for the front
+        to count as steady (``calnet.simulators.phase_field.outputs.steady``); the window
+        ends at the last chunk and may overlap ``min_travel``.
     """
 
     resolution: str = "default"
@@ -68,7 +73,8 @@ class PhaseFieldOptions:
     front_row: float = 0.6
     chunk_cells: float = 8.0
     window: int = 12
-    min_travel: float = 1.0
+    min_travel: float = 2.0
+    steady_travel: float = 1.0
     coupling: str = "profile"
     antitrapping: float = 0.5
     start: str = "solidus"
@@ -96,6 +102,9 @@ class PhaseFieldOptions:
             raise ValueError(f"front_row must be in [0.3, 0.9], got {self.front_row}")
         if self.window < 3 or self.chunk_cells <= 0 or self.amplitude < 0:
             raise ValueError("need window >= 3, chunk_cells > 0 and amplitude >= 0")
+        if not (self.min_travel >= 0 and self.steady_travel > 0):
+            raise ValueError(f"need min_travel >= 0 and steady_travel > 0, got "
+                             f"{self.min_travel} and {self.steady_travel}")
 
     @classmethod
     def from_kwargs(cls, **kwargs: Any) -> PhaseFieldOptions:
@@ -106,7 +115,8 @@ class PhaseFieldOptions:
             raise ValueError(f"unknown phase_field options {unknown}; expected some of "
                              f"{sorted(known)}")
         ints = {"nx", "ny", "max_steps", "seed", "window"}
-        floats = {"antitrapping", "dx", "amplitude", "front_row", "chunk_cells", "min_travel"}
+        floats = {"antitrapping", "dx", "amplitude", "front_row", "chunk_cells", "min_travel",
+                  "steady_travel"}
         conv = {k: int(v) if k in ints else float(v) if k in floats else v
                 for k, v in kwargs.items()}
         return cls(**conv)

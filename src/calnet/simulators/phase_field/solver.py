@@ -140,7 +140,9 @@ def diverged(xs: np.ndarray, xl: np.ndarray) -> bool:
 
 def run(p: PhysicalParameters, opts: PhaseFieldOptions,
         c: PhaseFieldConstants = CONSTANTS) -> PhaseFieldRun:
-    """Integrate until the front is steady or ``opts.max_steps`` is spent.
+    """Integrate until the front is steady (:func:`~calnet.simulators.phase_field.outputs
+    .steady` over the last ``opts.steady_travel`` freezing-range lengths of isotherm
+    travel, after at least ``opts.min_travel``) or ``opts.max_steps`` is spent.
 
     The step is the stable explicit step of the run's parameters and grid
     (:func:`~calnet.simulators.phase_field.model.stable_time_step`). The run stops early
@@ -154,7 +156,8 @@ def run(p: PhysicalParameters, opts: PhaseFieldOptions,
     target = int(round(opts.front_row * opts.ny))
     state = (jnp.asarray(phi), jnp.asarray(xs), jnp.asarray(xl), 0.0, 0.0)
     history: list[outputs.FrontState] = []
-    min_time = opts.min_travel * c.freezing_range / p.G / p.S
+    travel_time = c.freezing_range / p.G / p.S  # isotherms move dT0 / G
+    min_time, window_time = opts.min_travel * travel_time, opts.steady_travel * travel_time
     steps, status = 0, "budget"
     dt = stable_time_step(p.sigma, p.mobility, opts.dx, c)
     chunk = min(max(math.ceil(opts.chunk_cells * opts.dx / (p.S * dt)), 10), 4000)
@@ -171,9 +174,9 @@ def run(p: PhysicalParameters, opts: PhaseFieldOptions,
             status = "diverged"
             break
         history.append(outputs.measure(
-            phi, xs, xl, y=y, t=t, dx=opts.dx, T0=c.T0,
+            phi, xs, xl, y=y, t=t, dx=opts.dx, eta=c.eta, T0=c.T0,
             temperature_at=lambda yy, tt: T_ref + p.G * (yy - y_front - p.S * tt)))
-        if outputs.steady(history, window=opts.window, min_time=min_time):
+        if outputs.steady(history, speed=p.S, min_time=min_time, window_time=window_time):
             status = "steady"
             break
     return PhaseFieldRun(status=status, history=tuple(history), steps=steps,
