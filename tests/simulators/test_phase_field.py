@@ -343,3 +343,32 @@ def test_equilibrium_start_is_the_reference_set_up():
     np.testing.assert_allclose(xl, C.c0)
     np.testing.assert_allclose(xs, C.k_e * C.c0)
     assert phi[0, 0] == 1.0 and phi[-1, 0] == 0.0
+
+
+# A campaign run of the ninb-pf design (low speed, high interface permeability) whose
+# fields diverge within 1 200 steps at the stable step of diffusion and phase field:
+# the anti-trapping current there needs a smaller step.
+STIFF = {"S": 0.04, "G": 1588979.708, "sigma": 1.2007944e-06, "M": 10.5185,
+         "p_int": 29335.3}
+
+
+def _stable_dt(inputs) -> float:
+    p = phase_field.parameters(inputs)
+    return model.stable_time_step(p.sigma, p.mobility, PhaseFieldOptions().dx, solver.CONSTANTS)
+
+
+def test_a_diverging_run_starts_again_with_half_the_step():
+    res = phase_field.simulate(STIFF, max_steps=1600)
+    # dt_halvings 1: the run at the stable step diverged, the one at half of it did not
+    assert res.status == "nonconverged" and res.diagnostics["dt_halvings"] == 1
+    assert res.diagnostics["dt_s"] == pytest.approx(_stable_dt(STIFF) / 2, rel=1e-12)
+    assert res.diagnostics["steps"] == 3200  # the same simulated time as the budget
+    assert res.diagnostics["simulated_time_s"] == pytest.approx(1600 * _stable_dt(STIFF),
+                                                                rel=1e-9)
+    assert all(math.isfinite(v) for v in res.outputs.values())
+
+
+def test_a_stable_run_keeps_its_step():
+    res = phase_field.simulate(WORKED, max_steps=400)
+    assert res.diagnostics["dt_halvings"] == 0
+    assert res.diagnostics["dt_s"] == _stable_dt(WORKED)

@@ -139,13 +139,14 @@ def diverged(xs: np.ndarray, xl: np.ndarray) -> bool:
 
 
 def run(p: PhysicalParameters, opts: PhaseFieldOptions,
-        c: PhaseFieldConstants = CONSTANTS) -> PhaseFieldRun:
+        c: PhaseFieldConstants = CONSTANTS, *, dt_scale: float = 1.0) -> PhaseFieldRun:
     """Integrate until the front is steady (:func:`~calnet.simulators.phase_field.outputs
     .steady` over the last ``opts.steady_travel`` freezing-range lengths of isotherm
     travel, after at least ``opts.min_travel``) or ``opts.max_steps`` is spent.
 
-    The step is the stable explicit step of the run's parameters and grid
-    (:func:`~calnet.simulators.phase_field.model.stable_time_step`). The run stops early
+    The step is ``dt_scale`` times the stable explicit step of the run's parameters and
+    grid (:func:`~calnet.simulators.phase_field.model.stable_time_step`), and the step
+    budget ``opts.max_steps / dt_scale`` (the same simulated time). The run stops early
     with status ``"diverged"`` when :func:`diverged` says so.
     """
     start = time.perf_counter()
@@ -159,10 +160,11 @@ def run(p: PhysicalParameters, opts: PhaseFieldOptions,
     travel_time = c.freezing_range / p.G / p.S  # isotherms move dT0 / G
     min_time, window_time = opts.min_travel * travel_time, opts.steady_travel * travel_time
     steps, status = 0, "budget"
-    dt = stable_time_step(p.sigma, p.mobility, opts.dx, c)
+    dt = dt_scale * stable_time_step(p.sigma, p.mobility, opts.dx, c)
+    max_steps = int(math.ceil(opts.max_steps / dt_scale))
     chunk = min(max(math.ceil(opts.chunk_cells * opts.dx / (p.S * dt)), 10), 4000)
-    while steps < opts.max_steps:
-        n = int(min(chunk, opts.max_steps - steps))
+    while steps < max_steps:
+        n = int(min(chunk, max_steps - steps))
         state = advance(*state[:3], jnp.float64(state[3]), jnp.float64(state[4]), dt, par,
                         n_steps=n, dx=opts.dx, c=c, target=target,
                         coupling=opts.coupling, antitrapping=opts.antitrapping)
