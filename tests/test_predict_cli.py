@@ -88,6 +88,12 @@ def _predict(run, *args: str):
     return json.loads(result.stdout)["predictions"], result.stderr
 
 
+# the round-off of a batched evaluation depends on a point's place in its block (seen up
+# to 1.2e-11 relative on the band's ends); dependence on the other points' draws moved
+# the band by about 3 %
+RTOL = 1e-9
+
+
 def _at(pred: dict, x: float) -> tuple[float, float, float]:
     i = [row[0] for row in pred["x"]].index(x)
     return pred["mean"][i], pred["lower95"][i], pred["upper95"][i]
@@ -99,9 +105,9 @@ def test_a_points_prediction_depends_on_the_seed_and_the_point_only(run):
     the 95 % band (about 1 % of its width for 200 draws x 20 samples)."""
     alone, _ = _predict(run, "--at", "x=0.3")
     among, _ = _predict(run, "--at", "x=1.7", "--at", "x=0.3", "--at", "x=1.1")
-    np.testing.assert_allclose(_at(alone[0], 0.3), _at(among[0], 0.3), rtol=1e-12)
+    np.testing.assert_allclose(_at(alone[0], 0.3), _at(among[0], 0.3), rtol=RTOL)
     reordered, _ = _predict(run, "--at", "x=1.1", "--at", "x=1.7")
-    np.testing.assert_allclose(_at(reordered[0], 1.7), _at(among[0], 1.7), rtol=1e-12)
+    np.testing.assert_allclose(_at(reordered[0], 1.7), _at(among[0], 1.7), rtol=RTOL)
     other_seed, _ = _predict(run, "--at", "x=0.3", "--seed", "5")
     band = np.subtract(*_at(alone[0], 0.3)[:0:-1])
     assert abs(_at(other_seed[0], 0.3)[1] - _at(alone[0], 0.3)[1]) > 1e-6 * band  # seeded
@@ -111,7 +117,7 @@ def test_a_simulator_outputs_prediction_depends_on_the_point_only(run):
     """``-d model.output``: Monte Carlo through the linked surrogates, per point."""
     alone, _ = _predict(run, "-d", "down.y", "--at", "x=0.3")
     among, _ = _predict(run, "-d", "down.y", "--at", "x=1.7", "--at", "x=0.3")
-    np.testing.assert_allclose(_at(alone[0], 0.3), _at(among[0], 0.3), rtol=1e-12)
+    np.testing.assert_allclose(_at(alone[0], 0.3), _at(among[0], 0.3), rtol=RTOL)
 
 
 def test_extra_columns_and_names_are_ignored_alike(run, tmp_path):
