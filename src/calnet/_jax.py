@@ -23,7 +23,7 @@ from __future__ import annotations
 import os
 import sys
 
-__all__ = ["enable_x64", "widen_cpu_pool", "MIN_CPU_THREADS"]
+__all__ = ["enable_x64", "widen_cpu_pool", "device_array", "MIN_CPU_THREADS"]
 
 MIN_CPU_THREADS = 16
 
@@ -40,6 +40,19 @@ def widen_cpu_pool() -> None:
     """Ask for an XLA CPU thread pool of at least :data:`MIN_CPU_THREADS` threads (one per
     core when there are more), unless ``NPROC`` is set already."""
     os.environ.setdefault("NPROC", str(max(MIN_CPU_THREADS, os.cpu_count() or 1)))
+
+
+def device_array(x, dtype=None):
+    """Host data ``x`` (a NumPy array, a list, a number) as a JAX array, compiling nothing.
+
+    ``jnp.asarray`` of a NumPy array without a ``dtype``, and ``jnp.zeros`` or
+    ``jnp.ones`` outside a trace, compile a small program per shape (jax 0.10); a
+    calnet run made some 50 of them. ``jax.device_put`` copies the array as it is.
+    """
+    import jax
+    import numpy as np
+
+    return jax.device_put(np.asarray(x) if dtype is None else np.asarray(x, dtype=dtype))
 
 
 enable_x64()

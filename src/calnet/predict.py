@@ -21,6 +21,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from calnet._jax import device_array
 from calnet.calibration.calibrate_network import NetworkPosterior, uncalibrated
 from calnet.calibration.koh import KOHModel
 from calnet.calibration.persist import FILE as POSTERIOR_FILE
@@ -199,15 +200,16 @@ def _setup(network: Network, surrogates: Surrogates, posterior: NetworkPosterior
     term, tdata = make_term(network, posterior.data[dataset], emulator_variance=emu, plan=plan)
     spec = KOHModel(plan, (), (), (), (term.without_priors(),))
     n = len(idx)
-    thetas = {m: jnp.asarray(v[idx]) for m, v in posterior.theta.items()}
+    thetas = {m: device_array(v[idx]) for m, v in posterior.theta.items()}
     for m in plan.models:
         if m.n_parameters == 0:
-            thetas[m.name] = jnp.zeros((n, 0))
+            thetas[m.name] = device_array(np.zeros((n, 0)))
     stored = posterior.hyper[dataset]
     q = len(term.ell_priors)
-    hyper = {"ell": jnp.asarray(stored["ell"][idx]) if "ell" in stored else jnp.ones((n, q)),
-             "sd2": jnp.asarray(stored["sd2"][idx]) if "sd2" in stored else jnp.zeros(n),
-             "se2": jnp.asarray(stored["se2"][idx]) if "se2" in stored else jnp.zeros(n)}
+    hyper = {"ell": stored["ell"][idx] if "ell" in stored else np.ones((n, q)),
+             "sd2": stored["sd2"][idx] if "sd2" in stored else np.zeros(n),
+             "se2": stored["se2"][idx] if "se2" in stored else np.zeros(n)}
+    hyper = {k: device_array(v, float) for k, v in hyper.items()}
     log = network.model(ds.observed_model).output(ds.observed_output).transform == "log"
     gps = {k: s.gp for k, s in surrogates.items.items()}
     return _Setup(spec, gps, tdata, thetas, hyper,
@@ -307,7 +309,7 @@ def mean_function(network: Network, surrogates: Surrogates, posterior: NetworkPo
 
     def f(x):
         x = np.atleast_2d(np.asarray(x, dtype=float))
-        xp = {k: jnp.asarray(x[:, j]) for j, k in enumerate(st.keys)}
+        xp = {k: device_array(x[:, j]) for j, k in enumerate(st.keys)}
         mean = _blocked(lambda d, r, _: _means_over_draws(st.spec, st.gps, st.tdata, r,
                                                           d["thetas"], d["hyper"]),
                         len(idx), len(x), {"thetas": st.thetas, "hyper": st.hyper}, xp)
@@ -371,9 +373,9 @@ def predict(network: Network, surrogates: Surrogates, posterior: NetworkPosterio
     if x.shape[1] != len(st.keys):
         raise CalnetError(f"predict: expected {len(st.keys)} process inputs "
                           f"{list(st.keys)}, got {x.shape[1]} columns")
-    xp_new = {k: jnp.asarray(x[:, j]) for j, k in enumerate(st.keys)}
+    xp_new = {k: device_array(x[:, j]) for j, k in enumerate(st.keys)}
     links = _link_keys(st.spec.plan)
-    eps = {k: jnp.asarray(point_normals(seed, x, f"emulator {k}", (len(idx),)))
+    eps = {k: device_array(point_normals(seed, x, f"emulator {k}", (len(idx),)))
            for k in links}
     noise_new = _noise_at(st, len(x), noise_var)
     key = network.dataset(dataset).observes

@@ -31,6 +31,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from calnet._jax import device_array
 from calnet.calibration.diagnostics import (
     PosteriorSummary,
     convergence_problems,
@@ -172,14 +173,14 @@ def build_koh(network: Network, surrogates: Surrogates, *, free: list[str],
         if t.discrepancy:
             names[f"ell_{ds_name}"] = network.model(t.model).input_names
     # host arrays handed over whole: an eager JAX operation would compile a program
-    theta_fixed = {m: jnp.asarray(np.array([fixed.get(k, 0.0)
-                                            for k in parameter_keys(network, m)], dtype=float))
+    theta_fixed = {m: device_array([fixed.get(k, 0.0) for k in parameter_keys(network, m)],
+                                   float)
                    for m in network.order}
     spec = KOHModel(plan, params, theta_index, groups, tuple(terms))
     data = {"gps": {k: s.gp for k, s in surrogates.items.items()}, "theta_fixed": theta_fixed,
             "terms": tdata,
-            "y": jnp.asarray(np.concatenate([np.asarray(t["y"]) for t in tdata])
-                             if tdata else np.zeros(0))}
+            "y": device_array(np.concatenate([np.asarray(t["y"]) for t in tdata])
+                              if tdata else np.zeros(0), float)}
     index = dict(theta_index)
     for term, td in zip(terms, tdata, strict=True):
         if all(i < 0 for m in network.ancestors(term.model) for i in index[m]):

@@ -42,6 +42,7 @@ from blackjax.adaptation.step_size import dual_averaging_adaptation
 from blackjax.adaptation.window_adaptation import build_schedule
 from blackjax.mcmc import nuts
 
+from calnet._jax import device_array
 from calnet.calibration.diagnostics import import_arviz
 from calnet.calibration.koh import initial_point_message
 from calnet.errors import CalibrationError
@@ -358,7 +359,7 @@ def _constrain_draws(ld, positions) -> dict[str, np.ndarray]:
         _CONSTRAIN[ld.spec] = _constrain_fn(ld.spec)
         while len(_CONSTRAIN) > _CACHE_SIZE:
             _CONSTRAIN.popitem(last=False)
-    return jax.tree.map(np.asarray, _CONSTRAIN[ld.spec](ld.data, jnp.asarray(positions)))
+    return jax.tree.map(np.asarray, _CONSTRAIN[ld.spec](ld.data, device_array(positions, float)))
 
 
 def _check_settings(num_chains, num_warmup, num_draws, thin, target_accept, max_tree_depth):
@@ -441,12 +442,15 @@ def sample_nuts(
     every = max(1, total // 50) if _counts_iterations(progress) else 0
     cfg = _Config(ld.spec, ld.dim, num_warmup, num_draws, thin, float(target_accept),
                   max_tree_depth, bool(dense_mass), method, groups, every)
-    u0 = jnp.asarray(ld.init(seed, num_chains) if init is None else init, dtype=float)
+    u0 = np.asarray(ld.init(seed, num_chains) if init is None else init, dtype=float)
     if u0.shape != (num_chains, ld.dim):
         raise CalibrationError(f"{ld.name}: init must have shape ({num_chains}, {ld.dim}), "
                                f"got {u0.shape}")
-    keys = jax.random.split(jax.random.fold_in(jax.random.PRNGKey(seed), 1), num_chains)
-    ids = jnp.arange(num_chains)
+    keys = np.asarray(jax.random.split(jax.random.fold_in(jax.random.PRNGKey(seed), 1),
+                                       num_chains))
+    ids = np.arange(num_chains)
+    # host arrays: pmap places each device's share itself (a JAX array would be cut by a
+    # compiled slicing program), and reshaping them compiles nothing
     if method == "parallel":  # (devices, chains per device, ...)
         keys, u0, ids = (a.reshape((groups, num_chains // groups) + a.shape[1:])
                          for a in (keys, u0, ids))

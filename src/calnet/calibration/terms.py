@@ -7,6 +7,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 import numpy as np
 
+from calnet._jax import device_array
 from calnet.calibration.koh import Term, standardise
 from calnet.calibration.priors import InverseGamma, LogNormal, scale_prior
 from calnet.chain import ChainPlan
@@ -102,9 +103,10 @@ def make_term(network: Network, data: ExperimentalData, *, emulator_variance: bo
     term = Term(data.name, model.name, ds.observes, ell_priors, sd2_prior, se2_prior,
                 orthogonal=disc.enabled and disc.orthogonal,
                 emulator_variance=emulator_variance, links=links_into(plan, model.name))
-    tdata = {"y": jnp.asarray((y - mean) / s), "y_mean": jnp.asarray(mean),
+    tdata = {"y": device_array((y - mean) / s, float), "y_mean": jnp.asarray(mean),
              "y_sd": jnp.asarray(s),
-             "xp": {k: jnp.asarray(data.x[:, j]) for j, k in enumerate(data.input_keys)},
+             "xp": {k: device_array(data.x[:, j], float)
+                    for j, k in enumerate(data.input_keys)},
              "noise_var": jnp.asarray(noise_var if noise_var is not None
                                       else np.zeros(len(y)))}
     return term, tdata

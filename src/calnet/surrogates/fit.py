@@ -12,14 +12,13 @@ import dataclasses
 import warnings
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 from scipy.optimize import minimize
 
+from calnet._jax import device_array
 from calnet.errors import SurrogateError, SurrogateWarning
 from calnet.surrogates.gp import FittedGP, condition
 from calnet.surrogates.likelihood import (
-    neg_log_marginal_likelihood,
     nlml_value_and_grad,
 )
 
@@ -31,7 +30,6 @@ _PENALTY = 1e10  # objective value reported to L-BFGS-B where K is not positive 
 _NUGGET_RETRIES = 3
 
 _value_and_grad = jax.jit(nlml_value_and_grad)
-_nlml = jax.jit(neg_log_marginal_likelihood)
 
 
 def _label(name: str) -> str:
@@ -101,7 +99,7 @@ def _starts(d, n_restarts, rng, ell_b, s2_b, nug_b) -> np.ndarray:
 def _optimise(xs, ys, starts, bounds):
     """Run L-BFGS-B from each start; return (best log_params, best value)."""
     def fun(p):
-        v, g = _value_and_grad(jnp.asarray(p), xs, ys)
+        v, g = _value_and_grad(device_array(p, float), xs, ys)
         v = float(v)
         if not np.isfinite(v):
             return _PENALTY, np.zeros_like(p)
@@ -198,9 +196,9 @@ def fit_gp(
                                                 transform=transform, name=name,
                                                 min_points=min_points)
     d = x.shape[1]
-    xs = jnp.asarray((x - lower) / (upper - lower))
+    xs = device_array((x - lower) / (upper - lower), float)
     z = np.log(y) if transform == "log" else y
-    ys = jnp.asarray((z - z.mean()) / z.std())
+    ys = device_array((z - z.mean()) / z.std(), float)
     bounds = [tuple(np.log(lengthscale_bounds))] * d + [tuple(np.log(signal_var_bounds)),
                                                          tuple(np.log(nugget_bounds))]
     starts = _starts(d, n_restarts, np.random.default_rng(seed), lengthscale_bounds,
@@ -222,11 +220,12 @@ def _condition_with_retries(x, y, xs, ys, p, *, lower, upper, transform, name) -
     for attempt in range(_NUGGET_RETRIES + 1):
         gp = condition(x, y, lower=lower, upper=upper, lengthscales=ell, signal_var=s2,
                        nugget=nugget, transform=transform, name=name)
-        if bool(jnp.all(jnp.isfinite(gp.alpha))):
+        if np.isfinite(np.asarray(gp.alpha)).all():
             if attempt:
                 warnings.warn(f"{_label(name)}: nugget raised to {nugget:.3g} to factorise K",
                               SurrogateWarning, stacklevel=3)
-            nlml = _nlml(gp.log_params, xs, ys)
+            # the value half of the optimiser's program: a value-only one would compile again
+            nlml, _ = _value_and_grad(device_array(np.log(np.r_[ell, s2, nugget]), float), xs, ys)
             return dataclasses.replace(gp, nlml=nlml)
         nugget *= 10.0
     raise SurrogateError(f"{_label(name)}: the covariance matrix is not positive definite "
