@@ -186,6 +186,20 @@ def seeds() -> None:
               f"{r['steps']} | {r['wall']:.0f} |")
 
 
+def height() -> None:
+    """The G slope with the default domain (0.38 um of solid and mushy zone below the
+    tip) and with one four times as tall whose front row keeps 2.2 um below the tip:
+    more than the freezing-range length dT0/G (1.5 um at 1e7 K/m) at every G here."""
+    _table([])
+    for ny, front_row in ((128, 0.6), (512, 0.85)):
+        rows = [_pf(0.3, G, ny=ny, front_row=front_row) for G in (1e7, 2e7, 4e7)]
+        for r in rows:
+            _table_row(r)
+        sg = _slope([r["G"] for r in rows], [r["lambda"] for r in rows])
+        print(f"\nny {ny}, front_row {front_row}: slope d ln lambda / d ln G over "
+              f"1e7-4e7 K/m = {sg:.2f} (expected -0.5)\n", flush=True)
+
+
 def coarsen() -> None:
     p = phase_field.parameters({"S": 0.3, "G": 1e7, **PARAMS})
     opts = phase_field.PhaseFieldOptions(min_travel=6.0, steady_travel=4.0)
