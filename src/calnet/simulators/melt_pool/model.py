@@ -38,6 +38,7 @@ class RunRecord:
     mesh: Mesh
     remeshed: int
     seconds: float
+    stages: tuple[dict, ...] = ()  # per Newton solve: mesh, power, iterations, CPU
 
 
 def _absorptivity(disc: Discretization, laws: MaterialLaws, theta: dict[str, float],
@@ -149,7 +150,7 @@ def run(P: float, v: float, theta: dict[str, float], opts: MeltPoolOptions,
     mesh = build_mesh(box, mat, resolution=res, powder=opts.powder)
     powers = power_ladder(P, v, theta, opts.continuation_ratio, mat)
     T0 = _start(mesh, powers[0], v, theta, opts, mat)
-    iterations, dt0, geometry = 0, None, None
+    iterations, dt0, geometry, stages = 0, None, None, []
     for stage in range(3):
         final_stage = res == opts.resolution
         disc = Discretization(mesh, mat, P, v)
@@ -157,6 +158,7 @@ def run(P: float, v: float, theta: dict[str, float], opts: MeltPoolOptions,
         for p_stage in powers if stage == 0 else [P]:
             last = p_stage == P and final_stage
             d = disc.with_power(p_stage)
+            cpu = time.process_time()
             report = newton_solve(d, laws, T0, absorptivity=_absorptivity(d, laws, theta,
                                   opts, mat), k_powder=k_p,
                                   rtol=opts.rtol if last else max(opts.rtol, COARSE_RTOL),
@@ -166,6 +168,10 @@ def run(P: float, v: float, theta: dict[str, float], opts: MeltPoolOptions,
                                   consolidation=opts.consolidation,
                                   **({} if dt0 is None else {"dt0": dt0}))
             iterations += report.iterations
+            stages.append({"mesh": "fine" if final_stage else "sizing", "P": p_stage,
+                           "n_cells": mesh.size, "iterations": report.iterations,
+                           "cpu_s": time.process_time() - cpu,
+                           "converged": report.converged})
             if not report.converged:
                 break
             T0, dt0 = report.T, WARM_DT0
@@ -186,7 +192,7 @@ def run(P: float, v: float, theta: dict[str, float], opts: MeltPoolOptions,
         T0, dt0, mesh = _interpolate(report.T, mesh, new_mesh), WARM_DT0, new_mesh
     report = replace(report, iterations=iterations)
     return RunRecord(geometry if report.converged else None, report, mesh, stage,
-                     time.monotonic() - start)
+                     time.monotonic() - start, tuple(stages))
 
 
 def _interpolate(T: np.ndarray, old: Mesh, new: Mesh) -> np.ndarray:
