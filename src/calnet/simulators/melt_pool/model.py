@@ -95,6 +95,7 @@ COARSE = 0.5  # resolution of the sizing pre-solve relative to the requested one
 G_WINDOW_CELLS = 6.0  # G0 window half-width, in pool spacings of the resolution-1 mesh
 WARM_DT0 = 2e-5  # s, first pseudo time step of a warm-started solve
 COARSE_RTOL = 1e-4  # the sizing pre-solve only needs to place the pool
+STAGE_RTOL, STAGE_TTOL = 1e-4, 1.0  # (-, K) continuation stages below P only stay on the branch
 
 
 def power_ladder(P: float, v: float, theta: dict[str, float], ratio: float,
@@ -113,6 +114,12 @@ def power_ladder(P: float, v: float, theta: dict[str, float], ratio: float,
     s0 = min(1.0, (mat.T_liquidus - mat.T_ambient) / rise)
     n = math.ceil(math.log(1.0 / s0) / math.log(ratio) - 1e-9) if s0 < 1 else 0
     return [P * s0 ** (1.0 - j / n) for j in range(n)] + [P]
+
+
+def _tolerance(final: float, last: bool, below_p: bool, sizing: float, stage: float
+               ) -> float:
+    """Tolerance of one solve: ``final`` for the last, looser on the sizing mesh."""
+    return final if last else max(final, stage if below_p else sizing)
 
 
 def _start(mesh: Mesh, P: float, v: float, theta: dict[str, float], opts: MeltPoolOptions,
@@ -161,8 +168,9 @@ def run(P: float, v: float, theta: dict[str, float], opts: MeltPoolOptions,
             cpu = time.process_time()
             report = newton_solve(d, laws, T0, absorptivity=_absorptivity(d, laws, theta,
                                   opts, mat), k_powder=k_p,
-                                  rtol=opts.rtol if last else max(opts.rtol, COARSE_RTOL),
-                                  ttol=opts.ttol if last else max(opts.ttol, 1.0),
+                                  rtol=_tolerance(opts.rtol, last, p_stage < P,
+                                                  COARSE_RTOL, STAGE_RTOL),
+                                  ttol=_tolerance(opts.ttol, last, p_stage < P, 1.0, STAGE_TTOL),
                                   max_iter=opts.max_iter - iterations,
                                   max_update=opts.max_update, deadline=deadline,
                                   consolidation=opts.consolidation,
