@@ -52,6 +52,7 @@ RISE = 1.5  # a residual rise by more than this factor cuts the pseudo time step
 CEILING_GROWTH = 1.2  # per step, of the cap on dt (half the step that failed last)
 LIN_FLOOR = 1e-10  # smallest relative GMRES tolerance (the forcing is 0.1 x scaled residual)
 CALM_UPDATE = 0.0  # K; after an update below this, the cap on dt is lifted (0: never)
+CALM_FIXED_FRONT = False  # lift it only if the consolidation front did not move either
 
 
 @dataclass(frozen=True)
@@ -224,7 +225,7 @@ def newton_solve(disc: Discretization, laws: MaterialLaws, T0: np.ndarray, *,
             calm = 0 if rising else calm + 1
             if rising:  # the step just taken was too long: remember it
                 ceiling = max(DT_MIN, 0.5 * dt)
-            elif upd < CALM_UPDATE:
+            elif upd < CALM_UPDATE and not (CALM_FIXED_FRONT and front_moved):
                 ceiling = DT_MAX
             else:
                 ceiling = min(DT_MAX, CEILING_GROWTH * ceiling)
