@@ -83,7 +83,9 @@ def simulate(inputs: Mapping[str, float], **options: Any) -> SimResult:
         ``outputs`` ``D, W, L`` (um), ``T0`` (K), ``S0`` (m/s), ``G0`` (K/m); status
         ``"ok"`` only if Newton converged and every output is finite, otherwise
         ``"nonconverged"``/``"timeout"``/``"failed"`` with NaN outputs and a message.
-        ``diagnostics`` holds iterations, residual, mesh size, peak temperature, ...
+        ``diagnostics`` holds iterations, residual, mesh size, peak temperature, and
+        ``stages``: per Newton solve (continuation stages on the sizing mesh, then the
+        fine solve) the mesh, power, cells, iterations and CPU seconds.
     """
     opts = MeltPoolOptions.from_kwargs(**options)
     P, v, theta = _check_inputs(inputs)
@@ -102,8 +104,8 @@ def simulate(inputs: Mapping[str, float], **options: Any) -> SimResult:
         "mesh_shape": list(rec.mesh.shape), "remeshed": rec.remeshed,
         "peak_temperature_K": float(np.max(rep.T)),
         "absorptivity": rep.absorptivity, "surface_temperature_K": rep.surface_temperature,
-        "seconds": rec.seconds, "theta": theta, "options": opts.to_dict(),
-        "version": VERSION,
+        "seconds": rec.seconds, "stages": list(rec.stages), "theta": theta,
+        "options": opts.to_dict(), "version": VERSION,
     }
     nan = {k: float("nan") for k in OUTPUTS}
     if not rep.converged:

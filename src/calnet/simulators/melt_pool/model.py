@@ -38,6 +38,7 @@ class RunRecord:
     mesh: Mesh
     remeshed: int
     seconds: float
+    stages: tuple[dict, ...] = ()  # per Newton solve: mesh, power, iterations, CPU
 
 
 def _absorptivity(disc: Discretization, laws: MaterialLaws, theta: dict[str, float],
@@ -94,6 +95,7 @@ COARSE = 0.5  # resolution of the sizing pre-solve relative to the requested one
 G_WINDOW_CELLS = 6.0  # G0 window half-width, in pool spacings of the resolution-1 mesh
 WARM_DT0 = 2e-5  # s, first pseudo time step of a warm-started solve
 COARSE_RTOL = 1e-4  # the sizing pre-solve only needs to place the pool
+STAGE_RTOL, STAGE_TTOL = 1e-4, 1.0  # (-, K) continuation stages below P only stay on the branch
 
 
 def power_ladder(P: float, v: float, theta: dict[str, float], ratio: float,
@@ -112,6 +114,12 @@ def power_ladder(P: float, v: float, theta: dict[str, float], ratio: float,
     s0 = min(1.0, (mat.T_liquidus - mat.T_ambient) / rise)
     n = math.ceil(math.log(1.0 / s0) / math.log(ratio) - 1e-9) if s0 < 1 else 0
     return [P * s0 ** (1.0 - j / n) for j in range(n)] + [P]
+
+
+def _tolerance(final: float, last: bool, below_p: bool, sizing: float, stage: float
+               ) -> float:
+    """Tolerance of one solve: ``final`` for the last, looser on the sizing mesh."""
+    return final if last else max(final, stage if below_p else sizing)
 
 
 def _start(mesh: Mesh, P: float, v: float, theta: dict[str, float], opts: MeltPoolOptions,
@@ -149,7 +157,7 @@ def run(P: float, v: float, theta: dict[str, float], opts: MeltPoolOptions,
     mesh = build_mesh(box, mat, resolution=res, powder=opts.powder)
     powers = power_ladder(P, v, theta, opts.continuation_ratio, mat)
     T0 = _start(mesh, powers[0], v, theta, opts, mat)
-    iterations, dt0, geometry = 0, None, None
+    iterations, dt0, geometry, stages = 0, None, None, []
     for stage in range(3):
         final_stage = res == opts.resolution
         disc = Discretization(mesh, mat, P, v)
@@ -157,15 +165,21 @@ def run(P: float, v: float, theta: dict[str, float], opts: MeltPoolOptions,
         for p_stage in powers if stage == 0 else [P]:
             last = p_stage == P and final_stage
             d = disc.with_power(p_stage)
+            cpu = time.process_time()
             report = newton_solve(d, laws, T0, absorptivity=_absorptivity(d, laws, theta,
                                   opts, mat), k_powder=k_p,
-                                  rtol=opts.rtol if last else max(opts.rtol, COARSE_RTOL),
-                                  ttol=opts.ttol if last else max(opts.ttol, 1.0),
+                                  rtol=_tolerance(opts.rtol, last, p_stage < P,
+                                                  COARSE_RTOL, STAGE_RTOL),
+                                  ttol=_tolerance(opts.ttol, last, p_stage < P, 1.0, STAGE_TTOL),
                                   max_iter=opts.max_iter - iterations,
                                   max_update=opts.max_update, deadline=deadline,
                                   consolidation=opts.consolidation,
                                   **({} if dt0 is None else {"dt0": dt0}))
             iterations += report.iterations
+            stages.append({"mesh": "fine" if final_stage else "sizing", "P": p_stage,
+                           "n_cells": mesh.size, "iterations": report.iterations,
+                           "cpu_s": time.process_time() - cpu,
+                           "converged": report.converged})
             if not report.converged:
                 break
             T0, dt0 = report.T, WARM_DT0
@@ -186,7 +200,7 @@ def run(P: float, v: float, theta: dict[str, float], opts: MeltPoolOptions,
         T0, dt0, mesh = _interpolate(report.T, mesh, new_mesh), WARM_DT0, new_mesh
     report = replace(report, iterations=iterations)
     return RunRecord(geometry if report.converged else None, report, mesh, stage,
-                     time.monotonic() - start)
+                     time.monotonic() - start, tuple(stages))
 
 
 def _interpolate(T: np.ndarray, old: Mesh, new: Mesh) -> np.ndarray:

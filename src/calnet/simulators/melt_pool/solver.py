@@ -50,6 +50,9 @@ DT_MIN = 1e-9  # s
 FRAC_TOL = 1e-4  # growth of the monotone consolidated fraction allowed at convergence
 RISE = 1.5  # a residual rise by more than this factor cuts the pseudo time step
 CEILING_GROWTH = 1.2  # per step, of the cap on dt (half the step that failed last)
+LIN_FLOOR = 1e-10  # smallest relative GMRES tolerance (the forcing is 0.1 x scaled residual)
+CALM_UPDATE = 0.0  # K; after an update below this, the cap on dt is lifted (0: never)
+CALM_FIXED_FRONT = False  # lift it only if the consolidation front did not move either
 
 
 @dataclass(frozen=True)
@@ -108,6 +111,7 @@ class LinearSolver:
     """
 
     REBUILD_ITS, MAX_AGE = 12, 4
+    COARSE_SOLVER = "pinv"
     SMOOTHERS = {"presmoother": ("gauss_seidel", {"sweep": "forward"}),
                  "postsmoother": ("gauss_seidel", {"sweep": "backward"})}
 
@@ -134,7 +138,9 @@ class LinearSolver:
     def _solve(self, M: sp.csr_matrix, Pm: sp.csr_matrix, b: np.ndarray, rtol: float, *,
                rebuild: bool) -> tuple[np.ndarray, int]:
         if rebuild:
-            self._ml = pyamg.ruge_stuben_solver(Pm, max_coarse=400, **self.SMOOTHERS)
+            self._ml = pyamg.ruge_stuben_solver(Pm, max_coarse=400,
+                                                coarse_solver=self.COARSE_SOLVER,
+                                                **self.SMOOTHERS)
             self._age = 0
         self._age += 1
         res: list[float] = []
@@ -219,6 +225,8 @@ def newton_solve(disc: Discretization, laws: MaterialLaws, T0: np.ndarray, *,
             calm = 0 if rising else calm + 1
             if rising:  # the step just taken was too long: remember it
                 ceiling = max(DT_MIN, 0.5 * dt)
+            elif upd < CALM_UPDATE and not (CALM_FIXED_FRONT and front_moved):
+                ceiling = DT_MAX
             else:
                 ceiling = min(DT_MAX, CEILING_GROWTH * ceiling)
             top = 3.0 if calm > 1 else 1.5  # slow regrowth after a rise: no 2-cycles
@@ -234,7 +242,7 @@ def newton_solve(disc: Discretization, laws: MaterialLaws, T0: np.ndarray, *,
             full = M - fraction_coupling(disc, T, frac, laws) @ dfrac
         else:
             full = M
-        dT, n_lin = linear_solve(full, R, rtol=min(1e-3, max(1e-10, 0.1 * rnorm)),
+        dT, n_lin = linear_solve(full, R, rtol=min(1e-3, max(LIN_FLOOR, 0.1 * rnorm)),
                                  preconditioner=M)
         lin_total += n_lin
         big = float(np.abs(dT).max())
