@@ -137,3 +137,17 @@ def test_a_target_asked_twice_is_predicted_once(run):
     preds, warned = _predict(run, "--at", "x=0.3", "-d", "yd", "-d", "yd")
     assert [p["dataset"] for p in preds] == ["yd"]
     assert "warning: -d yd is given twice; it is predicted once" in warned
+
+
+def test_a_linked_input_outside_its_bounds_is_said(run):
+    """x = 2.3 lies outside x's bounds and sends w = 0.5 x^2 (about 2.6) past down.w's
+    upper bound 2: both are said, once each; x = 1 sends w = 0.5, inside."""
+    root, out = run
+    result = CliRunner().invoke(app, ["predict", str(root), "--run", str(out), "--at", "x=1",
+                                      "--at", "x=2.3"], terminal_width=400)
+    assert result.exit_code == 0, result.output
+    said = [line for line in result.stderr.splitlines() if "outside its bounds" in line]
+    assert len(said) == 2, result.stderr
+    assert "point 2: up.x = 2.3 lies outside its bounds [0, 2]" in said[0]
+    assert "point 2: down.w = " in said[1] and "(from up.w)" in said[1]
+    assert "bounds [0, 2]; the down surrogates extrapolate there" in said[1]

@@ -456,6 +456,7 @@ def predict(
     from calnet.emulation import predict_output
     from calnet.predict import (
         largest_shares,
+        link_notes,
         load_run,
         prediction_targets,
         settings_matrix,
@@ -487,6 +488,7 @@ def predict(
                                  if k not in shared_inputs(network, names, rows)])
     for name in names:
         x, notes = settings_matrix(network, name, rows, skip=skip)
+        notes += link_notes(network, sur, post, name, x)
         for note in dict.fromkeys(notes):
             warnings.warn(note, stacklevel=1)
         pred = (predict_output(network, sur, post, name, x, seed=seed) if "." in name

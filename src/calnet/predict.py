@@ -544,6 +544,46 @@ def settings_matrix(network: Network, target: str, rows: list[dict[str, float]],
     return x, notes
 
 
+def link_notes(network: Network, surrogates: Surrogates, posterior: NetworkPosterior,
+               target: str, x: np.ndarray) -> list[str]:
+    """A note for every linked input of ``target``'s chain that leaves its declared bounds
+    at the process settings ``x`` (n, k) (as :func:`settings_matrix` returns them): the
+    downstream surrogate was not trained there and extrapolates.
+
+    The linked values are the upstream surrogates' means at the posterior median of the
+    upstream parameters (at the middle of their bounds where there is no posterior), so a
+    value near a bound is an estimate; an identity link's value is exact.
+    """
+    model = target_model(network, target)
+    plan = ChainPlan.from_network(network)
+    gps = {k: s.gp for k, s in surrogates.items.items()}
+    xp = {k: device_array(x[:, j], float)
+          for j, k in enumerate(network.process_input_keys(model))}
+    thetas = {}
+    for m in network.order:
+        draws = posterior.theta.get(m)
+        if draws is not None and np.size(draws):
+            thetas[m] = device_array(np.median(draws, axis=0), float)
+        else:
+            thetas[m] = device_array([0.5 * (p.lower + p.upper)
+                                      for p in network.model(m).parameters], float)
+    notes = []
+    for m in (*network.ancestors(model), model):
+        linked = [(j, var) for j, var in enumerate(network.model(m).inputs)
+                  if network.link_into(m, var.name) is not None]
+        if not linked:
+            continue
+        values = np.asarray(plan.inputs(gps, m, xp, thetas))
+        for j, var in linked:
+            source = network.link_into(m, var.name).source
+            unit = f" {var.unit}" if var.unit != "1" else ""
+            for r in np.flatnonzero((values[:, j] < var.lower) | (values[:, j] > var.upper)):
+                notes.append(f"point {r + 1}: {m}.{var.name} = {values[r, j]:.4g} (from "
+                             f"{source}) lies outside its bounds [{var.lower:g}, "
+                             f"{var.upper:g}]{unit}; the {m} surrogates extrapolate there")
+    return notes
+
+
 def _names(keys: list[str]) -> str:
     bare = [k.split(".", 1)[1] for k in keys]
     return ", ".join(bare if len(set(bare)) == len(bare) else keys)

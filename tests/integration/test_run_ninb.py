@@ -65,3 +65,24 @@ def test_quick_run_on_the_case_study(tmp_path):
     preds = {p["dataset"]: p for p in json.loads(res.output)["predictions"]}
     assert set(preds) == {"width", "pdas"}
     assert 0 < preds["pdas"]["lower95"][0] < preds["pdas"]["upper95"][0]
+
+
+def test_shipped_ninb_pf_stores_match_the_spec():
+    """examples/ninb-pf's stores are its spec's, complete, with enough phase-field runs
+    that gave a spacing for the lambda surrogate and its cross-validation folds, so that
+    ``calnet run examples/ninb-pf`` simulates nothing and does not stop at the surrogates."""
+    import math
+
+    from calnet.campaign import load_runs
+    from calnet.spec import load_spec
+
+    network = load_spec(NINB.parent / "ninb-pf")
+    model = network.model("phase_field")
+    for name in ("melt_pool", "phase_field"):
+        table = load_runs(network, name)
+        assert table.n_total == network.model(name).campaign.runs, name
+        assert "unfinished" not in table.status_counts, name
+    n_ok = load_runs(network, "phase_field").n_ok
+    d = len(model.inputs) + len(model.parameters)
+    folds = min(model.surrogate.cv_folds, n_ok)
+    assert n_ok - math.ceil(n_ok / folds) >= d + 2, n_ok
