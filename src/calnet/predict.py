@@ -12,6 +12,7 @@ gives the predictive distribution; the variance is split into its sources.
 from __future__ import annotations
 
 import hashlib
+import math
 from collections.abc import Collection, Sequence
 from dataclasses import dataclass, field
 from functools import partial
@@ -544,6 +545,11 @@ def settings_matrix(network: Network, target: str, rows: list[dict[str, float]],
     return x, notes
 
 
+LINK_TOLERANCE = 0.01
+"""Fraction of an input's range by which a linked value must leave it to be reported
+(:func:`link_notes`)."""
+
+
 def link_notes(network: Network, surrogates: Surrogates, posterior: NetworkPosterior,
                target: str, x: np.ndarray) -> list[str]:
     """A note for every linked input of ``target``'s chain that leaves its declared bounds
@@ -552,7 +558,10 @@ def link_notes(network: Network, surrogates: Surrogates, posterior: NetworkPoste
 
     The linked values are the upstream surrogates' means at the posterior median of the
     upstream parameters (at the middle of their bounds where there is no posterior), so a
-    value near a bound is an estimate; an identity link's value is exact.
+    value near a bound is an estimate (an identity link's value is exact): a value counts
+    as outside only beyond :data:`LINK_TOLERANCE` of the input's range (on its log scale
+    where declared), so a surrogate mean that overshoots a bound a little at a setting
+    inside the box says nothing.
     """
     model = target_model(network, target)
     plan = ChainPlan.from_network(network)
@@ -577,7 +586,11 @@ def link_notes(network: Network, surrogates: Surrogates, posterior: NetworkPoste
         for j, var in linked:
             source = network.link_into(m, var.name).source
             unit = f" {var.unit}" if var.unit != "1" else ""
-            for r in np.flatnonzero((values[:, j] < var.lower) | (values[:, j] > var.upper)):
+            v, lo, hi = values[:, j], var.lower, var.upper
+            if getattr(var, "scale", "linear") == "log":
+                v, lo, hi = np.log(np.maximum(v, 1e-300)), math.log(lo), math.log(hi)
+            tol = LINK_TOLERANCE * (hi - lo)
+            for r in np.flatnonzero((v < lo - tol) | (v > hi + tol)):
                 notes.append(f"point {r + 1}: {m}.{var.name} = {values[r, j]:.4g} (from "
                              f"{source}) lies outside its bounds [{var.lower:g}, "
                              f"{var.upper:g}]{unit}; the {m} surrogates extrapolate there")
