@@ -19,15 +19,42 @@ from calnet.pipeline import STAGES
 SYNTH = Path(__file__).parent / "synth"
 
 
+BANNER = "undergoing a major refactor"  # ArviZ's once-a-day notice (tests/test_cli.py)
+
+
+@pytest.fixture(scope="module")
+def two_runs(tmp_path_factory):
+    """``calnet run --quick`` twice, in two processes, from two copies of the spec into two
+    folders, each running its campaigns (no stores copied). Piped output; a fresh cache
+    folder each (so ArviZ's notice would be due)."""
+    tmp = tmp_path_factory.mktemp("synth")
+    src = Path(__file__).resolve().parents[2] / "src"
+    jax_cache = os.environ.get("CALNET_JAX_CACHE") or str(Path.home() / ".cache/calnet/jax")
+    runs = []
+    for k in (1, 2):
+        work = tmp / f"spec{k}" / "synth"
+        shutil.copytree(SYNTH, work, ignore=shutil.ignore_patterns("campaigns", "__pycache__"))
+        env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(work), str(src)]),
+               "XDG_CACHE_HOME": str(tmp / f"cache{k}"), "CALNET_JAX_CACHE": jax_cache}
+        env.pop("COLUMNS", None)
+        out = tmp / f"out{k}"
+        run = subprocess.run([sys.executable, "-m", "calnet", "run", str(work), "--out",
+                              str(out), "--quick"], env=env, capture_output=True, text=True,
+                             timeout=900)
+        runs.append((work, out, run))
+    return tmp, runs
+
+
 @pytest.mark.integration
-def test_quick_run_on_three_model_network(tmp_path, monkeypatch):
-    work = tmp_path / "synth"
-    shutil.copytree(SYNTH, work, ignore=shutil.ignore_patterns("campaigns", "__pycache__"))
+def test_quick_run_on_three_model_network(two_runs, monkeypatch):
+    tmp_path, runs = two_runs
+    work, out, run = runs[0]
+    assert run.returncode == 0, run.stdout + run.stderr
     monkeypatch.syspath_prepend(str(work))
     monkeypatch.setenv("PYTHONPATH", str(work))
-    out = tmp_path / "out"
-    result = CliRunner().invoke(app, ["run", str(work), "--out", str(out), "--quick"])
-    assert result.exit_code == 0, result.output
+    # the campaigns ran here: the copy had no stores
+    assert {p.name.split(".")[0] for p in (work / "campaigns").iterdir()} >= {
+        "thermal", "micro", "hardness"}
     for rel in ("report.html", "metrics.json", "figures/network.png", "figures/data.png",
                 "posterior/thermal.nc", "posterior/micro.nc", "posterior/hardness.nc",
                 "posterior/posterior_draws.csv", "posterior/posterior_summary.csv"):
@@ -124,34 +151,20 @@ def _check_predict(work: Path, out: Path, tmp_path: Path) -> None:
         assert "Traceback" not in res.output
 
 
-BANNER = "undergoing a major refactor"  # ArviZ's once-a-day notice (tests/test_cli.py)
-
-
 @pytest.mark.integration
-def test_same_seed_writes_the_same_metrics_bytes(tmp_path):
-    """Two runs in two processes, from two copies of the spec into two folders: the same
-    metrics.json, byte for byte; timings, paths and the host in run_info.json. Piped
-    output: plain progress lines, no ArviZ notice (due: a fresh cache folder each run)."""
-    src = Path(__file__).resolve().parents[2] / "src"
-    jax_cache = os.environ.get("CALNET_JAX_CACHE") or str(Path.home() / ".cache/calnet/jax")
-    outs = []
-    for k in (1, 2):
-        work = tmp_path / f"spec{k}" / "synth"
-        shutil.copytree(SYNTH, work, ignore=shutil.ignore_patterns("__pycache__"))
-        env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(work), str(src)]),
-               "XDG_CACHE_HOME": str(tmp_path / f"cache{k}"), "CALNET_JAX_CACHE": jax_cache}
-        env.pop("COLUMNS", None)
-        out = tmp_path / f"out{k}"
-        run = subprocess.run([sys.executable, "-m", "calnet", "run", str(work), "--out",
-                              str(out), "--quick"], env=env, capture_output=True, text=True,
-                             timeout=900)
+def test_same_seed_writes_the_same_metrics_bytes(two_runs):
+    """The two runs write the same metrics.json, byte for byte (campaigns included);
+    timings, paths and the host go to run_info.json.
+    Piped output: plain progress lines, no ArviZ notice."""
+    tmp_path, runs = two_runs
+    for _, _, run in runs:
         assert run.returncode == 0, run.stdout + run.stderr
         text = run.stdout + run.stderr
         assert BANNER not in text and "\r" not in text
         for stage in STAGES:
             assert f"{stage}: done in " in run.stderr, stage
         assert "calibration: thermal: sampled (" in run.stderr
-        outs.append(out)
+    outs = [out for _, out, _ in runs]
     first, second = ((o / "metrics.json").read_bytes() for o in outs)
     assert first == second
     assert BANNER.encode() not in first and str(tmp_path).encode() not in first
