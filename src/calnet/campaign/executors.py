@@ -156,7 +156,10 @@ class ProcessExecutor:
 
     def _restart(self) -> str:
         """A new pool for a broken one; returns `` (exit code N)`` of the dead worker."""
-        self._pool.shutdown(wait=False, cancel_futures=True)
+        # wait: the broken pool's management thread is ending (it has killed the workers);
+        # shutdown(wait=False) would reset the pool's state under it, which can raise in
+        # that thread and hang (CPython gh-132969)
+        self._pool.shutdown(wait=True, cancel_futures=True)
         codes = []
         for proc in self._processes:
             # the pool's own management thread may reap the process first; its status
