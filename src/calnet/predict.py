@@ -27,7 +27,7 @@ from calnet.calibration.calibrate_network import NetworkPosterior, uncalibrated
 from calnet.calibration.koh import KOHModel
 from calnet.calibration.persist import FILE as POSTERIOR_FILE
 from calnet.calibration.persist import load_posterior
-from calnet.calibration.terms import draw_index, known_noise_var, make_term
+from calnet.calibration.terms import draw_index, draws_at, hyper_at, known_noise_var, make_term
 from calnet.chain import ChainPlan
 from calnet.errors import CalnetError
 from calnet.spec import Network
@@ -200,17 +200,8 @@ def _setup(network: Network, surrogates: Surrogates, posterior: NetworkPosterior
     emu = network.settings.calibration.emulator_variance
     term, tdata = make_term(network, posterior.data[dataset], emulator_variance=emu, plan=plan)
     spec = KOHModel(plan, (), (), (), (term.without_priors(),))
-    n = len(idx)
-    thetas = {m: device_array(v[idx]) for m, v in posterior.theta.items()}
-    for m in plan.models:
-        if m.n_parameters == 0:
-            thetas[m.name] = device_array(np.zeros((n, 0)))
-    stored = posterior.hyper[dataset]
-    q = len(term.ell_priors)
-    hyper = {"ell": stored["ell"][idx] if "ell" in stored else np.ones((n, q)),
-             "sd2": stored["sd2"][idx] if "sd2" in stored else np.zeros(n),
-             "se2": stored["se2"][idx] if "se2" in stored else np.zeros(n)}
-    hyper = {k: device_array(v, float) for k, v in hyper.items()}
+    thetas = draws_at(posterior.theta, plan, idx)
+    hyper = hyper_at(posterior.hyper[dataset], idx, len(term.ell_priors))
     log = network.model(ds.observed_model).output(ds.observed_output).transform == "log"
     gps = {k: s.gp for k, s in surrogates.items.items()}
     return _Setup(spec, gps, tdata, thetas, hyper,

@@ -21,9 +21,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from calnet._jax import device_array
 from calnet.calibration.koh import KOHModel
-from calnet.calibration.terms import draw_index, make_term, parameter_keys
+from calnet.calibration.terms import draw_index, draws_at, hyper_at, make_term, parameter_keys
 from calnet.chain import ChainPlan
 
 #: the surrogate sd above this fraction of the data's sd triggers the warning
@@ -123,19 +122,12 @@ def check_surrogates(network, surrogates, posterior, *, n_draws: int = 50
     plan = ChainPlan.from_network(network)
     gps = {k: s.gp for k, s in surrogates.items.items()}
     idx = draw_index(posterior.n_draws, n_draws)
-    thetas = {m: device_array(v[idx]) for m, v in posterior.theta.items()}
-    for m in plan.models:
-        if m.n_parameters == 0:
-            thetas[m.name] = device_array(np.zeros((len(idx), 0)))
+    thetas = draws_at(posterior.theta, plan, idx)
     out = []
     for ds, hyper in posterior.hyper.items():
         d = posterior.data[ds]
         term, tdata = make_term(network, d, emulator_variance=True, plan=plan)
-        q = len(term.ell_priors)
-        hy = {"ell": hyper["ell"][idx] if "ell" in hyper else np.ones((len(idx), q)),
-              "sd2": hyper["sd2"][idx] if "sd2" in hyper else np.zeros(len(idx)),
-              "se2": hyper["se2"][idx] if "se2" in hyper else np.zeros(len(idx))}
-        hy = {k: device_array(v, float) for k, v in hy.items()}
+        hy = hyper_at(hyper, idx, len(term.ell_priors))
         spec = KOHModel(plan, (), (), (), (term.without_priors(),))
         var = np.asarray(_over_draws(spec, gps, tdata, thetas, hy)).mean(axis=(0, 2))
         disc, var = max(float(var[0]), 0.0), var[1:]

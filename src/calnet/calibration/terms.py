@@ -15,8 +15,8 @@ from calnet.errors import CalibrationError
 from calnet.spec import ExperimentalData, Network
 from calnet.spec.variables import HalfNormalPrior
 
-__all__ = ["draw_index", "links_into", "data_scale", "modelled", "known_noise_var",
-           "make_term", "parameter_keys"]
+__all__ = ["draw_index", "draws_at", "hyper_at", "links_into", "data_scale", "modelled",
+           "known_noise_var", "make_term", "parameter_keys"]
 
 
 def draw_index(total: int, n: int) -> np.ndarray:
@@ -26,6 +26,27 @@ def draw_index(total: int, n: int) -> np.ndarray:
     if total == 0:
         return np.zeros(1, dtype=int)
     return np.linspace(0, total - 1, min(n, total)).astype(int)
+
+
+def draws_at(theta: dict[str, np.ndarray], plan: ChainPlan, idx: np.ndarray) -> dict:
+    """Each model's parameter draws ``idx`` on the device, (len(idx), p); an empty
+    (len(idx), 0) block for a model without parameters."""
+    out = {m: device_array(v[idx]) for m, v in theta.items()}
+    for m in plan.models:
+        if m.n_parameters == 0:
+            out[m.name] = device_array(np.zeros((len(idx), 0)))
+    return out
+
+
+def hyper_at(stored: dict[str, np.ndarray], idx: np.ndarray, n_ell: int) -> dict:
+    """One data set's discrepancy and noise hyperparameter draws ``idx`` on the device;
+    those it was calibrated without (no discrepancy, known noise) as the values that
+    switch them off: length scales 1, variances 0."""
+    n = len(idx)
+    hyper = {"ell": stored["ell"][idx] if "ell" in stored else np.ones((n, n_ell)),
+             "sd2": stored["sd2"][idx] if "sd2" in stored else np.zeros(n),
+             "se2": stored["se2"][idx] if "se2" in stored else np.zeros(n)}
+    return {k: device_array(v, float) for k, v in hyper.items()}
 
 
 # ----------------------------------------------------------------------------- terms
