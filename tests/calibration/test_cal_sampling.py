@@ -268,3 +268,15 @@ def test_bad_settings_raise(kwargs):
     ld, _, _ = _build(0)
     with pytest.raises(CalibrationError):
         sample_nuts(ld, **kwargs)
+
+
+@pytest.mark.parametrize("name, label", [
+    ("theta_M2[b]", "M2.b"), ("theta_melt_pool[A_0]", "melt_pool.A_0"),
+    ("theta_shared[c]", "c (shared)"),
+    ("ell_width[v]", "the discrepancy length scale of width along v"),
+    ("sd2_pdas", "the discrepancy variance of pdas"), ("se2_pdas", "the noise variance of pdas"),
+    ("theta", "theta")])
+def test_diagnostics_name_parameters_as_the_spec_does(name, label):
+    from calnet.calibration.diagnostics import readable
+
+    assert readable(name) == label

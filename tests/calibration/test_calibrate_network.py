@@ -217,6 +217,9 @@ def test_a_short_run_warns_about_its_diagnostics(indep):
     messages = [str(w.message) for w in caught if issubclass(w.category, CalibrationWarning)]
     assert any("bulk ESS" in m and "< 400" in m for m in messages), messages
     assert all(m.startswith("joint: ") for m in messages)  # names the stage
+    # in the user's words: model.parameter or the data set's discrepancy/noise, not the
+    # sampler's variable names
+    assert not any(re.search(r"\b(theta|ell|sd2|se2)_", m) for m in messages), messages
 
 
 @pytest.mark.parametrize("plug", ["posterior", "mode"])

@@ -10,6 +10,7 @@ reference study reports posterior modes as point estimates).
 
 from __future__ import annotations
 
+import re
 import warnings
 from dataclasses import dataclass
 
@@ -178,17 +179,42 @@ def summarize(idata, *, hdi_probs: tuple[float, ...] = (0.94, 0.95), warn: bool 
     return summary
 
 
+_LABEL = re.compile(r"^(theta_shared|theta|ell|sd2|se2)(?:_(.+?))?(?:\[(.+)\])?$")
+
+
+def readable(name: str) -> str:
+    """A posterior variable's label in a user's words: ``theta_M2[b]`` -> ``M2.b``,
+    ``theta_shared[c]`` -> ``c (shared)``, ``ell_d1[x]`` -> ``the discrepancy length
+    scale of d1 along x``, ``sd2_d1`` / ``se2_d1`` -> the discrepancy / noise variance
+    of d1; anything else as it is."""
+    m = _LABEL.match(name)
+    if not m:
+        return name
+    kind, owner, coord = m.groups()
+    if kind == "theta_shared" and coord:
+        return f"{coord} (shared)"
+    if kind == "theta" and owner and coord:
+        return f"{owner}.{coord}"
+    if kind == "ell" and owner:
+        return f"the discrepancy length scale of {owner}" + (f" along {coord}" if coord else "")
+    if kind == "sd2" and owner and not coord:
+        return f"the discrepancy variance of {owner}"
+    if kind == "se2" and owner and not coord:
+        return f"the noise variance of {owner}"
+    return name
+
+
 def convergence_problems(summary: PosteriorSummary) -> list[str]:
     """One message per failed check (R-hat, bulk ESS, divergences); empty when fine."""
     out, m = [], summary.model
     if summary.max_r_hat > RHAT_MAX:
         worst = max(summary.parameters, key=lambda p: p.r_hat)
-        out.append(f"{m}: R-hat {worst.r_hat:.3f} > {RHAT_MAX} for {worst.name}; chains "
-                   "disagree - run longer warm-up/draws or check for multimodality")
+        out.append(f"{m}: R-hat {worst.r_hat:.3f} > {RHAT_MAX} for {readable(worst.name)}; "
+                   "chains disagree - run longer warm-up/draws or check for multimodality")
     if summary.min_ess_bulk < ESS_MIN:
         worst = min(summary.parameters, key=lambda p: p.ess_bulk)
-        out.append(f"{m}: bulk ESS {worst.ess_bulk:.0f} < {ESS_MIN} for {worst.name}; "
-                   "increase num_draws")
+        out.append(f"{m}: bulk ESS {worst.ess_bulk:.0f} < {ESS_MIN} for "
+                   f"{readable(worst.name)}; increase num_draws")
     if summary.divergences > 0:
         out.append(f"{m}: {summary.divergences} divergent transitions; raise target_accept "
                    "(e.g. 0.95) or reparameterise")
