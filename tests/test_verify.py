@@ -41,6 +41,10 @@ def up_flaky(inputs):
     return up(inputs)
 
 
+def up_broken(inputs):
+    raise RuntimeError("license server down")
+
+
 def down(inputs):
     s, b = inputs["s"], inputs["b"]
     return {"w": b * s * s - 0.5 * s}
@@ -304,3 +308,24 @@ def test_verify_command_counts_the_points_a_verdict_rests_on(calibrated, tmp_pat
                          "simulator run finished")
     down = next(s for s in res.output.splitlines() if s.startswith("down.w:"))
     assert "points whose" not in down  # every run of down finished
+
+
+def test_a_simulator_that_fails_every_point_fails_verify(calibrated):
+    from typer.testing import CliRunner
+
+    from calnet.cli import app
+
+    _, _, _, root = calibrated
+    broken = root / "broken_cli.yaml"
+    broken.write_text(textwrap.dedent(SPEC).replace("python:verify_sims:up\n",
+                                                    "python:verify_sims:up_broken\n"))
+    res = CliRunner().invoke(app, ["verify", str(broken), "--run", str(root / "out"),
+                                   "-k", "2"])
+    assert res.exit_code == 1, res.output
+    assert "nan" not in res.output.lower()  # no number where nothing was measured
+    assert "license server down" in res.output  # each point's message is shown
+    last = [s for s in res.output.splitlines() if s.strip()][-1]
+    assert last.startswith("error: verify: the simulator failed at every point of up.y (2), "
+                           "up.z (2)"), last
+    doc = json.loads((root / "out" / "verify.json").read_text())  # still written
+    assert doc["checks"]["up.y"]["n"] == 0 and doc["checks"]["down.w"]["n"] == 2

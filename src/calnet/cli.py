@@ -609,6 +609,9 @@ def verify(
     console.print(table)
     summary = Table("surrogate", "n", "failed", "RMSE", "max |z|", f"|z| > {Z_LIMIT:g}")
     for c in result.checks.values():
+        if not c.n:  # nothing to measure: no simulator run finished
+            summary.add_row(c.surrogate, "0", str(c.n_failed), "-", "-", "-")
+            continue
         summary.add_row(c.surrogate, str(c.n), str(c.n_failed), f"{c.rmse:.3g}",
                         f"{c.max_abs_z:.2f}", f"{c.share_beyond:.0%}")
     console.print(summary)
@@ -623,6 +626,13 @@ def verify(
     for note in result.notes:
         console.print(f"note: {escape(note)}", soft_wrap=True)
     console.print(f"written to {run_dir / 'verify.json'}")
+    unchecked = [c for c in result.checks.values() if not c.n]
+    if unchecked:
+        raise CalnetError(
+            "verify: the simulator failed at every point of "
+            + ", ".join(f"{c.surrogate} ({c.n_failed})" for c in unchecked)
+            + ", so those surrogates were not checked; see the messages above, fix the "
+            "simulator (calnet simulate MODEL --set ...) and run calnet verify again")
 
 
 @app.command()
