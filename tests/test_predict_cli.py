@@ -152,3 +152,12 @@ def test_a_linked_input_outside_its_bounds_is_said(run):
     assert "point 2: up.x = 2.3 lies outside its bounds [0, 2]" in said[0]
     assert "point 2: down.w = " in said[1] and "(from up.w)" in said[1]
     assert "bounds [0, 2]; the down surrogates extrapolate there" in said[1]
+
+
+def test_an_unknown_target_is_a_usage_error(run):
+    root, out = run
+    result = CliRunner().invoke(app, ["predict", str(root), "--run", str(out), "--at", "x=1",
+                                      "-d", "nosuch"], terminal_width=400)
+    assert result.exit_code == 2, result.output  # a bad option value, as the README says
+    assert "nothing to predict for ['nosuch']; choose a calibrated data set ['yd']" in \
+        result.stderr

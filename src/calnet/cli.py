@@ -30,7 +30,7 @@ from typer.core import TyperCommand, TyperGroup
 
 from calnet import __version__
 from calnet.calibration.devices import configure_host_devices, enable_compilation_cache
-from calnet.errors import CalnetError, SpecError
+from calnet.errors import CalnetError, SpecError, UsageError
 from calnet.files import make_folder, replacing
 
 
@@ -131,11 +131,6 @@ def _main(
     """Bayesian calibration of networks of coupled simulation models."""
     configure_host_devices(4)  # before jax starts: chains run in parallel (pmap)
     enable_compilation_cache()  # compiled samplers and predictors reused across runs
-
-
-class UsageError(CalnetError):
-    """A malformed option value (``--at P=abc``): one line naming it, exit code 2, as
-    Typer's own usage errors exit."""
 
 
 def user_errors(func: Callable[..., Any]) -> Callable[..., Any]:

@@ -36,8 +36,18 @@ class SpecError(CalnetError):
         super().__init__(f"{where}: {message}" if where else message)
 
 
+class UsageError(CalnetError):
+    """A bad value of a command's option or a function's argument (``--at P=abc``, a data
+    set or model name the network does not have): one line naming it; the CLI exits
+    with code 2, as for its own usage errors."""
+
+
 class CampaignError(CalnetError):
     """A simulation campaign cannot be run or resumed."""
+
+
+class UnknownModel(CampaignError, UsageError):
+    """A model name the network does not have (``--model M9``)."""
 
 
 class SurrogateError(CalnetError):

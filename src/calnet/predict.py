@@ -29,7 +29,7 @@ from calnet.calibration.persist import FILE as POSTERIOR_FILE
 from calnet.calibration.persist import load_posterior
 from calnet.calibration.terms import draw_index, draws_at, hyper_at, known_noise_var, make_term
 from calnet.chain import ChainPlan
-from calnet.errors import CalnetError
+from calnet.errors import CalnetError, UsageError
 from calnet.spec import Network
 from calnet.surrogates.cv import mape_meaningful
 from calnet.surrogates.fit_network import Surrogates, check_surrogates
@@ -628,9 +628,9 @@ def prediction_targets(network: Network, surrogates: Surrogates, posterior: Netw
     names = list(asked) or [*posterior.hyper, *network.settings.predict]
     unknown = [d for d in names if d not in (surrogates.items if "." in d else posterior.hyper)]
     if unknown:
-        raise CalnetError(f"nothing to predict for {unknown}; choose a calibrated data set "
-                          f"{list(posterior.hyper)} or an output with a surrogate "
-                          f"{list(surrogates.items)}")
+        raise (UsageError if asked else CalnetError)(
+            f"nothing to predict for {unknown}; choose a calibrated data set "
+            f"{list(posterior.hyper)} or an output with a surrogate {list(surrogates.items)}")
     if not names:
         raise CalnetError("nothing to predict: the network has no data sets and "
                           "settings.predict is empty; pass -d model.output")

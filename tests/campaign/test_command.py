@@ -29,7 +29,7 @@ def test_command_runs_exports_and_resumes(tmp_path):
 def test_command_errors_are_one_line(tmp_path):
     spec = toy_spec(tmp_path)
     result = CliRunner().invoke(app, ["campaign", str(spec), "--model", "nope"])
-    assert result.exit_code == 1
+    assert result.exit_code == 2  # a bad option value: a usage error
     assert "no model named 'nope'" in result.output
 
 

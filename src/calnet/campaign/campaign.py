@@ -54,7 +54,7 @@ from calnet.campaign.store import (
     model_fingerprint,
     store_errors,
 )
-from calnet.errors import CampaignError, CampaignWarning, SpecError
+from calnet.errors import CampaignError, CampaignWarning, SpecError, UnknownModel
 from calnet.files import shown_path, why
 from calnet.spec.models import Model
 from calnet.spec.network import Network
@@ -360,7 +360,7 @@ def _model(network: Network, name: str) -> Model:
     try:
         return network.model(name)
     except KeyError:
-        raise CampaignError(f"no model named '{name}'; choose one of "
+        raise UnknownModel(f"no model named '{name}'; choose one of "
                             f"{[m.name for m in network.models]}") from None
 
 

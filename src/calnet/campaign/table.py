@@ -17,7 +17,7 @@ from calnet.campaign.store import (
     fingerprint_hash,
     model_fingerprint,
 )
-from calnet.errors import CampaignError
+from calnet.errors import CampaignError, UnknownModel
 from calnet.files import make_folder, replacing
 from calnet.spec.network import Network
 
@@ -80,7 +80,7 @@ def load_runs(network: Network, model_name: str, store: str | Path | None = None
     try:
         model = network.model(model_name)
     except KeyError:
-        raise CampaignError(f"no model named '{model_name}'; choose one of "
+        raise UnknownModel(f"no model named '{model_name}'; choose one of "
                             f"{[m.name for m in network.models]}") from None
     path = Path(store) if store is not None else default_store(network, model_name)
     spec = network.source or network.root
