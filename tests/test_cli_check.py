@@ -73,3 +73,32 @@ def test_tables_respect_columns_when_set(spec):
     assert result.exit_code == 0, result.output
     table = [line for line in result.output.splitlines() if "│" in line]
     assert len(table) > 5 and max(len(line) for line in table) <= 70
+
+
+def test_check_says_which_models_share_a_parameter(tmp_path):
+    (tmp_path / "network.yaml").write_text(textwrap.dedent("""
+        name: sharing
+        models:
+          A:
+            simulator: python:share_sims:a
+            inputs: {x: {lower: 0, upper: 1}}
+            parameters: {k: {lower: 0, upper: 2, shared: true}, c: {lower: 0, upper: 1}}
+            outputs: {y: {measurable: true}}
+          B:
+            simulator: python:share_sims:b
+            inputs: {y: {lower: 0, upper: 3}}
+            parameters: {k: {lower: 0, upper: 2, shared: true}}
+            outputs: {z: {measurable: true}}
+        links: [{from: A.y, to: B.y}]
+        settings: {predict: [B.z]}
+        """))
+    (tmp_path / "share_sims.py").write_text(
+        "def a(i):\n    return {'y': i['k'] * i['x'] + i['c']}\n\n\n"
+        "def b(i):\n    return {'z': i['k'] * i['y']}\n")
+    res = CliRunner().invoke(app, ["check", str(tmp_path)], terminal_width=200)
+    assert res.exit_code == 0, res.output
+    rows = {line.split("│")[0].strip() + "/" + str(i): line
+            for i, line in enumerate(res.output.splitlines()) if "parameter" in line}
+    shared = [line for line in rows.values() if line.startswith("k ")]
+    assert len(shared) == 2 and "shared with B" in shared[0] and "shared with A" in shared[1]
+    assert not any("shared" in line for line in rows.values() if line.startswith("c "))

@@ -33,7 +33,8 @@ def describe_network(network: Network, console: Console) -> None:
             table.add_row(var.name, "input", var.unit, f"[{var.lower:g}, {var.upper:g}]  {role}")
         for var in model.parameters:
             table.add_row(var.name, "parameter", var.unit,
-                          f"[{var.lower:g}, {var.upper:g}]  prior {_prior(var.prior)}")
+                          f"[{var.lower:g}, {var.upper:g}]  prior {_prior(var.prior)}"
+                          + _sharing(network, name, var.name))
         uses = network.output_uses(name)
         for var in model.outputs:
             table.add_row(var.name, "output", var.unit, _output_role(network, name, var, uses))
@@ -120,6 +121,15 @@ def _simulator(sim) -> str:
 
 def _identity(network: Network, link) -> bool:
     return link.source_var in network.model(link.source_model).input_names
+
+
+def _sharing(network: Network, model: str, name: str) -> str:
+    """``  shared with M2, M3`` for a parameter that is one parameter of several models."""
+    if not network.model(model).variable(name).shared:
+        return ""
+    others = [m for m in network.order if m != model
+              and any(p.name == name and p.shared for p in network.model(m).parameters)]
+    return f"  shared with {', '.join(others)}" if others else "  shared"
 
 
 def _prior(prior) -> str:
