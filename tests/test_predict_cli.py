@@ -161,3 +161,14 @@ def test_an_unknown_target_is_a_usage_error(run):
     assert result.exit_code == 2, result.output  # a bad option value, as the README says
     assert "nothing to predict for ['nosuch']; choose a calibrated data set ['yd']" in \
         result.stderr
+
+
+def test_the_table_names_the_data_set_or_the_simulator_output(run):
+    root, out = run
+    result = CliRunner().invoke(app, ["predict", str(root), "--run", str(out), "--at", "x=1",
+                                      "-d", "yd", "-d", "up.w"], terminal_width=400)
+    assert result.exit_code == 0, result.output
+    rows = [line for line in result.stdout.splitlines() if "x=1" in line]
+    assert len(rows) == 2, result.stdout
+    assert rows[0].split("│")[1].strip() == "yd: down.y (measured)"
+    assert rows[1].split("│")[1].strip() == "up.w (simulator)"

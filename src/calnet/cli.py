@@ -492,7 +492,8 @@ def predict(
         model, out_name = pred.observes.split(".")
         unit = network.model(model).output(out_name).unit
         for i, top in enumerate(largest_shares(pred)):
-            table_rows.append((f"{name} (simulator)" if "." in name else pred.observes,
+            table_rows.append((f"{name} (simulator)" if "." in name
+                               else f"{name}: {pred.observes} (measured)",
                                ", ".join(f"{k.split('.', 1)[1]}={v:g}" for k, v
                                          in zip(pred.input_keys, x[i], strict=True)),
                                f"{pred.mean[i]:.4g}", f"[{pred.lower[i]:.4g}, "
@@ -503,7 +504,8 @@ def predict(
     if as_json:
         print(json.dumps({"predictions": results}, indent=2, default=_json_default))
         return
-    table = Table("output", "settings", "mean", "95% band", "unit", "largest variance shares")
+    table = Table("prediction", "settings", "mean", "95% band", "unit",
+                  "largest variance shares")
     for r in table_rows:
         table.add_row(*r)
     console.print(table)
