@@ -309,3 +309,20 @@ def test_cli_lists_every_problem(base_spec, write_spec):
     lines = [line for line in result.output.splitlines() if line.strip()]
     assert result.exit_code == 2 and len(lines) == 2, result.output
     assert all(line.startswith("error: ") for line in lines)
+
+
+def test_the_network_problems_come_together(base_spec, write_spec):
+    """A bad link, data sets observing what is not there and criteria for a missing data
+    set: one error, every problem a line of its own, in the spec's order."""
+    base_spec["links"][0]["from"] = "heat.G0"
+    base_spec["data"]["width"]["observes"] = "heat.W9"
+    spacing = next(k for k in base_spec["data"] if k != "width")
+    base_spec["data"][spacing]["observes"] = "micro.nothing"
+    base_spec.setdefault("settings", {})["criteria"] = {"nosuch": {"upper": 0.2}}
+    err = _error(write_spec(base_spec))
+    lines = [str(err).split(": ", 1)[1], *err.more]
+    assert len(lines) == 4, lines
+    assert lines[0].startswith("links[0].from: model 'heat' has no output or input 'G0'")
+    assert lines[1].startswith("settings.criteria: no data set named 'nosuch'")
+    assert lines[2].startswith("data.width.observes: model 'heat' has no output 'W9'")
+    assert lines[3].startswith(f"data.{spacing}.observes: model 'micro' has no output 'nothing'")

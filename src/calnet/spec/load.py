@@ -123,7 +123,9 @@ def _to_spec_error(err: ValidationError, raw: Any, source: str) -> SpecError:
     locs = [tuple(e["loc"]) for e in errors]
     kept = [e for e, loc in zip(errors, locs, strict=True)
             if not any(o != loc and o[:len(loc)] == loc for o in locs)] or errors[:1]
-    problems = [_problem(e, raw) for e in kept]
+    # a check of the network as a whole reports its problems as the lines of one error
+    problems = [(field, line) for e in kept for field, msg in [_problem(e, raw)]
+                for line in msg.split("\n")]
     lines = [f"{field}: {msg}" if field else msg for field, msg in problems[1:MAX_PROBLEMS]]
     if len(problems) > MAX_PROBLEMS:
         lines.append(f"... and {len(problems) - MAX_PROBLEMS} more problems")

@@ -60,20 +60,35 @@ class Network(Frozen):
 
     @model_validator(mode="after")
     def _consistent(self) -> Network:
+        """Every problem of the network as a whole, one line each (a ValueError whose
+        lines the loader lists as separate problems): the checks that need a sound graph
+        (data sets, predicted outputs) run once the links and the order are sound."""
         _unique([m.name for m in self.models], "model")
         _unique([d.name for d in self.data], "data set")
-        for i, link in enumerate(self.links):
-            self._check_link(i, link)
-        self.order  # noqa: B018  (raises on a cycle)
-        self._check_parameters()
-        for i, ds in enumerate(self.data):
-            self._check_dataset(i, ds)
+        problems: list[str] = []
+
+        def collect(check, *args) -> bool:
+            try:
+                check(*args)
+            except ValueError as err:
+                problems.append(str(err))
+                return False
+            return True
+
+        graph = all([collect(self._check_link, i, link) for i, link in enumerate(self.links)])
+        graph = graph and collect(lambda: self.order)  # raises on a cycle
+        collect(self._check_parameters)
         for name in self.settings.criteria:
             if name not in {d.name for d in self.data}:
-                raise ValueError(f"settings.criteria: no data set named '{name}'; known: "
-                                 f"{[d.name for d in self.data]}")
-        for i, key in enumerate(self.settings.predict):
-            self._check_predicted(i, key)
+                problems.append(f"settings.criteria: no data set named '{name}'; known: "
+                                f"{[d.name for d in self.data]}")
+        for i, ds in enumerate(self.data):
+            collect(self._check_dataset, i, ds, graph)
+        if graph:
+            for i, key in enumerate(self.settings.predict):
+                collect(self._check_predicted, i, key)
+        if problems:
+            raise ValueError("\n".join(problems))
         return self
 
     def _check_predicted(self, i: int, key: str) -> None:
@@ -154,7 +169,9 @@ class Network(Frozen):
         """Key of a calibration parameter: ``model.name``, or ``name`` when shared."""
         return name if self.model(model).variable(name).shared else f"{model}.{name}"
 
-    def _check_dataset(self, i: int, ds: Dataset) -> None:
+    def _check_dataset(self, i: int, ds: Dataset, graph: bool = True) -> None:
+        """What ``ds`` observes; with a sound ``graph``, also its columns (the process
+        inputs come from the links)."""
         where = f"data.{ds.name}"
         model = self._model_or_error(ds.observed_model, f"{where}.observes")
         try:
@@ -166,6 +183,8 @@ class Network(Frozen):
         if not out.measurable:
             raise ValueError(f"{where}.observes: output '{ds.observes}' is not measurable; "
                              "set 'measurable: true' on it or observe another output")
+        if not graph:
+            return
         wanted = self.process_input_keys(model.name) + [ds.observes]
         resolved = {self.resolve_column_key(ds, key, wanted) for key in ds.columns}
         missing = [w for w in wanted if w not in resolved]
