@@ -106,3 +106,13 @@ def test_a_simulator_ending_its_process_is_a_failed_run(tmp_path, workers):
     assert died and all(r["status"] == "failed" and "died (exit code 7)" in r["message"]
                         for r in died), json.dumps(died)
     assert all(r["status"] == "ok" for r in rows if r["inputs"]["x"] <= 0.9)
+
+
+@pytest.mark.parametrize(("runs", "more"), [(15, 10), (30, 25)])
+def test_the_summary_counts_every_failure_beyond_the_five_shown(tmp_path, runs, more):
+    spec = toy_spec(tmp_path, "python:toy_sims:broken", runs=runs)
+    result = CliRunner().invoke(app, ["campaign", str(spec), "--executor", "in-process",
+                                      "--no-progress"])
+    assert result.exit_code == 1, result.output
+    assert result.output.count("license server unreachable") == 5
+    assert f"... {more} more not ok (see the store)" in result.output

@@ -59,6 +59,8 @@ from calnet.files import shown_path, why
 from calnet.spec.models import Model
 from calnet.spec.network import Network
 
+FAILURES_KEPT = 20  # messages of failed runs a CampaignSummary keeps
+
 
 @dataclass(frozen=True)
 class CampaignSummary:
@@ -79,7 +81,8 @@ class CampaignSummary:
     status_counts : dict of str to int
         Over the whole store (``unfinished`` when runs remain).
     failures : dict of int to str
-        Run index -> message of the runs of this call that are not ``ok`` (first 20).
+        Run index -> message of the runs of this call that are not ``ok`` (the first
+        :data:`FAILURES_KEPT`).
     wall_time : float
         Seconds this call took.
     executor : str
@@ -89,6 +92,9 @@ class CampaignSummary:
         Runs imported by this call (``campaign.import`` or ``--import``).
     design : str
         The store's design (``lhs``, ``sobol``, ``halton``, ``chain``, ``file:<name>``).
+    n_failed : int
+        Runs of this call that did not finish ``ok`` (all of them, not only those in
+        ``failures``).
     """
 
     model: str
@@ -105,6 +111,7 @@ class CampaignSummary:
     seed: int = 0
     imported: int = 0
     design: str = ""
+    n_failed: int = 0
 
     @property
     def n_ok(self) -> int:
@@ -199,6 +206,7 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
         timeout = run_timeout(network, model)
         tasks = ((sim, i, inputs, timeout, model.output_names) for i, inputs, _ in todo)
         failures: dict[int, str] = {}
+        n_failed = 0
         # a user's Python function without a timeout runs in a worker process, so that
         # one ending the interpreter is recorded as failed instead of ending the campaign
         isolate = isinstance(sim, CallableRunner) and timeout is None
@@ -209,13 +217,14 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
                                        on_submit=lambda t: db.mark_started([t[1]])):
                 rec = result if isinstance(result, RunRecord) else _worker_died(task[1], result)
                 db.record(rec, simulator=sim.name, version=version)
-                if rec.status != "ok" and len(failures) < 20:
+                n_failed += rec.status != "ok"
+                if rec.status != "ok" and len(failures) < FAILURES_KEPT:
                     failures[rec.index] = f"{rec.status}: {rec.message}"
                 advance(rec.status)
         counts, label = db.status_counts(), db.meta().get("design_kind", "")
     return CampaignSummary(model_name, path, total, skipped, len(todo), in_flight,
                            counts, failures, time.perf_counter() - start, ex.name, ex.workers,
-                           seed, imported, label)
+                           seed, imported, label, n_failed)
 
 
 def _reuse_imported(db: RunStore, todo: list) -> list:

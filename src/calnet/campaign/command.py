@@ -115,5 +115,6 @@ def print_summary(summary: Any, console: Any) -> None:
     console.print(f"  store {summary.store_path}: {counts}")
     for index, message in list(summary.failures.items())[:5]:
         console.print(f"  [yellow]run {index}[/]: {message}", soft_wrap=True)
-    if len(summary.failures) > 5:
-        console.print(f"  ... {len(summary.failures) - 5} more not ok (see the store)")
+    more = max(summary.n_failed, len(summary.failures)) - min(len(summary.failures), 5)
+    if more > 0:
+        console.print(f"  ... {more} more not ok (see the store)")
