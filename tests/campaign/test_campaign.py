@@ -247,6 +247,23 @@ def test_progress_lines_through_a_callable(tmp_path):
     assert 3 <= len(out) <= 12 and not any("\r" in line for line in out)
 
 
+def test_progress_lines_go_on_while_runs_are_in_flight(tmp_path, monkeypatch):
+    """A run that takes long (or hangs) still gets a line every EVERY_S seconds, naming
+    the runs in flight, so that a batch log tells a hung simulator from a slow one."""
+    from calnet.campaign import progress_bar
+
+    monkeypatch.setattr(progress_bar, "EVERY_S", 0.1)
+    out = []
+    run_campaign(toy_network(tmp_path, "python:toy_sims:slower", runs=2), "toy",
+                 progress=out.append, executor="in-process")
+    waiting = [line for line in out if "in flight" in line]
+    assert waiting, out
+    assert all(line.startswith("toy: ") and ", 1 in flight (the oldest for " in line
+               for line in waiting)
+    assert waiting[0].startswith("toy: 0/2 runs, 0 failed, 1 in flight")
+    assert out[-1].startswith("toy: 2/2 runs, 0 failed (")
+
+
 def test_progress_without_a_terminal_is_lines_on_stderr(tmp_path, capfd):
     run_campaign(toy_network(tmp_path, runs=10), "toy", progress=True, executor="in-process")
     err = capfd.readouterr().err

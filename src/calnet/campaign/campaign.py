@@ -149,8 +149,9 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
         Design seed; default ``network.settings.seed``. Seed 0 is a seed.
     progress : bool or callable
         Show progress: a Rich bar (done / failed / rate / ETA) on a terminal, plain lines
-        on stderr otherwise (a line at every 10 % of the runs, and every 10 s); a
-        callable gets those lines instead.
+        on stderr otherwise (a line at every 10 % of the runs, and one at least every
+        10 s, naming the runs in flight and how long the oldest has been); a callable
+        gets those lines instead.
     fresh : bool
         Delete the store first and simulate everything again.
     retry_failed : bool
@@ -212,15 +213,18 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
         isolate = isinstance(sim, CallableRunner) and timeout is None
         with make_executor(executor, workers=workers, scheduler=scheduler,
                            isolate=isolate) as ex, \
-                campaign_progress(progress, model_name, total, skipped, db) as advance:
-            for task, result in ex.run(execute_run, tasks,
-                                       on_submit=lambda t: db.mark_started([t[1]])):
+                campaign_progress(progress, model_name, total, skipped, db) as shown:
+            def submitted(task: tuple) -> None:
+                db.mark_started([task[1]])
+                shown.started(task[1])
+
+            for task, result in ex.run(execute_run, tasks, on_submit=submitted):
                 rec = result if isinstance(result, RunRecord) else _worker_died(task[1], result)
                 db.record(rec, simulator=sim.name, version=version)
                 n_failed += rec.status != "ok"
                 if rec.status != "ok" and len(failures) < FAILURES_KEPT:
                     failures[rec.index] = f"{rec.status}: {rec.message}"
-                advance(rec.status)
+                shown.finished(rec.index, rec.status)
         counts, label = db.status_counts(), db.meta().get("design_kind", "")
     return CampaignSummary(model_name, path, total, skipped, len(todo), in_flight,
                            counts, failures, time.perf_counter() - start, ex.name, ex.workers,
