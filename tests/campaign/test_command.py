@@ -116,3 +116,34 @@ def test_the_summary_counts_every_failure_beyond_the_five_shown(tmp_path, runs, 
     assert result.exit_code == 1, result.output
     assert result.output.count("license server unreachable") == 5
     assert f"... {more} more not ok (see the store)" in result.output
+
+
+def test_a_store_without_an_ok_run_starts_afresh_once_the_spec_is_fixed(tmp_path):
+    """A simulator that fails everywhere, fixed in the spec: the store holds no result,
+    so the next call (--retry-failed, as the error advises) simulates it afresh."""
+    spec = toy_spec(tmp_path, "python:toy_sims:broken", runs=6)
+    failed = CliRunner().invoke(app, ["campaign", str(spec), "--executor", "in-process",
+                                      "--no-progress"])
+    assert failed.exit_code == 1 and "--retry-failed" in failed.output
+    toy_spec(tmp_path, "python:toy_sims:quadratic", runs=6)
+    fixed = CliRunner().invoke(app, ["campaign", str(spec), "--executor", "in-process",
+                                     "--retry-failed", "--no-progress"])
+    assert fixed.exit_code == 0, fixed.output
+    text = " ".join(fixed.output.split())
+    assert "held no ok run and was made from another spec (simulator target: " \
+           "toy_sims:broken -> toy_sims:quadratic); it is started afresh" in text
+    assert "6 runs planned, 0 already finished, 6 run now" in text
+    assert ": ok 6" in text
+
+
+def test_a_store_with_results_names_only_the_changed_fields(tmp_path):
+    spec = toy_spec(tmp_path, "python:toy_sims:quadratic", runs=4)
+    args = ["campaign", str(spec), "--executor", "in-process", "--no-progress"]
+    assert CliRunner().invoke(app, args).exit_code == 0
+    toy_spec(tmp_path, {"kind": "python", "target": "toy_sims:quadratic",
+                        "options": {"scale": 2.0}}, runs=4)
+    refused = CliRunner().invoke(app, args)
+    assert refused.exit_code == 1
+    text = " ".join(refused.output.split())
+    assert "(simulator options.scale: (unset) -> 2.0); simulate again with --fresh" in text
+    assert "'kind'" not in text and "input_mode" not in text

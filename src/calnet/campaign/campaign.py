@@ -174,7 +174,7 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
     path = Path(store) if store is not None else default_store(network, model_name)
     asked = spec_design(network, model)  # a bad design file or run table fails first
     table = _spec_table(network, model)
-    if fresh:
+    if fresh or _stale_without_results(path, network, model, seed):
         held = lease_holder(path)
         if held:
             raise CampaignError(held)
@@ -338,6 +338,30 @@ def _complete_readonly(path: Path, network: Network, model: Model, seed: int,
                            meta.get("design_kind") or choice.label)
 
 
+def _stale_without_results(path: Path, network: Network, model: Model, seed: int) -> bool:
+    """Whether ``path`` is a store of another spec or seed of the model that holds no
+    ``ok`` run, hence nothing worth keeping (a simulator that failed everywhere, then
+    fixed in the spec): the campaign then starts it afresh, with a
+    :class:`~calnet.errors.CampaignWarning` naming what changed, instead of asking for
+    ``--fresh``."""
+    if not path.is_file():
+        return False
+    try:
+        with RunStore(path, readonly=True) as db:
+            meta, counts = db.meta(), db.status_counts()
+    except sqlite3.DatabaseError:
+        return False  # not a store: the writing path says so
+    if not meta or meta.get("model") != model.name or counts.get("ok", 0):
+        return False
+    change = _difference(meta, model, seed)
+    if change is None:
+        return False
+    warnings.warn(f"the store '{shown_path(path, network.root)}' of '{model.name}' held no "
+                  f"ok run and was made from another spec ({change}); it is started "
+                  "afresh", CampaignWarning, stacklevel=3)
+    return True
+
+
 def _check_versions(db: RunStore, model: str, shown: str, simulator: str, version: str,
                     more_to_run: bool) -> None:
     """Refuse to mix simulator versions in one design; warn when a finished store is old.
@@ -393,6 +417,17 @@ def _claim(db: RunStore, network: Network, model: Model, seed: int, simulator: s
     db.set_meta({"calnet_version": calnet.__version__, "simulator": simulator,
                  "simulator_version": version, "spec": network.source,
                  "spec_sha256": _file_hash(network.source)})
+
+
+def _difference(meta: dict[str, str], model: Model, seed: int) -> str | None:
+    """How the model spec and seed that made a store (its ``meta``) differ from
+    ``model`` and ``seed``, in one phrase; None when they do not."""
+    fp = model_fingerprint(model)
+    if meta.get("model_hash") != fingerprint_hash(fp):
+        return describe_change(json.loads(meta.get("model_spec", "{}")), fp)
+    if str(meta.get("seed")) != str(seed):
+        return f"seed {meta.get('seed')} -> {seed}"
+    return None
 
 
 def _foreign(meta: dict[str, str], model: Model, seed: int, path: Path) -> str | None:

@@ -90,7 +90,8 @@ def campaign(
     if useless:
         raise CampaignError(f"no run of {', '.join(useless)} finished ok (the first failures "
                             "are listed above); fix the simulator, then run again with "
-                            "--retry-failed")
+                            "--retry-failed (a store that holds no ok run starts afresh by "
+                            "itself when the model's spec has changed)")
 
 
 def print_summary(summary: Any, console: Any) -> None:
