@@ -106,7 +106,7 @@ def test_seed_zero_is_a_seed_and_a_store_keeps_its_seed(tmp_path):
     assert store_rows(a.store_path) != store_rows(b.store_path)
     with pytest.raises(CampaignError, match=r"made with seed 0, not 7; to keep it, set "
                        r"settings.seed back to 0 \(calnet campaign: --seed 0\); for the new "
-                       r"seed, simulate again with --fresh \(calnet campaign or calnet run\)"):
+                       r"seed, simulate again with --fresh: `calnet campaign SPEC --fresh`"):
         run_campaign(net, "toy", progress=False, store=a.store_path)
 
 

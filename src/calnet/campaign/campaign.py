@@ -436,14 +436,19 @@ def _foreign(meta: dict[str, str], model: Model, seed: int, path: Path) -> str |
     if meta.get("model_hash") != fingerprint_hash(fp):
         change = describe_change(json.loads(meta.get("model_spec", "{}")), fp)
         return (f"the store '{path}' was made from a different '{model.name}' spec "
-                f"({change}); simulate again with --fresh (calnet campaign or calnet "
-                "run), or pass calnet campaign a new --store")
+                f"({change}); simulate again with --fresh: {_WAYS_OUT}")
     if str(meta.get("seed")) != str(seed):
         return (f"the store '{path}' was made with seed {meta.get('seed')}, not {seed}; "
                 f"to keep it, set settings.seed back to {meta.get('seed')} (calnet campaign: "
-                f"--seed {meta.get('seed')}); for the new seed, simulate again with --fresh "
-                "(calnet campaign or calnet run) or give calnet campaign a new --store")
+                f"--seed {meta.get('seed')}); for the new seed, simulate again with --fresh: "
+                f"{_WAYS_OUT}")
     return None
+
+
+# the fixes of a store of another spec or seed, for calnet campaign and calnet run
+_WAYS_OUT = ("`calnet campaign SPEC --fresh` simulates the stores beside the spec again, "
+             "`calnet run SPEC --fresh --out OUT` those in OUT/campaigns (which later runs "
+             "with that --out use); or give calnet campaign a new --store")
 
 
 def _file_hash(path: str) -> str:
