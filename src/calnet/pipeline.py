@@ -28,8 +28,9 @@ from calnet.calibration.persist import save_posterior
 from calnet.calibration.sampling import cache_info
 from calnet.calibration.summary import calibration_result
 from calnet.campaign import default_store, load_runs, run_campaign
+from calnet.campaign.failures import store_failure_note
 from calnet.emulation import output_slices
-from calnet.errors import CalibrationWarning, CalnetError
+from calnet.errors import CalibrationWarning, CalnetError, CampaignWarning
 from calnet.explore import explore
 from calnet.parallel import map_threads, one_blas_thread
 from calnet.predict import predict_data
@@ -246,6 +247,9 @@ class _Context:
             # resumes: finished runs are skipped, so a complete shipped store costs nothing
             run_campaign(self.network, name, store=store, progress=note, fresh=self.fresh)
             runs = load_runs(self.network, name, store=store)
+            failed = store_failure_note(store, self.network.model(name))
+            if failed:  # recorded with the stage, shown at the end of the run
+                warnings.warn(failed, CampaignWarning, stacklevel=2)
             self.stores[name] = Path(store)
             self.campaigns[name] = CampaignSummary(runs.n_total, runs.n_excluded,
                                                    dict(runs.status_counts))

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import sys
 
 import pytest
@@ -147,3 +148,18 @@ def test_a_store_with_results_names_only_the_changed_fields(tmp_path):
     text = " ".join(refused.output.split())
     assert "(simulator options.scale: (unset) -> 2.0); simulate again with --fresh" in text
     assert "'kind'" not in text and "input_mode" not in text
+
+
+def test_a_campaign_with_many_failed_runs_ends_with_a_warning_saying_where(tmp_path):
+    spec = toy_spec(tmp_path, "python:toy_sims:crashy", runs=20)  # raises for x > 0.7
+    result = CliRunner().invoke(app, ["campaign", str(spec), "--executor", "in-process",
+                                      "--no-progress"])
+    assert result.exit_code == 0, result.output
+    text = " ".join(result.output.split())
+    warning = re.search(r"warning: toy: (\d+) of 20 runs \((\d+) %\) did not finish ok "
+                        r"\(failed \1\); they lie at x in \[0\.7\d*, [0-9.]+\], the ok runs "
+                        r"at x in \[[0-9.]+, 0\.[0-6]\d*\]", text)
+    assert warning, text
+    assert round(100 * int(warning.group(1)) / 20) == int(warning.group(2))
+    assert text.index("warning: toy:") > text.index("more not ok")  # at the end
+

@@ -1,10 +1,11 @@
 """``calnet run`` and its campaign stores: which stores a run uses with and without
-``--fresh`` and ``--out``."""
+``--fresh`` and ``--out``, and the warning about a model with many failed runs."""
 
 from __future__ import annotations
 
 import json
 import os
+import re
 from pathlib import Path
 
 import pytest
@@ -100,3 +101,19 @@ def test_run_fresh_with_out_simulates_there_and_later_runs_use_it(work, tmp_path
     beside = _run(str(work), "--out", str(other))
     assert beside.exit_code == 1 and "one_sims:g -> one_sims:f" in beside.output
 
+
+@pytest.mark.integration
+@pytest.mark.slow
+def test_run_warns_about_a_model_with_many_failed_runs(work, tmp_path):
+    _spec(work, "g", runs=12)
+    out = tmp_path / "out"
+    result = _run(str(work), "--out", str(out))
+    assert result.exit_code == 0, result.output
+    text = " ".join(result.output.split())
+    found = re.search(r"warning: M: (\d+) of 12 runs \(\d+ %\) did not finish ok \(failed "
+                      r"\1\); they lie at x in \[0\.5\d*, [0-9.]+\], the ok runs at x in "
+                      r"\[[0-9.]+, 0\.[0-4]\d*\]", text)
+    assert found, text
+    assert text.index("warning: M:") > text.index("total wall time")  # at the end
+    warnings = json.loads((out / "metrics.json").read_text())["warnings"]
+    assert any(w.startswith("M: ") and "did not finish ok" in w for w in warnings)

@@ -6,12 +6,13 @@ Import-light: the spec, the driver, Dask and UM-Bridge load when the command run
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import typer
 
-from calnet.errors import CampaignError
+from calnet.errors import CampaignError, CampaignWarning
 
 
 def campaign(
@@ -57,6 +58,7 @@ def campaign(
     from rich.console import Console
 
     from calnet.campaign.campaign import import_runs, run_campaign
+    from calnet.campaign.failures import store_failure_note
     from calnet.campaign.table import check_export, export_runs
     from calnet.spec import load_spec
 
@@ -87,6 +89,10 @@ def campaign(
             console.print(f"exported to {export_runs(summary.store_path, export)}")
         if (summary.planned or summary.imported) and not summary.n_ok:
             useless.append(name)
+        elif summary.planned or summary.imported:  # shown at the end, with the warnings
+            note = store_failure_note(summary.store_path, network.model(name))
+            if note:
+                warnings.warn(note, CampaignWarning, stacklevel=2)
     if useless:
         raise CampaignError(f"no run of {', '.join(useless)} finished ok (the first failures "
                             "are listed above); fix the simulator, then run again with "
