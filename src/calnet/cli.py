@@ -639,10 +639,15 @@ def run(
         "--quick", help="fewer draws, restarts and folds, for a fast look (the report says "
         "which results are indicative only)")] = False,
 ) -> None:
-    """Run every stage on SPEC and write the report to OUT."""
+    """Run every stage on SPEC and write the report to OUT.
+
+    Ctrl-C exits with 130, SIGTERM with 143; finished campaign runs are kept either way.
+    """
+    from calnet.campaign.interrupt import sigterm_exit
     from calnet.pipeline import run_pipeline
 
-    run_pipeline(spec, out=out, fresh=fresh, quick=quick, console=console)
+    with sigterm_exit():
+        run_pipeline(spec, out=out, fresh=fresh, quick=quick, console=console)
 
 
 def main() -> None:  # pragma: no cover - console script entry

@@ -12,9 +12,11 @@ from typing import Annotated, Any, Literal
 
 import typer
 
+from calnet.campaign.interrupt import sigterm_exits
 from calnet.errors import CampaignError, CampaignWarning
 
 
+@sigterm_exits
 def campaign(
     spec: Annotated[Path, typer.Argument(
         metavar="SPEC", show_default=False, help="network YAML, or a folder with network.yaml")],
@@ -54,6 +56,7 @@ def campaign(
     so an interrupted campaign (Ctrl-C, a killed job) resumes where it stopped. With
     --workers K, K local processes (or a Dask LocalCluster with --executor dask) share
     the runs. With --import FILE, the finished runs of a table go into the store instead.
+    Ctrl-C exits with 130, SIGTERM with 143, the finished runs kept.
     """
     from rich.console import Console
 
