@@ -638,15 +638,23 @@ def run(
     spec: SpecArg,
     out: Annotated[Path, typer.Option(metavar="DIR", help="output folder")] = Path("out"),
     fresh: Annotated[bool, typer.Option(
-        "--fresh", help="re-simulate instead of using the shipped runs")] = False,
+        "--fresh", help="simulate every model again into OUT/campaigns (deleting the "
+        "stores there; the stores beside the spec are left as they are). Without it, "
+        "OUT/campaigns is used when it holds this network's stores, else the stores "
+        "beside the spec")] = False,
     quick: Annotated[bool, typer.Option(
         "--quick", help="fewer draws, restarts and folds, for a fast look (the report says "
         "which results are indicative only)")] = False,
 ) -> None:
-    """Run every stage on SPEC and write the report to OUT."""
+    """Run every stage on SPEC and write the report to OUT.
+
+    Ctrl-C exits with 130, SIGTERM with 143; finished campaign runs are kept either way.
+    """
+    from calnet.campaign.interrupt import sigterm_exit
     from calnet.pipeline import run_pipeline
 
-    run_pipeline(spec, out=out, fresh=fresh, quick=quick, console=console)
+    with sigterm_exit():
+        run_pipeline(spec, out=out, fresh=fresh, quick=quick, console=console)
 
 
 def main() -> None:  # pragma: no cover - console script entry

@@ -1,8 +1,8 @@
 """``calnet run``: every stage in order, from the spec to the report.
 
-campaign (shipped store unless ``fresh``) -> surrogates -> calibration -> prediction ->
-validation, with the sensitivity (Sobol indices, process maps) beside it -> report (HTML,
-metrics.json, posteriors, figures).
+campaign (the stores beside the spec, or in ``out/campaigns``: :func:`campaign_stores`)
+-> surrogates -> calibration -> prediction -> validation, with the sensitivity (Sobol
+indices, process maps) beside it -> report (HTML, metrics.json, posteriors, figures).
 A network without data sets is emulated only: nothing is calibrated or validated, and the
 report shows the outputs of ``settings.predict`` predicted through the chain.
 """
@@ -28,8 +28,9 @@ from calnet.calibration.persist import save_posterior
 from calnet.calibration.sampling import cache_info
 from calnet.calibration.summary import calibration_result
 from calnet.campaign import default_store, load_runs, run_campaign
+from calnet.campaign.failures import store_failure_note
 from calnet.emulation import output_slices
-from calnet.errors import CalibrationWarning, CalnetError
+from calnet.errors import CalibrationWarning, CalnetError, CampaignWarning
 from calnet.explore import explore
 from calnet.parallel import map_threads, one_blas_thread
 from calnet.predict import predict_data
@@ -64,7 +65,10 @@ def run_pipeline(spec: str | Path, *, out: Path, fresh: bool = False, quick: boo
     Parameters
     ----------
     fresh : bool
-        Re-simulate into ``out/campaigns`` instead of using the stores beside the spec.
+        Delete the stores in ``out/campaigns`` and simulate every model again into them,
+        leaving the stores beside the spec as they are. Without it, the stores in
+        ``out/campaigns`` are used (resumed) when it holds one of this network's, else
+        the stores beside the spec (:func:`campaign_stores`).
     quick : bool
         Fewer draws, restarts and folds: a fast look (used by the tests).
     console : rich.console.Console, optional
@@ -115,6 +119,18 @@ def run_pipeline(spec: str | Path, *, out: Path, fresh: bool = False, quick: boo
     console.print(f"report: {out / 'report.html'}  metrics: {out / 'metrics.json'}  "
                   f"total wall time {timings['total']:.1f} s", soft_wrap=True)
     return ctx.results.to_metrics()
+
+
+def campaign_stores(network: Network, models: list[str], out: Path, *,
+                    fresh: bool = False) -> dict[str, Path]:
+    """Where ``calnet run`` keeps the campaign stores of ``models``: in ``out/campaigns``
+    with ``fresh`` (its stores are deleted and simulated again), or when it holds a store
+    of one of them (a run made with ``fresh`` and this ``out``); else beside the spec
+    (:func:`calnet.campaign.default_store`, the shipped stores)."""
+    own = {name: out / "campaigns" / f"{name}.sqlite" for name in models}
+    if fresh or any(path.is_file() for path in own.values()):
+        return own
+    return {name: default_store(network, name) for name in models}
 
 
 def surrogate_stage(network: Network, *, folder: Path, figures: Path, **fit) -> tuple[
@@ -223,16 +239,17 @@ class _Context:
 
     # ------------------------------------------------------------ stages
     def campaign(self, note) -> None:
-        for name in self.network.order:
-            if not self.network.needed_outputs(name):
-                continue
-            store = (self.out / "campaigns" / f"{name}.sqlite" if self.fresh
-                     else default_store(self.network, name))
+        names = [n for n in self.network.order if self.network.needed_outputs(n)]
+        for name, store in campaign_stores(self.network, names, self.out,
+                                           fresh=self.fresh).items():
             note(name)
-            Path(store).parent.mkdir(parents=True, exist_ok=True)
+            store.parent.mkdir(parents=True, exist_ok=True)
             # resumes: finished runs are skipped, so a complete shipped store costs nothing
-            run_campaign(self.network, name, store=store, progress=note)
+            run_campaign(self.network, name, store=store, progress=note, fresh=self.fresh)
             runs = load_runs(self.network, name, store=store)
+            failed = store_failure_note(store, self.network.model(name))
+            if failed:  # recorded with the stage, shown at the end of the run
+                warnings.warn(failed, CampaignWarning, stacklevel=2)
             self.stores[name] = Path(store)
             self.campaigns[name] = CampaignSummary(runs.n_total, runs.n_excluded,
                                                    dict(runs.status_counts))
@@ -329,4 +346,5 @@ def require(condition: bool, message: str) -> None:
         raise CalnetError(message)
 
 
-__all__ = ["STAGES", "run_pipeline", "surrogate_stage", "record_calibration", "np"]
+__all__ = ["STAGES", "run_pipeline", "campaign_stores", "surrogate_stage",
+           "record_calibration", "np"]

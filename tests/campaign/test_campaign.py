@@ -106,7 +106,7 @@ def test_seed_zero_is_a_seed_and_a_store_keeps_its_seed(tmp_path):
     assert store_rows(a.store_path) != store_rows(b.store_path)
     with pytest.raises(CampaignError, match=r"made with seed 0, not 7; to keep it, set "
                        r"settings.seed back to 0 \(calnet campaign: --seed 0\); for the new "
-                       r"seed, simulate again with --fresh \(calnet campaign or calnet run\)"):
+                       r"seed, simulate again with --fresh: `calnet campaign SPEC --fresh`"):
         run_campaign(net, "toy", progress=False, store=a.store_path)
 
 
@@ -245,6 +245,23 @@ def test_progress_lines_through_a_callable(tmp_path):
     assert out[0].startswith("toy: 20 runs to go of 20")
     assert out[-1].startswith("toy: 20/20 runs, 0 failed")
     assert 3 <= len(out) <= 12 and not any("\r" in line for line in out)
+
+
+def test_progress_lines_go_on_while_runs_are_in_flight(tmp_path, monkeypatch):
+    """A run that takes long (or hangs) still gets a line every EVERY_S seconds, naming
+    the runs in flight, so that a batch log tells a hung simulator from a slow one."""
+    from calnet.campaign import progress_bar
+
+    monkeypatch.setattr(progress_bar, "EVERY_S", 0.1)
+    out = []
+    run_campaign(toy_network(tmp_path, "python:toy_sims:slower", runs=2), "toy",
+                 progress=out.append, executor="in-process")
+    waiting = [line for line in out if "in flight" in line]
+    assert waiting, out
+    assert all(line.startswith("toy: ") and ", 1 in flight (the oldest for " in line
+               for line in waiting)
+    assert waiting[0].startswith("toy: 0/2 runs, 0 failed, 1 in flight")
+    assert out[-1].startswith("toy: 2/2 runs, 0 failed (")
 
 
 def test_progress_without_a_terminal_is_lines_on_stderr(tmp_path, capfd):

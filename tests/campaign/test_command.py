@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import sys
 
 import pytest
@@ -106,3 +107,59 @@ def test_a_simulator_ending_its_process_is_a_failed_run(tmp_path, workers):
     assert died and all(r["status"] == "failed" and "died (exit code 7)" in r["message"]
                         for r in died), json.dumps(died)
     assert all(r["status"] == "ok" for r in rows if r["inputs"]["x"] <= 0.9)
+
+
+@pytest.mark.parametrize(("runs", "more"), [(15, 10), (30, 25)])
+def test_the_summary_counts_every_failure_beyond_the_five_shown(tmp_path, runs, more):
+    spec = toy_spec(tmp_path, "python:toy_sims:broken", runs=runs)
+    result = CliRunner().invoke(app, ["campaign", str(spec), "--executor", "in-process",
+                                      "--no-progress"])
+    assert result.exit_code == 1, result.output
+    assert result.output.count("license server unreachable") == 5
+    assert f"... {more} more not ok (see the store)" in result.output
+
+
+def test_a_store_without_an_ok_run_starts_afresh_once_the_spec_is_fixed(tmp_path):
+    """A simulator that fails everywhere, fixed in the spec: the store holds no result,
+    so the next call (--retry-failed, as the error advises) simulates it afresh."""
+    spec = toy_spec(tmp_path, "python:toy_sims:broken", runs=6)
+    failed = CliRunner().invoke(app, ["campaign", str(spec), "--executor", "in-process",
+                                      "--no-progress"])
+    assert failed.exit_code == 1 and "--retry-failed" in failed.output
+    toy_spec(tmp_path, "python:toy_sims:quadratic", runs=6)
+    fixed = CliRunner().invoke(app, ["campaign", str(spec), "--executor", "in-process",
+                                     "--retry-failed", "--no-progress"])
+    assert fixed.exit_code == 0, fixed.output
+    text = " ".join(fixed.output.split())
+    assert "held no ok run and was made from another spec (simulator target: " \
+           "toy_sims:broken -> toy_sims:quadratic); it is started afresh" in text
+    assert "6 runs planned, 0 already finished, 6 run now" in text
+    assert ": ok 6" in text
+
+
+def test_a_store_with_results_names_only_the_changed_fields(tmp_path):
+    spec = toy_spec(tmp_path, "python:toy_sims:quadratic", runs=4)
+    args = ["campaign", str(spec), "--executor", "in-process", "--no-progress"]
+    assert CliRunner().invoke(app, args).exit_code == 0
+    toy_spec(tmp_path, {"kind": "python", "target": "toy_sims:quadratic",
+                        "options": {"scale": 2.0}}, runs=4)
+    refused = CliRunner().invoke(app, args)
+    assert refused.exit_code == 1
+    text = " ".join(refused.output.split())
+    assert "(simulator options.scale: (unset) -> 2.0); simulate again with --fresh" in text
+    assert "'kind'" not in text and "input_mode" not in text
+
+
+def test_a_campaign_with_many_failed_runs_ends_with_a_warning_saying_where(tmp_path):
+    spec = toy_spec(tmp_path, "python:toy_sims:crashy", runs=20)  # raises for x > 0.7
+    result = CliRunner().invoke(app, ["campaign", str(spec), "--executor", "in-process",
+                                      "--no-progress"])
+    assert result.exit_code == 0, result.output
+    text = " ".join(result.output.split())
+    warning = re.search(r"warning: toy: (\d+) of 20 runs \((\d+) %\) did not finish ok "
+                        r"\(failed \1\); they lie at x in \[0\.7\d*, [0-9.]+\], the ok runs "
+                        r"at x in \[[0-9.]+, 0\.[0-6]\d*\]", text)
+    assert warning, text
+    assert round(100 * int(warning.group(1)) / 20) == int(warning.group(2))
+    assert text.index("warning: toy:") > text.index("more not ok")  # at the end
+

@@ -131,3 +131,46 @@ def test_sigint_to_a_parallel_campaign_does_not_wait_for_the_runs_in_flight(tmp_
     assert waited < 30, f"waited {waited:.0f} s for the runs in flight"  # they take 60 s
     kept = _finished(store)
     assert 1 <= len(kept) < 12
+
+
+def _started(path) -> int:
+    if not path.exists():
+        return 0
+    db = sqlite3.connect(path, timeout=5)
+    try:
+        return db.execute("SELECT COUNT(*) FROM runs WHERE started_at IS NOT NULL").fetchone()[0]
+    except sqlite3.OperationalError:  # the schema is not there yet
+        return 0
+    finally:
+        db.close()
+
+
+@pytest.mark.integration
+def test_sigterm_to_a_campaign_with_a_hung_simulator_stops_as_ctrl_c_does(tmp_path):
+    """SIGTERM (a batch system, ``timeout``, ``kill``) with a run hanging in a worker
+    process: one line, exit code 143, the finished runs kept, and no noise from Python's
+    resource tracker about leaked semaphores."""
+    spec = toy_spec(tmp_path, "python:toy_sims:hangs", runs=12, seed=0, x_upper=0.3)
+    store = tmp_path / "hung.sqlite"
+    proc = subprocess.Popen(_campaign(spec, store), stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True, env=os.environ.copy())
+    try:
+        deadline = time.monotonic() + 90
+        while _started(store) < 1:
+            assert proc.poll() is None and time.monotonic() < deadline
+            time.sleep(0.05)
+        time.sleep(2)  # the runs x < 0.2 hang for ever
+        proc.send_signal(signal.SIGTERM)
+        output, _ = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+        proc.wait()
+    assert proc.returncode == 143, output
+    assert ("interrupted (SIGTERM): finished work is kept; run the same command again to "
+            "resume") in output
+    assert "resource_tracker" not in output and "Traceback" not in output, output
+    kept = _finished(store)
+    assert len(kept) < 12
+    with sqlite3.connect(f"file:{store}?mode=ro", uri=True) as db:  # closed cleanly
+        assert db.execute("SELECT COUNT(*) FROM lease").fetchone()[0] == 0
+    db.close()

@@ -59,6 +59,8 @@ from calnet.files import shown_path, why
 from calnet.spec.models import Model
 from calnet.spec.network import Network
 
+FAILURES_KEPT = 20  # messages of failed runs a CampaignSummary keeps
+
 
 @dataclass(frozen=True)
 class CampaignSummary:
@@ -79,7 +81,8 @@ class CampaignSummary:
     status_counts : dict of str to int
         Over the whole store (``unfinished`` when runs remain).
     failures : dict of int to str
-        Run index -> message of the runs of this call that are not ``ok`` (first 20).
+        Run index -> message of the runs of this call that are not ``ok`` (the first
+        :data:`FAILURES_KEPT`).
     wall_time : float
         Seconds this call took.
     executor : str
@@ -89,6 +92,9 @@ class CampaignSummary:
         Runs imported by this call (``campaign.import`` or ``--import``).
     design : str
         The store's design (``lhs``, ``sobol``, ``halton``, ``chain``, ``file:<name>``).
+    n_failed : int
+        Runs of this call that did not finish ``ok`` (all of them, not only those in
+        ``failures``).
     """
 
     model: str
@@ -105,6 +111,7 @@ class CampaignSummary:
     seed: int = 0
     imported: int = 0
     design: str = ""
+    n_failed: int = 0
 
     @property
     def n_ok(self) -> int:
@@ -142,8 +149,9 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
         Design seed; default ``network.settings.seed``. Seed 0 is a seed.
     progress : bool or callable
         Show progress: a Rich bar (done / failed / rate / ETA) on a terminal, plain lines
-        on stderr otherwise (a line at every 10 % of the runs, and every 10 s); a
-        callable gets those lines instead.
+        on stderr otherwise (a line at every 10 % of the runs, and one at least every
+        10 s, naming the runs in flight and how long the oldest has been); a callable
+        gets those lines instead.
     fresh : bool
         Delete the store first and simulate everything again.
     retry_failed : bool
@@ -166,7 +174,7 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
     path = Path(store) if store is not None else default_store(network, model_name)
     asked = spec_design(network, model)  # a bad design file or run table fails first
     table = _spec_table(network, model)
-    if fresh:
+    if fresh or _stale_without_results(path, network, model, seed):
         held = lease_holder(path)
         if held:
             raise CampaignError(held)
@@ -199,23 +207,28 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
         timeout = run_timeout(network, model)
         tasks = ((sim, i, inputs, timeout, model.output_names) for i, inputs, _ in todo)
         failures: dict[int, str] = {}
+        n_failed = 0
         # a user's Python function without a timeout runs in a worker process, so that
         # one ending the interpreter is recorded as failed instead of ending the campaign
         isolate = isinstance(sim, CallableRunner) and timeout is None
         with make_executor(executor, workers=workers, scheduler=scheduler,
                            isolate=isolate) as ex, \
-                campaign_progress(progress, model_name, total, skipped, db) as advance:
-            for task, result in ex.run(execute_run, tasks,
-                                       on_submit=lambda t: db.mark_started([t[1]])):
+                campaign_progress(progress, model_name, total, skipped, db) as shown:
+            def submitted(task: tuple) -> None:
+                db.mark_started([task[1]])
+                shown.started(task[1])
+
+            for task, result in ex.run(execute_run, tasks, on_submit=submitted):
                 rec = result if isinstance(result, RunRecord) else _worker_died(task[1], result)
                 db.record(rec, simulator=sim.name, version=version)
-                if rec.status != "ok" and len(failures) < 20:
+                n_failed += rec.status != "ok"
+                if rec.status != "ok" and len(failures) < FAILURES_KEPT:
                     failures[rec.index] = f"{rec.status}: {rec.message}"
-                advance(rec.status)
+                shown.finished(rec.index, rec.status)
         counts, label = db.status_counts(), db.meta().get("design_kind", "")
     return CampaignSummary(model_name, path, total, skipped, len(todo), in_flight,
                            counts, failures, time.perf_counter() - start, ex.name, ex.workers,
-                           seed, imported, label)
+                           seed, imported, label, n_failed)
 
 
 def _reuse_imported(db: RunStore, todo: list) -> list:
@@ -325,6 +338,30 @@ def _complete_readonly(path: Path, network: Network, model: Model, seed: int,
                            meta.get("design_kind") or choice.label)
 
 
+def _stale_without_results(path: Path, network: Network, model: Model, seed: int) -> bool:
+    """Whether ``path`` is a store of another spec or seed of the model that holds no
+    ``ok`` run, hence nothing worth keeping (a simulator that failed everywhere, then
+    fixed in the spec): the campaign then starts it afresh, with a
+    :class:`~calnet.errors.CampaignWarning` naming what changed, instead of asking for
+    ``--fresh``."""
+    if not path.is_file():
+        return False
+    try:
+        with RunStore(path, readonly=True) as db:
+            meta, counts = db.meta(), db.status_counts()
+    except sqlite3.DatabaseError:
+        return False  # not a store: the writing path says so
+    if not meta or meta.get("model") != model.name or counts.get("ok", 0):
+        return False
+    change = _difference(meta, model, seed)
+    if change is None:
+        return False
+    warnings.warn(f"the store '{shown_path(path, network.root)}' of '{model.name}' held no "
+                  f"ok run and was made from another spec ({change}); it is started "
+                  "afresh", CampaignWarning, stacklevel=3)
+    return True
+
+
 def _check_versions(db: RunStore, model: str, shown: str, simulator: str, version: str,
                     more_to_run: bool) -> None:
     """Refuse to mix simulator versions in one design; warn when a finished store is old.
@@ -382,20 +419,36 @@ def _claim(db: RunStore, network: Network, model: Model, seed: int, simulator: s
                  "spec_sha256": _file_hash(network.source)})
 
 
+def _difference(meta: dict[str, str], model: Model, seed: int) -> str | None:
+    """How the model spec and seed that made a store (its ``meta``) differ from
+    ``model`` and ``seed``, in one phrase; None when they do not."""
+    fp = model_fingerprint(model)
+    if meta.get("model_hash") != fingerprint_hash(fp):
+        return describe_change(json.loads(meta.get("model_spec", "{}")), fp)
+    if str(meta.get("seed")) != str(seed):
+        return f"seed {meta.get('seed')} -> {seed}"
+    return None
+
+
 def _foreign(meta: dict[str, str], model: Model, seed: int, path: Path) -> str | None:
     """Why a store with metadata ``meta`` is not this model's with this seed (None: it is)."""
     fp = model_fingerprint(model)
     if meta.get("model_hash") != fingerprint_hash(fp):
         change = describe_change(json.loads(meta.get("model_spec", "{}")), fp)
         return (f"the store '{path}' was made from a different '{model.name}' spec "
-                f"({change}); simulate again with --fresh (calnet campaign or calnet "
-                "run), or pass calnet campaign a new --store")
+                f"({change}); simulate again with --fresh: {_WAYS_OUT}")
     if str(meta.get("seed")) != str(seed):
         return (f"the store '{path}' was made with seed {meta.get('seed')}, not {seed}; "
                 f"to keep it, set settings.seed back to {meta.get('seed')} (calnet campaign: "
-                f"--seed {meta.get('seed')}); for the new seed, simulate again with --fresh "
-                "(calnet campaign or calnet run) or give calnet campaign a new --store")
+                f"--seed {meta.get('seed')}); for the new seed, simulate again with --fresh: "
+                f"{_WAYS_OUT}")
     return None
+
+
+# the fixes of a store of another spec or seed, for calnet campaign and calnet run
+_WAYS_OUT = ("`calnet campaign SPEC --fresh` simulates the stores beside the spec again, "
+             "`calnet run SPEC --fresh --out OUT` those in OUT/campaigns (which later runs "
+             "with that --out use); or give calnet campaign a new --store")
 
 
 def _file_hash(path: str) -> str:

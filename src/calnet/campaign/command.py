@@ -6,14 +6,17 @@ Import-light: the spec, the driver, Dask and UM-Bridge load when the command run
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import typer
 
-from calnet.errors import CampaignError
+from calnet.campaign.interrupt import sigterm_exits
+from calnet.errors import CampaignError, CampaignWarning
 
 
+@sigterm_exits
 def campaign(
     spec: Annotated[Path, typer.Argument(
         metavar="SPEC", show_default=False, help="network YAML, or a folder with network.yaml")],
@@ -53,10 +56,12 @@ def campaign(
     so an interrupted campaign (Ctrl-C, a killed job) resumes where it stopped. With
     --workers K, K local processes (or a Dask LocalCluster with --executor dask) share
     the runs. With --import FILE, the finished runs of a table go into the store instead.
+    Ctrl-C exits with 130, SIGTERM with 143, the finished runs kept.
     """
     from rich.console import Console
 
     from calnet.campaign.campaign import import_runs, run_campaign
+    from calnet.campaign.failures import store_failure_note
     from calnet.campaign.table import check_export, export_runs
     from calnet.spec import load_spec
 
@@ -87,10 +92,15 @@ def campaign(
             console.print(f"exported to {export_runs(summary.store_path, export)}")
         if (summary.planned or summary.imported) and not summary.n_ok:
             useless.append(name)
+        elif summary.planned or summary.imported:  # shown at the end, with the warnings
+            note = store_failure_note(summary.store_path, network.model(name))
+            if note:
+                warnings.warn(note, CampaignWarning, stacklevel=2)
     if useless:
         raise CampaignError(f"no run of {', '.join(useless)} finished ok (the first failures "
                             "are listed above); fix the simulator, then run again with "
-                            "--retry-failed")
+                            "--retry-failed (a store that holds no ok run starts afresh by "
+                            "itself when the model's spec has changed)")
 
 
 def print_summary(summary: Any, console: Any) -> None:
@@ -115,5 +125,6 @@ def print_summary(summary: Any, console: Any) -> None:
     console.print(f"  store {summary.store_path}: {counts}")
     for index, message in list(summary.failures.items())[:5]:
         console.print(f"  [yellow]run {index}[/]: {message}", soft_wrap=True)
-    if len(summary.failures) > 5:
-        console.print(f"  ... {len(summary.failures) - 5} more not ok (see the store)")
+    more = max(summary.n_failed, len(summary.failures)) - min(len(summary.failures), 5)
+    if more > 0:
+        console.print(f"  ... {more} more not ok (see the store)")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import threading
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -10,22 +11,79 @@ from typing import Any
 from calnet.campaign.store import RunStore
 from calnet.progress import Lines, to_stderr
 
+EVERY_S = 10.0  # plain lines: one at least this often, also while no run finishes
+
+
+class Tracker:
+    """What a campaign tells its progress display: :meth:`started` when a run is handed
+    to a worker, :meth:`finished` when its result is stored. This one shows nothing."""
+
+    def started(self, index: int) -> None:
+        """Run ``index`` is in flight from now."""
+
+    def finished(self, index: int, status: str) -> None:
+        """Run ``index`` ended with ``status``."""
+
 
 @contextmanager
 def campaign_progress(progress: bool | Callable[[str], None], name: str, total: int,
-                      done: int, db: RunStore) -> Iterator[Any]:
-    """Yields ``advance(status)``: a Rich bar (done / failed / rate / ETA) on a terminal,
+                      done: int, db: RunStore) -> Iterator[Tracker]:
+    """Yields a :class:`Tracker`: a Rich bar (done / failed / rate / ETA) on a terminal,
     plain lines elsewhere or through ``progress`` when it is a callable."""
     failed = sum(n for k, n in db.status_counts().items() if k not in ("ok", "unfinished"))
     if not progress:
-        yield lambda status: None
+        yield Tracker()
         return
     from rich.console import Console
 
     if callable(progress) or not Console().is_terminal:
-        yield _lines(Lines(name, progress if callable(progress) else to_stderr), total, done,
-                     failed)
+        lines = Lines(name, progress if callable(progress) else to_stderr, every_s=EVERY_S)
+        tracker = _LineTracker(lines, total, done, failed)
+        with lines.heartbeat(tracker.text):
+            yield tracker
         return
+    with _bar(name, total, done, failed) as tracker:
+        yield tracker
+
+
+class _LineTracker(Tracker):
+    """A line at every 10 % of the runs, and one whenever :data:`EVERY_S` seconds pass
+    without one, naming the runs in flight and how long the oldest has been in flight
+    (so that a log tells a hung simulator from a slow one)."""
+
+    def __init__(self, lines: Lines, total: int, done: int, failed: int):
+        self.lines, self.total, self.done, self.failed = lines, total, done, failed
+        self.running: dict[int, float] = {}  # run index -> when it was handed out
+        self.lock = threading.Lock()
+        lines.note(f"{total - done} runs to go of {total}")
+
+    def started(self, index: int) -> None:
+        with self.lock:
+            self.running[index] = time.monotonic()
+
+    def finished(self, index: int, status: str) -> None:
+        with self.lock:
+            self.running.pop(index, None)
+            self.done += 1
+            self.failed += status != "ok"
+            fraction, text = self.done / self.total, self._counts()
+        self.lines.update(fraction, text)
+
+    def text(self) -> str:
+        """The counts and the runs in flight, for a line written while none finishes."""
+        with self.lock:
+            text = self._counts()
+            if self.running:
+                oldest = time.monotonic() - min(self.running.values())
+                text += f", {len(self.running)} in flight (the oldest for {oldest:.0f} s)"
+            return text
+
+    def _counts(self) -> str:
+        return f"{self.done}/{self.total} runs, {self.failed} failed"
+
+
+@contextmanager
+def _bar(name: str, total: int, done: int, failed: int) -> Iterator[Tracker]:
     from rich.progress import (
         BarColumn,
         MofNCompleteColumn,
@@ -40,29 +98,20 @@ def campaign_progress(progress: bool | Callable[[str], None], name: str, total: 
                TextColumn("{task.fields[rate]}"), TimeElapsedColumn(), TextColumn("ETA"),
                TimeRemainingColumn())
     with Progress(*columns, transient=False) as bar:
-        task = bar.add_task(name, total=total, completed=done, failed=failed, rate="")
-        counts = {"failed": failed, "run": 0}
-        start = time.perf_counter()
-
-        def advance(status: str) -> None:
-            counts["run"] += 1
-            counts["failed"] += status != "ok"
-            rate = counts["run"] / max(time.perf_counter() - start, 1e-9)
-            bar.update(task, advance=1, failed=counts["failed"],
-                       rate=f"{rate * 60:.1f} runs/min" if rate < 1 else f"{rate:.1f} runs/s")
-
-        yield advance
+        yield _BarTracker(bar, bar.add_task(name, total=total, completed=done, failed=failed,
+                                            rate=""), failed)
 
 
-def _lines(lines: Lines, total: int, done: int, failed: int) -> Callable[[str], None]:
-    """``advance(status)`` writing a line at every 10 % of the runs (and every 10 s)."""
-    counts = {"done": done, "failed": failed}
-    lines.note(f"{total - done} runs to go of {total}")
+class _BarTracker(Tracker):
+    """Advances a Rich bar (the bar's elapsed time shows that the campaign lives)."""
 
-    def advance(status: str) -> None:
-        counts["done"] += 1
-        counts["failed"] += status != "ok"
-        lines.update(counts["done"] / total, f"{counts['done']}/{total} runs, "
-                                             f"{counts['failed']} failed")
+    def __init__(self, bar: Any, task: Any, failed: int):
+        self.bar, self.task, self.failed, self.run = bar, task, failed, 0
+        self.start = time.perf_counter()
 
-    return advance
+    def finished(self, index: int, status: str) -> None:
+        self.run += 1
+        self.failed += status != "ok"
+        rate = self.run / max(time.perf_counter() - self.start, 1e-9)
+        self.bar.update(self.task, advance=1, failed=self.failed,
+                        rate=f"{rate * 60:.1f} runs/min" if rate < 1 else f"{rate:.1f} runs/s")

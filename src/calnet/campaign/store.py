@@ -127,10 +127,27 @@ def describe_change(old: Mapping[str, Any], new: Mapping[str, Any]) -> str:
             changes.append(f"order of the {group} changed")
     if old.get("outputs") != new.get("outputs"):
         changes.append(f"outputs changed from {old.get('outputs')} to {new.get('outputs')}")
-    if old.get("simulator") != new.get("simulator"):
-        changes.append(f"simulator changed from {old.get('simulator')} to "
-                       f"{new.get('simulator')}")
+    before, after = _flat(old.get("simulator") or {}), _flat(new.get("simulator") or {})
+    for key in sorted(before.keys() | after.keys()):
+        if before.get(key) != after.get(key):
+            changes.append(f"simulator {key}: {_shown(before.get(key))} -> "
+                           f"{_shown(after.get(key))}")
     return "; ".join(sorted(changes)) or "the model spec changed"
+
+
+def _flat(mapping: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    """A nested mapping as ``{"options.mesh": value}``: a change names its own key."""
+    out: dict[str, Any] = {}
+    for key, value in mapping.items():
+        if isinstance(value, Mapping):  # an empty one adds no key
+            out.update(_flat(value, f"{prefix}{key}."))
+        else:
+            out[f"{prefix}{key}"] = value
+    return out
+
+
+def _shown(value: Any) -> str:
+    return "(unset)" if value is None else str(value)
 
 
 class RunStore:

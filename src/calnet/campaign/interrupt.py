@@ -1,0 +1,76 @@
+"""SIGTERM ends a command as Ctrl-C does.
+
+A batch system (SLURM, PBS, ``timeout``) or ``kill`` stops a job with SIGTERM, whose
+default ends Python at once: no ``finally`` runs, the local worker processes are left to
+the kernel and Python's resource tracker reports their semaphores as leaked.
+:func:`sigterm_exit` (and the decorator :func:`sigterm_exits`) turns SIGTERM into
+:class:`Terminated`, a ``KeyboardInterrupt``, so that the work unwinds as after Ctrl-C
+(finished runs committed, the store closed, the workers stopped), then prints one line
+and exits with :data:`TERMINATED_EXIT`.
+"""
+
+from __future__ import annotations
+
+import functools
+import signal
+import threading
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from typing import Any
+
+import typer
+
+TERMINATED_EXIT = 143
+"""Exit code after SIGTERM: 128 + 15, as a shell reports a process SIGTERM ended
+(Ctrl-C exits with 130)."""
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM arrived (raised in the main thread, where Ctrl-C raises)."""
+
+
+@contextmanager
+def sigterm_as_interrupt() -> Iterator[None]:
+    """Within the block, SIGTERM raises :class:`Terminated` in the main thread; a second
+    SIGTERM while it unwinds is ignored, so that the clean-up ends. Outside the main
+    thread (where no handler can be set) the block runs as it is."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGTERM, _raise)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _raise(signum: int, frame: Any) -> None:
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    raise Terminated(f"signal {signum}")
+
+
+@contextmanager
+def sigterm_exit() -> Iterator[None]:
+    """Within the block, SIGTERM stops the work as Ctrl-C does; then one line on stderr
+    and exit code :data:`TERMINATED_EXIT` (``typer.Exit``)."""
+    try:
+        with sigterm_as_interrupt():
+            yield
+    except Terminated:
+        from rich.console import Console
+
+        Console(stderr=True).print("[bold red]interrupted[/] (SIGTERM): finished work is "
+                                   "kept; run the same command again to resume",
+                                   soft_wrap=True)
+        raise typer.Exit(TERMINATED_EXIT) from None
+
+
+def sigterm_exits(func: Callable[..., Any]) -> Callable[..., Any]:
+    """A command run within :func:`sigterm_exit`."""
+
+    @functools.wraps(func)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        with sigterm_exit():
+            return func(*args, **kwargs)
+
+    return wrapper
