@@ -91,12 +91,25 @@ class Exploration:
                 "box": self.box.tolist()}
 
 
-def process_box(data: ExperimentalData) -> np.ndarray:
+def process_box(data: ExperimentalData, network: Network | None = None) -> np.ndarray:
     """Bounds (n_inputs, 2) of a data set's process inputs over its data (the working
-    region), widened by 2 % of the span on each side."""
+    region), widened by 2 % of the span on each side (of the log span for an input
+    declared ``scale: log``) and kept within the inputs' declared bounds (``network``)."""
     lo, hi = data.x.min(axis=0), data.x.max(axis=0)
-    span = np.where(hi > lo, hi - lo, np.abs(hi) * 0.1 + 1e-9)
-    return np.column_stack([lo - 0.02 * span, hi + 0.02 * span])
+    inputs = ([network.model(m).variable(v) for m, v in (k.split(".", 1)
+                                                          for k in data.input_keys)]
+              if network is not None else [None] * len(lo))
+    box = np.empty((len(lo), 2))
+    for j, var in enumerate(inputs):
+        log = var is not None and getattr(var, "scale", "linear") == "log" and lo[j] > 0
+        a, b = (np.log(lo[j]), np.log(hi[j])) if log else (lo[j], hi[j])
+        span = b - a if b > a else abs(b) * 0.1 + 1e-9
+        a, b = a - 0.02 * span, b + 0.02 * span
+        a, b = (np.exp(a), np.exp(b)) if log else (a, b)
+        if var is not None and max(a, var.lower) < min(b, var.upper):
+            a, b = max(a, var.lower), min(b, var.upper)
+        box[j] = a, b
+    return box
 
 
 def explore_dataset(network: Network, surrogates: Surrogates, posterior: NetworkPosterior,
@@ -109,7 +122,7 @@ def explore_dataset(network: Network, surrogates: Surrogates, posterior: Network
     n_base = 128 if quick else 512
     total = posterior.n_draws
     note(f"Sobol {name}")
-    box = process_box(data)
+    box = process_box(data, network)
     names = [k.split(".")[1] for k in data.input_keys]
     mean_of = mean_function(network, surrogates, posterior, name, draw_index(total, 50))
     res = sobol_indices(mean_of, box, names=names, n_base=n_base, n_bootstrap=100,
