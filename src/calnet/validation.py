@@ -151,7 +151,8 @@ def psis_loo(network: Network, surrogates: Surrogates, posterior: NetworkPosteri
             "mean": mean.tolist(), "lower95": lo.tolist(), "upper95": hi.tolist(),
             "pit": pit.tolist(), "pit_check": pit_check(dataset, pit),
             "elpd_loo": float(loo.elpd_loo), "elpd_se": float(loo.se),
-            "p_loo": float(loo.p_loo), "pareto_k": khat.tolist(), "k_max": k_max,
+            "p_loo": float(loo.p_loo), "pareto_k": khat.tolist(),
+            "max_pareto_k": float(khat.max()) if khat.size else None, "k_threshold": k_max,
             "n_unreliable": int(len(bad)) - len(refit), "refit": refit, "n_draws": S}
 
 

@@ -69,6 +69,7 @@ def test_psis_loo_matches_the_exact_leave_one_out(tmp_path_factory):
     got = psis_loo(network, sur, post, "obs", seed=3)
     mean, sd, ll = exact_loo()
     assert max(got["pareto_k"]) < 0.7 and got["refit"] == [] and got["n_unreliable"] == 0
+    assert got["max_pareto_k"] == max(got["pareto_k"]) and got["k_threshold"] == 0.7
     # Monte Carlo error of a PSIS mean: about sd_post / sqrt(ESS); the posterior-only
     # part of the LOO sd is sqrt(sd^2 - SD^2), and the ESS is >= 1000 here
     err = np.sqrt(sd**2 - SD**2) / np.sqrt(1000)

@@ -251,7 +251,7 @@ def _sections(ctx, results: RunResults) -> list[Section]:
             lrows.append([
                 name, len(k), f"{fmt(loo['elpd_loo'])} ± {fmt(loo['elpd_se'])}",
                 fmt(loo["p_loo"]), fmt(float(k.max())),
-                f"{int(np.sum(k > loo['k_max']))} / {len(loo['refit'])} / "
+                f"{int(np.sum(k > loo['k_threshold']))} / {len(loo['refit'])} / "
                 f"{loo['n_unreliable']}",
                 " / ".join(fmt(c.get(f"pit_coverage{q}")) for q in (50, 80, 95)),
                 ("flagged" if check["flagged"] else "ok")
