@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import subprocess
@@ -119,3 +120,29 @@ def test_a_malformed_option_value_is_a_one_line_usage_error(argv, message):
     assert result.exit_code == 2, result.output
     assert result.output.startswith(f"error: {message}"), result.output
     assert len(result.output.strip().splitlines()) == 1, result.output
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["melt_pool", "--set", "P=-5", "--set", "v=0.5"],
+     "melt_pool: inputs ['P'] must be finite and positive"),
+    (["melt_pool", "--set", "P=-5", "--set", "v=0.5", "--option", "time_limit=5"],
+     "melt_pool: inputs ['P'] must be finite and positive"),  # not blamed on the option
+    (["phase_field", "--set", "S=0.1", "--set", "G=-1e7"], "must be finite and > 0")])
+def test_simulate_a_value_the_model_cannot_take_is_a_failed_run(argv, message):
+    res = CliRunner().invoke(app, ["simulate", *argv])
+    assert res.exit_code == 1, res.output
+    doc = json.loads(res.stdout)
+    assert doc["status"] == "failed" and message in doc["message"]
+    assert "internal error" not in res.output and "Traceback" not in res.output
+    assert "lies outside the bounds" in res.stderr
+
+
+def test_simulate_says_what_it_defaults_and_what_lies_outside_the_bounds():
+    res = CliRunner().invoke(app, ["simulate", "solidification", "--set", "S=50"])
+    assert res.exit_code == 0, res.output
+    assert json.loads(res.stdout)["status"] == "ok"
+    assert "G not given: G=1.1e+07 K/m (the middle of the bounds)" in res.stderr
+    assert "S=50 m/s lies outside the bounds [0.05, 0.6]" in res.stderr
+    quiet = CliRunner().invoke(app, ["simulate", "solidification", "--set", "S=0.3", "--set",
+                                     "G=1e7"])
+    assert quiet.exit_code == 0 and quiet.stderr == ""

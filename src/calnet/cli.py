@@ -276,7 +276,9 @@ def simulate(
 ) -> None:
     """Run one built-in simulation and print its outputs as JSON.
 
-    Parameters not given default to the middle of their bounds.
+    Inputs and parameters not given take the middle of their bounds (a warning names the
+    inputs); a value outside its bounds runs, with a warning; one the model cannot take
+    (not finite, not positive) gives status "failed" and exit code 1.
     """
     from calnet.simulators.registry import builtin_info
 
@@ -287,6 +289,22 @@ def simulate(
         raise CalnetError(f"'{name}' has no input or parameter {unknown}; it takes "
                           f"{list(info.inputs + info.parameters)}")
     inputs = {**info.defaults(), **values}
+
+    def unit(k: str) -> str:
+        u = info.units.get(k, "1")
+        return f" {u}" if u != "1" else ""
+
+    missing = [k for k in info.inputs if k not in values]
+    if missing:
+        warnings.warn(f"{', '.join(missing)} not given: "
+                      + ", ".join(f"{k}={inputs[k]:g}{unit(k)}" for k in missing)
+                      + " (the middle of the bounds); set it with --set NAME=VALUE",
+                      stacklevel=1)
+    for k, x in values.items():
+        lo, hi = info.bounds.get(k, (-math.inf, math.inf))
+        if not lo <= x <= hi:
+            warnings.warn(f"{k}={x:g}{unit(k)} lies outside the bounds [{lo:g}, {hi:g}]: "
+                          "the model runs there, but untested", stacklevel=1)
     options = _parse_options(option)
     try:
         result = info.simulate(inputs, **options)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 
 import numpy as np
 import pytest
@@ -307,6 +308,16 @@ def test_options_validated():
         melt_pool.simulate({"P": 100.0})
     with pytest.raises(ValueError, match="unknown inputs"):
         melt_pool.simulate({"P": 100.0, "v": 1.0, "K_X": 3.0})
+
+
+@pytest.mark.parametrize("inputs, match", [
+    ({"P": -5.0, "v": 0.5}, r"inputs \['P'\] must be finite and positive"),
+    ({"P": 100.0, "v": float("inf")}, r"inputs \['v'\] must be finite and positive"),
+    ({"P": 100.0, "v": 0.5, "A_0": 0.5, "A_max": 0.4}, "need A_0 <= A_max < 1")])
+def test_a_value_the_model_cannot_take_is_a_failed_run(inputs, match):
+    res = melt_pool.simulate(inputs)
+    assert res.status == "failed" and re.search(match, res.message), res.message
+    assert all(math.isnan(v) for v in res.outputs.values())
 
 
 def test_nonconvergence_is_reported_not_hidden():

@@ -288,12 +288,17 @@ def test_budget_exhausted_is_nonconverged_with_a_reason():
 @pytest.mark.parametrize("inputs, match", [
     ({"S": 0.3}, "missing control inputs"),
     ({"S": 0.3, "G": 1e7, "sigmaa": 1.0}, "unknown inputs"),
-    ({"S": -0.3, "G": 1e7}, "finite and > 0"),
-    ({"S": 0.3, "G": float("nan")}, "finite and > 0"),
 ])
-def test_bad_inputs_name_the_problem(inputs, match):
+def test_bad_input_names_name_the_problem(inputs, match):
     with pytest.raises(ValueError, match=match):
         phase_field.simulate(inputs, **TINY)
+
+
+@pytest.mark.parametrize("inputs", [{"S": -0.3, "G": 1e7}, {"S": 0.3, "G": float("nan")}])
+def test_a_value_the_model_cannot_take_is_a_failed_run(inputs):
+    res = phase_field.simulate(inputs, **TINY)
+    assert res.status == "failed" and "must be finite and > 0" in res.message
+    assert all(math.isnan(v) for v in res.outputs.values())
 
 
 def test_bad_options_name_the_problem():

@@ -71,6 +71,11 @@ def not_numbers(values: Mapping[str, Any], where: str = "") -> str:
                      if v is not None and not isinstance(v, numbers.Real))
 
 
+class InputValueError(ValueError):
+    """An input or parameter value a built-in model cannot take (not finite, not
+    positive); ``simulate`` turns it into a failed run."""
+
+
 def check_input_names(name: str, inputs: Mapping[str, Any], required: Sequence[str],
                       optional: Sequence[str], units: Mapping[str, str]) -> None:
     """Refuse a key that is neither a control input nor a parameter (a typo would

@@ -51,18 +51,23 @@ __all__ = ["BOUNDS", "INPUTS", "NAME", "OUTPUTS", "PARAMETERS", "UNITS", "VERSIO
            "MeltPoolOptions", "simulate"]
 
 
-def _check_inputs(inputs: Mapping[str, float]) -> tuple[float, float, dict[str, float]]:
+def _check_inputs(inputs: Mapping[str, float]
+                  ) -> tuple[float, float, dict[str, float], str | None]:
+    """``P``, ``v``, the parameters and, for values the model cannot take, a message
+    (the names are checked first: a missing or unknown name raises ValueError)."""
     check_input_names(NAME, inputs, INPUTS, PARAMETERS, UNITS)
     values = {k: float(inputs[k]) for k in inputs}
+    theta = {k: values.get(k, 0.5 * sum(BOUNDS[k])) for k in PARAMETERS}
     bad = [k for k, x in values.items() if not math.isfinite(x) or x <= 0]
     if bad:
-        raise ValueError(f"melt_pool: inputs {bad} must be finite and positive, got "
-                         f"{ {k: values[k] for k in bad} }")
-    theta = {k: values.get(k, 0.5 * sum(BOUNDS[k])) for k in PARAMETERS}
+        return (values["P"], values["v"], theta,
+                f"melt_pool: inputs {bad} must be finite and positive, got "
+                f"{ {k: values[k] for k in bad} }")
     if theta["A_max"] < theta["A_0"] or theta["A_max"] >= 1:
-        raise ValueError(f"melt_pool: need A_0 <= A_max < 1, got A_0={theta['A_0']}, "
-                         f"A_max={theta['A_max']}")
-    return values["P"], values["v"], theta
+        return (values["P"], values["v"], theta,
+                f"melt_pool: need A_0 <= A_max < 1, got A_0={theta['A_0']}, "
+                f"A_max={theta['A_max']}")
+    return values["P"], values["v"], theta, None
 
 
 def simulate(inputs: Mapping[str, float], **options: Any) -> SimResult:
@@ -88,7 +93,11 @@ def simulate(inputs: Mapping[str, float], **options: Any) -> SimResult:
         fine solve) the mesh, power, cells, iterations and CPU seconds.
     """
     opts = MeltPoolOptions.from_kwargs(**options)
-    P, v, theta = _check_inputs(inputs)
+    P, v, theta, bad = _check_inputs(inputs)
+    if bad:  # values the model cannot take: a failed run, as for a run that fails
+        return SimResult({k: float("nan") for k in OUTPUTS}, "failed", bad,
+                         {"converged": False, "theta": theta, "options": opts.to_dict(),
+                          "version": VERSION})
     try:
         rec = run(P, v, theta, opts)
     except (ValueError, FloatingPointError, np.linalg.LinAlgError, RuntimeError) as err:

@@ -22,7 +22,7 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
-from calnet.simulators.base import SimResult, check_input_names
+from calnet.simulators.base import InputValueError, SimResult, check_input_names
 from calnet.simulators.phase_field.options import RESOLUTIONS, PhaseFieldOptions
 from calnet.simulators.phase_field.outputs import summary
 from calnet.simulators.phase_field.solver import PhysicalParameters, run
@@ -53,14 +53,15 @@ def parameters(inputs: Mapping[str, float]) -> PhysicalParameters:
     Raises
     ------
     ValueError
-        On a missing input, an unknown key, or a value that is not finite and > 0.
+        On a missing input or an unknown key; :class:`InputValueError` (a ValueError) on
+        a value that is not finite and > 0.
     """
     check_input_names(NAME, inputs, INPUTS, PARAMETERS, UNITS)
     v = {k: float(inputs[k]) if k in inputs else 0.5 * sum(BOUNDS[k])
          for k in INPUTS + PARAMETERS}
     bad = {k: x for k, x in v.items() if not (math.isfinite(x) and x > 0)}
     if bad:
-        raise ValueError(f"{NAME}: {bad} must be finite and > 0 (units {UNITS})")
+        raise InputValueError(f"{NAME}: {bad} must be finite and > 0")
     return PhysicalParameters(S=v["S"], G=v["G"], sigma=v["sigma"] * TO_SI["sigma"],
                               mobility=v["M"] * TO_SI["M"],
                               permeability=v["p_int"] * TO_SI["p_int"])
@@ -99,10 +100,15 @@ def simulate(inputs: Mapping[str, float], **options: Any) -> SimResult:
     Raises
     ------
     ValueError
-        On bad inputs or options (see :func:`parameters`).
+        On a missing or unknown input name or a bad option; a value the model cannot
+        take (not finite and > 0) gives a ``"failed"`` result instead.
     """
     opts = PhaseFieldOptions.from_kwargs(**options)
-    p = parameters(inputs)
+    try:
+        p = parameters(inputs)
+    except InputValueError as err:  # a value the model cannot take: a failed run
+        return SimResult({k: math.nan for k in OUTPUTS}, "failed", str(err),
+                         {"options": opts.to_dict(), "version": VERSION})
     # the stable step covers diffusion and the phase field, not the anti-trapping current,
     # which can make the explicit step unstable at a high interface permeability: a run
     # whose fields diverge starts again with half the step, at most MAX_HALVINGS times
