@@ -27,7 +27,14 @@ from calnet.calibration.calibrate_network import NetworkPosterior, uncalibrated
 from calnet.calibration.koh import KOHModel
 from calnet.calibration.persist import FILE as POSTERIOR_FILE
 from calnet.calibration.persist import load_posterior
-from calnet.calibration.terms import draw_index, draws_at, hyper_at, known_noise_var, make_term
+from calnet.calibration.terms import (
+    draw_index,
+    draws_at,
+    hyper_at,
+    known_noise_var,
+    links_into,
+    make_term,
+)
 from calnet.chain import ChainPlan
 from calnet.errors import CalnetError, UsageError
 from calnet.spec import Network
@@ -93,11 +100,6 @@ class Prediction:
                 "mean": self.mean.tolist(), "lower95": self.lower.tolist(),
                 "upper95": self.upper.tolist(),
                 "variance_shares": self.shares()}
-
-
-def _link_keys(plan: ChainPlan) -> tuple[str, ...]:
-    return tuple(dict.fromkeys(src[2] for m in plan.models for src in m.sources
-                               if src[0] == "output"))
 
 
 @partial(jax.jit, static_argnums=(0,))
@@ -366,7 +368,8 @@ def predict(network: Network, surrogates: Surrogates, posterior: NetworkPosterio
         raise CalnetError(f"predict: expected {len(st.keys)} process inputs "
                           f"{list(st.keys)}, got {x.shape[1]} columns")
     xp_new = {k: device_array(x[:, j]) for j, k in enumerate(st.keys)}
-    links = _link_keys(st.spec.plan)
+    # the surrogates upstream of the observed model: the others play no part
+    links = links_into(st.spec.plan, network.dataset(dataset).observed_model)
     eps = {k: device_array(point_normals(seed, x, f"emulator {k}", (len(idx),)))
            for k in links}
     noise_new = _noise_at(st, len(x), noise_var)

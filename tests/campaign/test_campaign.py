@@ -134,6 +134,19 @@ def test_not_a_store(tmp_path):
         RunStore(bad)
 
 
+def test_a_damaged_store_is_called_damaged(tmp_path):
+    """A store cut short (a copy interrupted, a disk fault): SQLite finds it malformed; the
+    error says so and how to recover, not that it is no store."""
+    net = toy_network(tmp_path, runs=6)
+    run_campaign(net, "toy", progress=False)
+    path = default_store(net, "toy")
+    with open(path, "r+b") as fh:
+        fh.truncate(path.stat().st_size // 2)
+    with pytest.raises(CampaignError, match=r"is damaged \(database disk image is "
+                                            r"malformed\).*--fresh"):
+        load_runs(net, "toy")
+
+
 def test_export_csv_and_parquet(tmp_path, monkeypatch):
     import pandas as pd
 

@@ -363,6 +363,7 @@ _UNWRITABLE = {3: "permission denied", 8: "it is read-only", 10: "a disk I/O err
                "disk full or read-only?)", 13: "no space left on its disk",
                14: "it cannot be opened for writing (is its folder read-only?)"}
 _BUSY = (5, 6)
+_CORRUPT = 11  # SQLITE_CORRUPT: "database disk image is malformed"
 
 
 def store_error(path: Path, err: sqlite3.Error) -> CampaignError:
@@ -377,8 +378,12 @@ def store_error(path: Path, err: sqlite3.Error) -> CampaignError:
     if code in _BUSY:
         return CampaignError(f"the campaign store '{path}' is locked by another process "
                              f"({err}); wait for it to finish, then run again")
+    if code == _CORRUPT:
+        return CampaignError(f"the campaign store '{path}' is damaged ({err}): its runs "
+                             "cannot be read; restore it from a copy, or simulate again "
+                             "with --fresh (which replaces it)")
     return CampaignError(f"'{path}' is not a calnet campaign store ({err}); pass another "
-                         "--store or remove the file")
+                         "--store, or --fresh to replace it")
 
 
 @contextmanager
