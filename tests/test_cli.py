@@ -146,3 +146,22 @@ def test_simulate_says_what_it_defaults_and_what_lies_outside_the_bounds():
     quiet = CliRunner().invoke(app, ["simulate", "solidification", "--set", "S=0.3", "--set",
                                      "G=1e7"])
     assert quiet.exit_code == 0 and quiet.stderr == ""
+
+
+def test_a_read_only_output_folder_is_said_in_words(tmp_path, monkeypatch):
+    import errno
+    from pathlib import Path
+
+    mkdir = Path.mkdir
+
+    def refuse(self, *args, **kwargs):  # the folder under tmp_path is on a read-only disk
+        if tmp_path in self.parents:
+            raise OSError(errno.EROFS, "Read-only file system", str(self))
+        return mkdir(self, *args, **kwargs)
+
+    monkeypatch.setattr(Path, "mkdir", refuse)
+    ninb = Path(__file__).parents[1] / "examples" / "ninb"
+    res = CliRunner().invoke(app, ["surrogates", str(ninb), "--out", str(tmp_path / "x")])
+    assert res.exit_code == 1, res.output
+    assert res.output.strip() == (f"error: cannot write '{tmp_path / 'x'}': the file system "
+                                  "is read-only (write to another folder)")

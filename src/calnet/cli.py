@@ -170,9 +170,14 @@ def user_errors(func: Callable[..., Any]) -> Callable[..., Any]:
                     raise
                 _show_warnings(caught)
                 if isinstance(err, OSError) and err.filename:  # a path given, e.g. --out a file
-                    err_console.print(f"[bold red]error:[/] {err}; check the paths given "
-                                      "(--out, --output, ...): folders where folders are "
-                                      "expected, writable", soft_wrap=True)
+                    from calnet.files import write_cause
+
+                    cause = write_cause(err)
+                    err_console.print(
+                        f"[bold red]error:[/] {escape(f'cannot write {err.filename!r}: {cause}')}"
+                        if cause else f"[bold red]error:[/] {err}; check the paths given "
+                        "(--out, --output, ...): folders where folders are expected, "
+                        "writable", soft_wrap=True)
                     raise typer.Exit(1) from None
                 err_console.print(f"[bold red]internal error:[/] {type(err).__name__}: {err}\n"
                                   "This is a bug in calnet; set CALNET_DEBUG=1 for the "

@@ -34,6 +34,12 @@ def why(err: OSError) -> str:
     return _CAUSES.get(err.errno, f"{err.strerror or err} (check the folder and the disk)")
 
 
+def write_cause(err: OSError) -> str | None:
+    """The cause of a failed write in words where it is one of the known ones (a full
+    disk, a read-only file system, no permission), else None."""
+    return _CAUSES.get(err.errno)
+
+
 def write_error(path: str | Path, err: OSError) -> CalnetError:
     """The one-line error of a file that could not be written."""
     return CalnetError(f"cannot write '{path}': {why(err)}")
