@@ -294,6 +294,7 @@ def simulate(
         raise CalnetError(f"'{name}' has no input or parameter {unknown}; it takes "
                           f"{list(info.inputs + info.parameters)}")
     inputs = {**info.defaults(), **values}
+    options = _parse_options(option)
 
     def unit(k: str) -> str:
         u = info.units.get(k, "1")
@@ -303,14 +304,13 @@ def simulate(
     if missing:
         warnings.warn(f"{', '.join(missing)} not given: "
                       + ", ".join(f"{k}={inputs[k]:g}{unit(k)}" for k in missing)
-                      + " (the middle of the bounds); set it with --set NAME=VALUE",
+                      + " (the middle of the bounds); give inputs with --set NAME=VALUE",
                       stacklevel=1)
     for k, x in values.items():
         lo, hi = info.bounds.get(k, (-math.inf, math.inf))
         if not lo <= x <= hi:
             warnings.warn(f"{k}={x:g}{unit(k)} lies outside the bounds [{lo:g}, {hi:g}]: "
                           "the model runs there, but untested", stacklevel=1)
-    options = _parse_options(option)
     try:
         result = info.simulate(inputs, **options)
     except (TypeError, ValueError) as err:
