@@ -121,13 +121,13 @@ def _check_predict(work: Path, out: Path, tmp_path: Path) -> None:
         assert 0 < lo < m < hi
     shares = doc[0]["variance_shares"]
     assert abs(sum(shares.values()) - 1) < 1e-9 and "emulator thermal.G" in shares
-    # the widths have no surrogate upstream: the budget names none (thermal.G and
-    # micro.lam feed the models downstream of them)
+    # the widths have no surrogate upstream: the budget names their own (thermal.W) and
+    # none of those feeding the models downstream of them (thermal.G, micro.lam)
     res = runner.invoke(app, ["predict", str(work), "--run", str(out), "--at", "P=200,v=0.5",
                               "-d", "width", "--json"])
     assert res.exit_code == 0, res.output
     shares = json.loads(res.output)["predictions"][0]["variance_shares"]
-    assert not any(k.startswith("emulator") for k in shares), shares
+    assert [k for k in shares if k.startswith("emulator")] == ["emulator thermal.W"], shares
     points = tmp_path / "points.csv"
     points.write_text("P,v\n150,0.8\n300,0.5\n")
     table = tmp_path / "pred.csv"
