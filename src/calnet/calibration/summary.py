@@ -89,6 +89,9 @@ def posterior_summary(network: Network, post: NetworkPosterior) -> dict:
                       "min_ess_bulk": all_ess,
                       "stage": " ; ".join("+".join(s.models) for s in stages),
                       "datasets": sorted({d for s in stages for d in s.datasets})}
+        moved_by = sorted({k for s in stages for k in s.moved_by})
+        if moved_by:
+            out[model]["moved_by"] = moved_by
     return out
 
 

@@ -185,6 +185,10 @@ def _sampler_warning(stage: str, s: Mapping[str, Any], cal: CalibrationResult) -
         problems.append(f"{s['divergences']} divergent transitions")
     if not problems:
         return None
+    if s.get("moved_by"):  # the draws were moved by upstream posterior draws
+        return (f"{stage}: its draws have not converged ({', '.join(problems)}); they carry "
+                f"the posterior draws of {', '.join(s['moved_by'])} (segmented mode), so "
+                "check those stages' convergence first.")
     return f"{stage}: the sampler has not converged ({', '.join(problems)}); run more draws."
 
 
