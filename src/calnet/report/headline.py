@@ -145,15 +145,16 @@ def _lines(results: RunResults) -> list[str]:
                 + (", ".join(results.predicted_outputs) or "nothing (settings."
                    "predict is empty)") + " through the chain." + (
                     " Quick run: fewer restarts and folds." if results.quick else "")]
-    if not summary:
-        return [f"Calibration: {cal.mode}; no calibration parameters, so only "
-                "the data sets' discrepancy and unknown noise are calibrated."]
-    calibrated = [m for m, s in summary.items() if not s.get("prior_only")]
-    prior = [m for m, s in summary.items() if s.get("prior_only")]
-    lines = [f"Calibration: {cal.mode}, {len(calibrated)} model(s) with data"
-             + (f"; at their prior (no data): {', '.join(prior)}" if prior else "")
-             + "." + (" Quick run: fewer draws, restarts and folds." if results.quick
-                      else "")]
+    if not any(s.get("parameters") for s in summary.values()):
+        lines = [f"Calibration: {cal.mode}; no calibration parameters, so only "
+                 "the data sets' discrepancy and unknown noise are calibrated."]
+    else:
+        calibrated = [m for m, s in summary.items() if not s.get("prior_only")]
+        prior = [m for m, s in summary.items() if s.get("prior_only")]
+        lines = [f"Calibration: {cal.mode}, {len(calibrated)} model(s) with data"
+                 + (f"; at their prior (no data): {', '.join(prior)}" if prior else "")
+                 + "." + (" Quick run: fewer draws, restarts and folds." if results.quick
+                          else "")]
     stages = _stages(summary)
     if stages:
         rhat = max(s["max_rhat"] for s in stages.values())
