@@ -425,6 +425,10 @@ def calibrate(
         if s.get("prior_only"):
             table.add_row(model, "(no data: prior kept)", *[""] * 7)
             continue
+        if not s["parameters"]:  # only its data's discrepancy and noise were sampled
+            table.add_row(model, "(no parameters)", *[""] * 5, f"{s['max_rhat']:.3f}",
+                          f"{s['min_ess_bulk']:.0f}")
+            continue
         for name, r in s["parameters"].items():
             table.add_row(model, name, f"[{r['lower']:g}, {r['upper']:g}]", f"{r['mode']:.4g}",
                           f"{r['mean']:.4g}", f"[{r['q2.5']:.4g}, {r['q97.5']:.4g}]",

@@ -232,6 +232,8 @@ def test_segmented_plugs_prior_draws_of_an_upstream_model_without_data(indep, pl
         post = calibrate(network, sur, data=train, mode="segmented", plug=plug,
                          sampler=short, seed=5)
     assert post.prior_only == ("up",) and [s.models for s in post.stages] == [("down",)]
+    # with the prior draws plugged in, down's draws are moved by them: said in the stage
+    assert post.stages[0].moved_by == (("up.a",) if plug == "posterior" else ())
     assert post.theta["up"].shape == (100, 1) == post.theta["down"].shape
     assert np.all((post.theta["up"] >= 0.5) & (post.theta["up"] <= 1.5))
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import shutil
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -107,6 +108,24 @@ def test_cli_calibrate_and_predict_with_data_but_no_parameters(tmp_path, monkeyp
                               "--out", str(out / "posterior")], terminal_width=400)
     assert res.exit_code == 0, res.output
     assert "no calibration parameters: nothing to sample" in res.output
+    # with the noise unknown, it is sampled: the model is listed with its diagnostics
+    spec["data"]["yd"].pop("noise")
+    (work / "network.yaml").write_text(yaml.safe_dump(spec))
+    from calnet.calibration import calibrate
+    from calnet.calibration.summary import calibration_result
+    from calnet.errors import CalibrationWarning
+    from calnet.predict import load_surrogates
+    from calnet.spec import SamplerSettings, load_spec, read_all
+
+    network = load_spec(work)
+    with warnings.catch_warnings():  # a short run: its diagnostics may warn
+        warnings.simplefilter("ignore", CalibrationWarning)
+        post = calibrate(network, load_surrogates(network, out), seed=1,
+                         data={k: d.train for k, d in read_all(network).items()},
+                         sampler=SamplerSettings(chains=2, warmup=100, draws=100))
+    m3 = calibration_result(network, post).models["M3"]
+    assert m3["parameters"] == {} and m3["datasets"] == ["yd"]
+    assert m3["max_rhat"] > 0 and m3["min_ess_bulk"] > 0 and "prior_only" not in m3
     res = runner.invoke(app, ["predict", str(work), "--run", str(out), "--at", "x=0.8",
                               "--json"])
     assert res.exit_code == 0, res.output

@@ -95,3 +95,16 @@ def test_emulation_only_and_parameterless_runs_say_what_was_calibrated():
     assert table.rows == (("M3.y", "x", "[1, 4]", "1.133", "2", "mm"),)  # widths 1, .4, 2
     with_data = replace(emulated, calibration=calibration({}, checks={}))
     assert "no calibration parameters" in headline(with_data).lines[0]
+
+
+def test_draws_moved_by_upstream_draws_point_at_the_upstream_stage():
+    """Segmented with plugged posterior draws: a stage's draws carry the upstream ones, so
+    an upstream stage whose chains disagree leaves the downstream R-hat high too; the
+    warning says where to look instead of asking for more draws of this stage."""
+    s = summary(rhat=1.844, ess=3.0)
+    s["micro"]["moved_by"] = ["thermal.a"]
+    box = headline(results([BOUND], cal=calibration(s)))
+    assert box.warnings[1] == ("micro: its draws have not converged (max R-hat 1.844 > 1.01, "
+                               "min bulk ESS 3 < 400); they carry the posterior draws of "
+                               "thermal.a (segmented mode), so check those stages' "
+                               "convergence first.")

@@ -65,6 +65,10 @@ class StageResult:
     #: R-hat, ESS and the other diagnostics of ``idata`` where the calibration computed
     #: them (None where it did not, e.g. for a stage moved by linear response)
     diagnostics: PosteriorSummary | None = field(default=None, compare=False, repr=False)
+    #: keys of the upstream parameters whose posterior draws moved this stage's draws
+    #: (segmented, ``plug="posterior"``): the draws carry those stages' uncertainty and
+    #: their convergence
+    moved_by: tuple[str, ...] = ()
 
     def draws(self, var: str) -> np.ndarray:
         """Flattened draws of a posterior variable, shape (chains * draws, ...)."""
@@ -401,7 +405,8 @@ def _segmented(network, surrogates, data, plan, seed, sampler, emu, plug, progre
             idata = cut_by_linear_response(ld, idata, {k: draws[k] for k in moved},
                                            {k: plug_at[k] for k in moved})
             diagnostics = None  # of the draws before the move
-        stage = StageResult((name,), tuple(own), idata, ld, diagnostics)
+        stage = StageResult((name,), tuple(own), idata, ld, diagnostics,
+                            tuple(moved) if diagnostics is None else ())
         stages.append(stage)
         draws.update(key_draws(stage))
         for k in free:

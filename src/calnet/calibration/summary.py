@@ -89,6 +89,21 @@ def posterior_summary(network: Network, post: NetworkPosterior) -> dict:
                       "min_ess_bulk": all_ess,
                       "stage": " ; ".join("+".join(s.models) for s in stages),
                       "datasets": sorted({d for s in stages for d in s.datasets})}
+        moved_by = sorted({k for s in stages for k in s.moved_by})
+        if moved_by:
+            out[model]["moved_by"] = moved_by
+    for stage in post.stages:  # a model without parameters whose data's hyperparameters
+        for model in stage.models:  # (discrepancy, unknown noise) were sampled
+            if model not in out or out[model].get("prior_only"):
+                d = diag(stage)["summary"]
+                out[model] = {"parameters": {}, "max_rhat": d.max_r_hat,
+                              "min_ess_bulk": d.min_ess_bulk,
+                              "divergences": int(np.asarray(
+                                  stage.idata.sample_stats["diverging"]).sum()),
+                              "stage": "+".join(stage.models),
+                              "datasets": sorted(stage.datasets)}
+                if stage.moved_by:
+                    out[model]["moved_by"] = sorted(stage.moved_by)
     return out
 
 
@@ -125,7 +140,7 @@ def calibration_result(network: Network, post: NetworkPosterior, *,
     """
     summary = posterior_summary(network, post)
     panels = {model: prior_panels(network, post, model, s) for model, s in summary.items()
-              if not s.get("prior_only")}
+              if s.get("parameters")}
     sampler = sampler or network.settings.sampler
     return CalibrationResult(
         mode=post.mode, plug=post.plug, calibrated=post.calibrated, models=summary,

@@ -212,6 +212,10 @@ def _sections(ctx, results: RunResults) -> list[Section]:
         if s.get("prior_only"):
             rows.append([model, "(no data: prior)"] + [""] * 7)
             continue
+        if not s["parameters"]:
+            rows.append([model, "(no parameters: its data's discrepancy and noise sampled)"]
+                        + [""] * 5 + [fmt(s.get("max_rhat")), fmt(s.get("min_ess_bulk"))])
+            continue
         for p, r in s["parameters"].items():
             rows.append([model, p, f"[{fmt(r['lower'])}, {fmt(r['upper'])}]", fmt(r["mode"]),
                          fmt(r["mean"]), f"[{fmt(r['q2.5'])}, {fmt(r['q97.5'])}]", r["unit"],

@@ -145,15 +145,16 @@ def _lines(results: RunResults) -> list[str]:
                 + (", ".join(results.predicted_outputs) or "nothing (settings."
                    "predict is empty)") + " through the chain." + (
                     " Quick run: fewer restarts and folds." if results.quick else "")]
-    if not summary:
-        return [f"Calibration: {cal.mode}; no calibration parameters, so only "
-                "the data sets' discrepancy and unknown noise are calibrated."]
-    calibrated = [m for m, s in summary.items() if not s.get("prior_only")]
-    prior = [m for m, s in summary.items() if s.get("prior_only")]
-    lines = [f"Calibration: {cal.mode}, {len(calibrated)} model(s) with data"
-             + (f"; at their prior (no data): {', '.join(prior)}" if prior else "")
-             + "." + (" Quick run: fewer draws, restarts and folds." if results.quick
-                      else "")]
+    if not any(s.get("parameters") for s in summary.values()):
+        lines = [f"Calibration: {cal.mode}; no calibration parameters, so only "
+                 "the data sets' discrepancy and unknown noise are calibrated."]
+    else:
+        calibrated = [m for m, s in summary.items() if not s.get("prior_only")]
+        prior = [m for m, s in summary.items() if s.get("prior_only")]
+        lines = [f"Calibration: {cal.mode}, {len(calibrated)} model(s) with data"
+                 + (f"; at their prior (no data): {', '.join(prior)}" if prior else "")
+                 + "." + (" Quick run: fewer draws, restarts and folds." if results.quick
+                          else "")]
     stages = _stages(summary)
     if stages:
         rhat = max(s["max_rhat"] for s in stages.values())
@@ -185,6 +186,10 @@ def _sampler_warning(stage: str, s: Mapping[str, Any], cal: CalibrationResult) -
         problems.append(f"{s['divergences']} divergent transitions")
     if not problems:
         return None
+    if s.get("moved_by"):  # the draws were moved by upstream posterior draws
+        return (f"{stage}: its draws have not converged ({', '.join(problems)}); they carry "
+                f"the posterior draws of {', '.join(s['moved_by'])} (segmented mode), so "
+                "check those stages' convergence first.")
     return f"{stage}: the sampler has not converged ({', '.join(problems)}); run more draws."
 
 

@@ -54,7 +54,7 @@ def write_posterior_csv(folder: str | Path, theta: Mapping[str, np.ndarray],
         The draws and the summary files.
     """
     folder = make_folder(folder)
-    models = [m for m, s in summary.items() if not s.get("prior_only")]
+    models = [m for m, s in summary.items() if s.get("parameters")]  # sampled parameters
     header = ["draw"] + [f"{m}.{p}" for m in models for p in summary[m]["parameters"]]
     columns = [np.asarray(theta[m], float) for m in models]
     n = columns[0].shape[0] if columns else 0
