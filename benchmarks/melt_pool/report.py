@@ -18,8 +18,10 @@ def _load(name: str) -> list[dict]:
     return json.loads(path.read_text()) if path.exists() else []
 
 
-def convergence_table() -> str:
-    recs = _load("convergence")
+def convergence_table(name: str = "convergence") -> str:
+    """``resolution`` 1 against 2 (records of phase ``name``: ``convergence``, or
+    ``convergence_exposure`` for ``consolidation="exposure"``)."""
+    recs = _load(name)
     by = {(r["inputs"]["P"], r["inputs"]["v"], r["tag"]): r for r in recs}
     lines = ["| P (W) | v (m/s) | cells h / h/2 | W (um) h / h/2 | dW | D (um) h / h/2 | dD "
              "| G0 (K/m) h / h/2 | dG0 | pass |",
@@ -214,5 +216,7 @@ if __name__ == "__main__":
                       ("consolidation=\"exposure\"", lambda: start_table("exposure")),
                       ("consolidation=\"exposure\" at the sanity settings",
                        variant_sanity_table),
+                      ("consolidation=\"exposure\": mesh convergence",
+                       lambda: convergence_table("convergence_exposure")),
                       ("Physical sanity", sanity_table), ("Robustness corners", corners_table)):
         print(f"### {title}\n\n{fn()}\n")

@@ -392,12 +392,13 @@ def test_kink_rule_from_the_edge_stops_in_the_mushy_zone():
     assert _stop_at_kinks(T, dT, NI5NB, from_edge=True).tolist() == [T_S + 1.0, T_L - 1.0]
 
 
-def test_cycle_factor_halves_only_a_flat_reversal():
+def test_cycle_factor_halves_only_a_two_cycle():
     d = np.array([20.0, -17.0, 1.0])
-    assert _cycle_factor(-d, d, 2.72e-3, 2.73e-3) == CYCLE_STEP  # reversed, flat residual
-    assert _cycle_factor(-d, d, 1.0e-3, 2.73e-3) == 1.0  # the residual fell 2.7x
-    assert _cycle_factor(d, d, 2.72e-3, 2.73e-3) == 1.0  # same direction
-    assert _cycle_factor(-d, None, 2.72e-3, None) == 1.0  # first step of a solve
+    assert _cycle_factor(-d, d, -d) == CYCLE_STEP  # reverses the last, repeats the one before
+    assert _cycle_factor(-d, d, None) == 1.0  # a single reversal
+    assert _cycle_factor(-d, d, np.array([0.0, 0.0, 5.0])) == 1.0
+    assert _cycle_factor(d, d, d) == 1.0  # same direction
+    assert _cycle_factor(-d, None, None) == 1.0  # first step of a solve
 
 
 def test_field_consolidation_option_lands_near_the_default():

@@ -25,8 +25,9 @@ Two safeguards apply to the exposure form, whose converged state does not depend
 the path (:func:`_cycle_factor`, ``_stop_at_kinks(..., from_edge=True)``): a Newton
 2-cycle whose residual stays flat is not seen by the pseudo-time rule above (the
 residual never rises by ``RISE``, so ``dt`` grows to ``DT_MAX``), and is broken by
-halving the update that reverses the last one; and a cell that the kink rule left
-1 K outside the mushy zone stops at the kink again instead of jumping across it.
+halving an update that reverses the last one and repeats the one before; and a cell
+that the kink rule left 1 K outside the mushy zone stops at the kink again instead of
+jumping across it.
 """
 
 from __future__ import annotations
@@ -61,7 +62,6 @@ LIN_FLOOR = 1e-10  # smallest relative GMRES tolerance (the forcing is 0.1 x sca
 CALM_UPDATE = 0.0  # K; after an update below this, the cap on dt is lifted (0: never)
 CALM_FIXED_FRONT = False  # lift it only if the consolidation front did not move either
 CYCLE_STEP = 0.5  # update factor at a 2-cycle (exposure form; benchmarks/README.md)
-CYCLE_FLAT = 1.25  # a 2-cycle: the update reverses the last, the residual moves < 1.25x
 
 
 @dataclass(frozen=True)
@@ -166,21 +166,24 @@ class LinearSolver:
         return x, len(res)
 
 
-def _cycle_factor(dT: np.ndarray, last: np.ndarray | None, r2: float,
-                  r2_last: float | None) -> float:
+def _cycle_factor(dT: np.ndarray, last: np.ndarray | None, before: np.ndarray | None
+                  ) -> float:
     """Factor on the Newton update ``dT``: ``CYCLE_STEP`` at a 2-cycle, else 1.
 
-    A 2-cycle: ``dT`` reverses the last update (cosine below -0.5) while the residual
-    L2 norm ``r2`` moved by less than ``CYCLE_FLAT`` against the last one, ``r2_last``.
-    Halving the update lands on the cycle's midpoint. Where the residual rises or
-    falls faster, as in the pseudo-transients of the continuation stages, the update
-    is left alone (halving it there too cost 152 W / 0.32 m/s its convergence within
-    ``max_iter``).
+    A 2-cycle: ``dT`` reverses the last update ``last`` (cosine below -0.5) and repeats
+    the one ``before`` it (cosine above 0.5). Halving the update lands on the cycle's
+    midpoint. A single reversal is left alone: halving every update that reverses the
+    last one (cosine below -0.5) slowed the pseudo-transients of the continuation
+    stages enough that 152 W / 0.32 m/s ran out of ``max_iter``.
     """
-    if last is None or r2_last is None or abs(np.log(r2 / r2_last)) >= np.log(CYCLE_FLAT):
+    if last is None or before is None:
         return 1.0
-    reverse = float(dT @ last) < -0.5 * float(np.linalg.norm(dT) * np.linalg.norm(last))
-    return CYCLE_STEP if reverse else 1.0
+    norm = float(np.linalg.norm(dT))
+
+    def cosine(a: np.ndarray) -> float:
+        return float(dT @ a) / max(norm * float(np.linalg.norm(a)), 1e-300)
+
+    return CYCLE_STEP if cosine(last) < -0.5 and cosine(before) > 0.5 else 1.0
 
 
 def _with_exposure(M: sp.csr_matrix, disc: Discretization, T: np.ndarray,
@@ -230,7 +233,7 @@ def newton_solve(disc: Discretization, laws: MaterialLaws, T0: np.ndarray, *,
     linear_solve = LinearSolver()
     ceiling = DT_MAX
     memoryless = consolidation == "exposure"
-    last_step, r2_last = None, None
+    last_step, step_before = None, None
     for it in range(1, max_iter + 1):
         if deadline is not None and time.monotonic() > deadline:
             reason = "time limit reached"
@@ -256,7 +259,6 @@ def newton_solve(disc: Discretization, laws: MaterialLaws, T0: np.ndarray, *,
         if rnorm <= rtol and upd <= ttol and not front_moved:
             return SolveReport(T, True, "", it - 1, rnorm, upd, lin_total, A, Ts, frac)
         r2 = float(np.linalg.norm(R))
-        r2_last = r0_norm
         if r0_norm is not None:  # grow dt while the residual falls (SER-like)
             rising = r2 > RISE * r0_norm
             calm = 0 if rising else calm + 1
@@ -289,8 +291,8 @@ def newton_solve(disc: Discretization, laws: MaterialLaws, T0: np.ndarray, *,
         if big > max_update:
             dT *= max_update / big
         if memoryless:
-            dT *= _cycle_factor(dT, last_step, r2, r2_last)
-            last_step = dT
+            dT *= _cycle_factor(dT, last_step, step_before)
+            last_step, step_before = dT, last_step
         T = np.maximum(_stop_at_kinks(T, dT, disc.mat, from_edge=memoryless),
                        0.5 * disc.mat.T_ambient)
         upd = min(big, max_update)
