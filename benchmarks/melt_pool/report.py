@@ -115,9 +115,11 @@ def _sanity() -> list[dict]:
 
 
 def variant_sanity_table(name: str = "sanity_exposure") -> str:
-    """A variant's sanity runs (phase ``sanity-exposure``) against the default ones."""
+    """A variant's sanity runs (phases ``sanity-exposure`` and, from the last row,
+    ``sanity-exposure-reverse``, one record per sample) against the default ones."""
     default = {r["tag"]: r for r in _sanity()}
-    recs = _load(name)
+    by = {r["tag"]: r for r in _load(f"{name}_reverse") + _load(name)}  # both halves
+    recs = sorted(by.values(), key=lambda r: int(r["tag"].removeprefix("sample")))
     lines = ["| sample | P (W) | v (m/s) | status | W (um) default / variant | rel. diff "
              "| Newton its default / variant | CPU (s) default / variant |",
              "|---|---|---|---|---|---|---|---|"]

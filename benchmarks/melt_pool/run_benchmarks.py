@@ -11,7 +11,8 @@ Usage (from the repository root)::
 
 Phases ``convergence-res1`` and ``convergence-res2`` run one half of ``convergence``;
 ``start`` (start independence), ``powder`` (W with and without the powder layer) and
-``exposure`` (``consolidation="exposure"`` from both starts), ``sanity-exposure`` and
+``exposure`` (``consolidation="exposure"`` from both starts), ``sanity-exposure`` (and
+``sanity-exposure-reverse``, from the last row, to share the work) and
 ``convergence-exposure`` (its mesh convergence at two settings) are further phases.
 """
 
@@ -114,7 +115,8 @@ def sanity(reverse: bool = False, options: dict | None = None, name: str | None 
     ``results/sanity_reverse.json``, so that a second process can share the work;
     ``report.py`` merges the two files (one record per sample). ``options`` and
     ``name`` (phase ``sanity-exposure``: ``consolidation="exposure"`` into
-    ``results/sanity_exposure.json``) run a variant.
+    ``results/sanity_exposure.json``; ``sanity-exposure-reverse`` from the last row) run
+    a variant.
     """
     recs = []
     with DATA.open() as fh:
@@ -204,5 +206,8 @@ if __name__ == "__main__":
              "sanity-reverse": lambda: sanity(True),
              "sanity-exposure": lambda: sanity(options={"consolidation": "exposure"},
                                                name="sanity_exposure"),
+             "sanity-exposure-reverse": lambda: sanity(
+                 True, options={"consolidation": "exposure"},
+                 name="sanity_exposure_reverse"),
              "convergence-res1": lambda: convergence((1.0,)),
              "convergence-res2": lambda: convergence((2.0,))}[phase]()
