@@ -18,8 +18,10 @@ def _load(name: str) -> list[dict]:
     return json.loads(path.read_text()) if path.exists() else []
 
 
-def convergence_table() -> str:
-    recs = _load("convergence")
+def convergence_table(name: str = "convergence") -> str:
+    """``resolution`` 1 against 2 (records of phase ``name``: ``convergence``, or
+    ``convergence_exposure`` for ``consolidation="exposure"``)."""
+    recs = _load(name)
     by = {(r["inputs"]["P"], r["inputs"]["v"], r["tag"]): r for r in recs}
     lines = ["| P (W) | v (m/s) | cells h / h/2 | W (um) h / h/2 | dW | D (um) h / h/2 | dD "
              "| G0 (K/m) h / h/2 | dG0 | pass |",
@@ -113,9 +115,11 @@ def _sanity() -> list[dict]:
 
 
 def variant_sanity_table(name: str = "sanity_exposure") -> str:
-    """A variant's sanity runs (phase ``sanity-exposure``) against the default ones."""
+    """A variant's sanity runs (phases ``sanity-exposure`` and, from the last row,
+    ``sanity-exposure-reverse``, one record per sample) against the default ones."""
     default = {r["tag"]: r for r in _sanity()}
-    recs = _load(name)
+    by = {r["tag"]: r for r in _load(f"{name}_reverse") + _load(name)}  # both halves
+    recs = sorted(by.values(), key=lambda r: int(r["tag"].removeprefix("sample")))
     lines = ["| sample | P (W) | v (m/s) | status | W (um) default / variant | rel. diff "
              "| Newton its default / variant | CPU (s) default / variant |",
              "|---|---|---|---|---|---|---|---|"]
@@ -214,5 +218,7 @@ if __name__ == "__main__":
                       ("consolidation=\"exposure\"", lambda: start_table("exposure")),
                       ("consolidation=\"exposure\" at the sanity settings",
                        variant_sanity_table),
+                      ("consolidation=\"exposure\": mesh convergence",
+                       lambda: convergence_table("convergence_exposure")),
                       ("Physical sanity", sanity_table), ("Robustness corners", corners_table)):
         print(f"### {title}\n\n{fn()}\n")

@@ -11,8 +11,9 @@ Usage (from the repository root)::
 
 Phases ``convergence-res1`` and ``convergence-res2`` run one half of ``convergence``;
 ``start`` (start independence), ``powder`` (W with and without the powder layer) and
-``exposure`` (``consolidation="exposure"`` from both starts) and ``sanity-exposure``
-are further phases.
+``exposure`` (``consolidation="exposure"`` from both starts), ``sanity-exposure`` (and
+``sanity-exposure-reverse``, from the last row, to share the work) and
+``convergence-exposure`` (its mesh convergence at two settings) are further phases.
 """
 
 from __future__ import annotations
@@ -114,7 +115,8 @@ def sanity(reverse: bool = False, options: dict | None = None, name: str | None 
     ``results/sanity_reverse.json``, so that a second process can share the work;
     ``report.py`` merges the two files (one record per sample). ``options`` and
     ``name`` (phase ``sanity-exposure``: ``consolidation="exposure"`` into
-    ``results/sanity_exposure.json``) run a variant.
+    ``results/sanity_exposure.json``; ``sanity-exposure-reverse`` from the last row) run
+    a variant.
     """
     recs = []
     with DATA.open() as fh:
@@ -172,14 +174,25 @@ def powder() -> None:
 
 
 def exposure() -> None:
-    """``consolidation="exposure"`` from both starts at the settings of ``start``,
+    """``consolidation="exposure"`` from both starts at run 104 and the five settings,
     default resolution, into ``results/exposure.json``."""
-    cases = [RUN_104] + [{"P": P, "v": v} for P, v in SETTINGS if (P, v) != (90.0, 2.3)]
+    cases = [RUN_104] + [{"P": P, "v": v} for P, v in SETTINGS]
     recs = []
     for inputs, first in itertools.product(cases, ("rosenthal", "ambient")):
         recs.append(run_one(inputs, {"start": first, "consolidation": "exposure"},
                             tag=first))
         _save("exposure", recs)
+
+
+def convergence_exposure() -> None:
+    """``consolidation="exposure"`` at ``resolution`` 1 and 2 at 81 W / 1.5 and 152 W /
+    0.32 m/s (the limits of ``convergence``), into ``results/convergence_exposure.json``."""
+    recs = []
+    for (P, v), res in itertools.product([(81.0, 1.5), (152.0, 0.32)], (1.0, 2.0)):
+        opts = {"consolidation": "exposure", "resolution": res, "time_limit": 900.0} | (
+            {"max_iter": 1500, "time_limit": 3600.0} if res > 1 else {})
+        recs.append(run_one({"P": P, "v": v}, opts, tag=f"res{res:g}"))
+        _save("convergence_exposure", recs)
 
 
 if __name__ == "__main__":
@@ -189,8 +202,12 @@ if __name__ == "__main__":
         for phase in sys.argv[1:]:
             {"convergence": convergence, "sanity": sanity, "corners": corners,
              "start": start, "powder": powder, "exposure": exposure,
+             "convergence-exposure": convergence_exposure,
              "sanity-reverse": lambda: sanity(True),
              "sanity-exposure": lambda: sanity(options={"consolidation": "exposure"},
                                                name="sanity_exposure"),
+             "sanity-exposure-reverse": lambda: sanity(
+                 True, options={"consolidation": "exposure"},
+                 name="sanity_exposure_reverse"),
              "convergence-res1": lambda: convergence((1.0,)),
              "convergence-res2": lambda: convergence((2.0,))}[phase]()

@@ -34,6 +34,7 @@ from calnet.simulators.melt_pool.properties import (
     absorptivity_of_temperature,
     build_laws,
 )
+from calnet.simulators.melt_pool.solver import CYCLE_STEP, _cycle_factor, _stop_at_kinks
 
 MID = {k: 0.5 * sum(melt_pool.BOUNDS[k]) for k in melt_pool.PARAMETERS}
 # ninb campaign run 104 (benchmarks/README.md): near the keyhole threshold, where a hot
@@ -391,6 +392,24 @@ def test_exposure_consolidation_is_start_independent_near_the_default():
     _close(a, b, rel=1e-6)
     c = melt_pool.simulate({"P": 113.0, "v": 1.5}, **COARSE)
     assert a.outputs["W"] == pytest.approx(c.outputs["W"], rel=0.05)
+
+
+def test_kink_rule_from_the_edge_stops_in_the_mushy_zone():
+    """A cell the kink rule left 1 K below T_S stops 1 K past T_S with ``from_edge``;
+    without it the same step crosses the mushy zone to T_L + 1 (and back: a 2-cycle)."""
+    T_S, T_L = NI5NB.T_solidus, NI5NB.T_liquidus
+    T, dT = np.array([T_S - 1.0, T_L + 1.0]), np.array([21.0, -18.0])
+    assert _stop_at_kinks(T, dT, NI5NB).tolist() == [T_L + 1.0, T_S - 1.0]
+    assert _stop_at_kinks(T, dT, NI5NB, from_edge=True).tolist() == [T_S + 1.0, T_L - 1.0]
+
+
+def test_cycle_factor_halves_only_a_two_cycle():
+    d = np.array([20.0, -17.0, 1.0])
+    assert _cycle_factor(-d, d, -d) == CYCLE_STEP  # reverses the last, repeats the one before
+    assert _cycle_factor(-d, d, None) == 1.0  # a single reversal
+    assert _cycle_factor(-d, d, np.array([0.0, 0.0, 5.0])) == 1.0
+    assert _cycle_factor(d, d, d) == 1.0  # same direction
+    assert _cycle_factor(-d, None, None) == 1.0  # first step of a solve
 
 
 def test_field_consolidation_option_lands_near_the_default():

@@ -20,6 +20,14 @@ applied matrix-free inside GMRES, :func:`_with_exposure`); or, by default
 (``"monotone"``), the largest ``frac(T)`` of the solve's iterates: the front only
 advances, which converges where the field form cycles, at the price of a state that can
 keep powder consolidated that the final field would not consolidate.
+
+Two safeguards apply to the exposure form, whose converged state does not depend on
+the path (:func:`_cycle_factor`, ``_stop_at_kinks(..., from_edge=True)``): a Newton
+2-cycle whose residual stays flat is not seen by the pseudo-time rule above (the
+residual never rises by ``RISE``, so ``dt`` grows to ``DT_MAX``), and is broken by
+halving an update that reverses the last one and repeats the one before; and a cell
+that the kink rule left 1 K outside the mushy zone stops at the kink again instead of
+jumping across it.
 """
 
 from __future__ import annotations
@@ -53,6 +61,7 @@ CEILING_GROWTH = 1.2  # per step, of the cap on dt (half the step that failed la
 LIN_FLOOR = 1e-10  # smallest relative GMRES tolerance (the forcing is 0.1 x scaled residual)
 CALM_UPDATE = 0.0  # K; after an update below this, the cap on dt is lifted (0: never)
 CALM_FIXED_FRONT = False  # lift it only if the consolidation front did not move either
+CYCLE_STEP = 0.5  # update factor at a 2-cycle (exposure form; benchmarks/README.md)
 
 
 @dataclass(frozen=True)
@@ -78,17 +87,25 @@ class AbsorptivityLaw:
     evaluate: Callable[[np.ndarray], tuple[float, np.ndarray | None, float]]
 
 
-def _stop_at_kinks(T: np.ndarray, dT: np.ndarray, mat) -> np.ndarray:
+def _stop_at_kinks(T: np.ndarray, dT: np.ndarray, mat, *, from_edge: bool = False
+                   ) -> np.ndarray:
     """``T + dT``, but a cell crossing ``T_S`` or ``T_L`` stops 1 K beyond it.
 
     The conductivity (up to 150x for powder) and ``c_eff`` change steeply across the
     mushy zone; letting a cell jump across it in one Newton step makes the iteration
-    2-cycle. Cells land just past the kink and continue on the next step.
+    2-cycle. Cells land just past the kink and continue on the next step. With
+    ``from_edge`` a cell sitting exactly 1 K outside a kink, where this rule puts cells
+    that cross it downwards out of the mushy zone, stops at the kink too; without it
+    such a cell crosses the whole mushy zone in one step, and Newton can 2-cycle between
+    ``T_S - 1`` and ``T_L + 1`` (the exposure form at 235 W / 2.3 m/s,
+    benchmarks/README.md). The monotone form keeps the rule without it, so its Newton
+    path stays the benchmarked one.
     """
     new = T + dT
+    edge = 1e-9 if from_edge else 0.0  # K, round-off margin on the landing points
     for kink in (mat.T_solidus, mat.T_liquidus):
-        up = (T < kink - 1.0) & (new > kink + 1.0)
-        down = (T > kink + 1.0) & (new < kink - 1.0)
+        up = (T < kink - 1.0 + edge) & (new > kink + 1.0)
+        down = (T > kink + 1.0 - edge) & (new < kink - 1.0)
         new = np.where(up, kink + 1.0, np.where(down, kink - 1.0, new))
     return new
 
@@ -149,6 +166,26 @@ class LinearSolver:
         return x, len(res)
 
 
+def _cycle_factor(dT: np.ndarray, last: np.ndarray | None, before: np.ndarray | None
+                  ) -> float:
+    """Factor on the Newton update ``dT``: ``CYCLE_STEP`` at a 2-cycle, else 1.
+
+    A 2-cycle: ``dT`` reverses the last update ``last`` (cosine below -0.5) and repeats
+    the one ``before`` it (cosine above 0.5). Halving the update lands on the cycle's
+    midpoint. A single reversal is left alone: halving every update that reverses the
+    last one (cosine below -0.5) slowed the pseudo-transients of the continuation
+    stages enough that 152 W / 0.32 m/s ran out of ``max_iter``.
+    """
+    if last is None or before is None:
+        return 1.0
+    norm = float(np.linalg.norm(dT))
+
+    def cosine(a: np.ndarray) -> float:
+        return float(dT @ a) / max(norm * float(np.linalg.norm(a)), 1e-300)
+
+    return CYCLE_STEP if cosine(last) < -0.5 and cosine(before) > 0.5 else 1.0
+
+
 def _with_exposure(M: sp.csr_matrix, disc: Discretization, T: np.ndarray,
                    laws: MaterialLaws, cons: Exposure, dA: np.ndarray | None
                    ) -> sp.csr_matrix | spla.LinearOperator:
@@ -195,6 +232,8 @@ def newton_solve(disc: Discretization, laws: MaterialLaws, T0: np.ndarray, *,
     A, Ts = np.nan, np.nan
     linear_solve = LinearSolver()
     ceiling = DT_MAX
+    memoryless = consolidation == "exposure"
+    last_step, step_before = None, None
     for it in range(1, max_iter + 1):
         if deadline is not None and time.monotonic() > deadline:
             reason = "time limit reached"
@@ -251,7 +290,11 @@ def newton_solve(disc: Discretization, laws: MaterialLaws, T0: np.ndarray, *,
             break
         if big > max_update:
             dT *= max_update / big
-        T = np.maximum(_stop_at_kinks(T, dT, disc.mat), 0.5 * disc.mat.T_ambient)
+        if memoryless:
+            dT *= _cycle_factor(dT, last_step, step_before)
+            last_step, step_before = dT, last_step
+        T = np.maximum(_stop_at_kinks(T, dT, disc.mat, from_edge=memoryless),
+                       0.5 * disc.mat.T_ambient)
         upd = min(big, max_update)
         if _DEBUG:
             print(f"it {it} r {rnorm:.3e} dt {dt:.2e} dT {big:.1f} lin {n_lin} A {A:.3f} "
