@@ -29,15 +29,15 @@ _CAUSES = {
 }
 
 
-def why(err: OSError) -> str:
-    """The cause of a failed write, with its remedy, in words."""
-    return _CAUSES.get(err.errno, f"{err.strerror or err} (check the folder and the disk)")
-
-
 def write_cause(err: OSError) -> str | None:
     """The cause of a failed write in words where it is one of the known ones (a full
     disk, a read-only file system, no permission), else None."""
     return _CAUSES.get(err.errno)
+
+
+def why(err: OSError) -> str:
+    """The cause of a failed write, with its remedy, in words."""
+    return write_cause(err) or f"{err.strerror or err} (check the folder and the disk)"
 
 
 def write_error(path: str | Path, err: OSError) -> CalnetError:

@@ -353,11 +353,11 @@ def _stale_without_results(path: Path, network: Network, model: Model, seed: int
         return False  # not a store: the writing path says so
     if not meta or meta.get("model") != model.name or counts.get("ok", 0):
         return False
-    change = _difference(meta, model, seed)
-    if change is None:
+    difference = _difference(meta, model, seed)
+    if difference is None:
         return False
     warnings.warn(f"the store '{shown_path(path, network.root)}' of '{model.name}' held no "
-                  f"ok run and was made from another spec ({change}); it is started "
+                  f"ok run and was made from another spec ({difference[1]}); it is started "
                   "afresh", CampaignWarning, stacklevel=3)
     return True
 
@@ -419,30 +419,32 @@ def _claim(db: RunStore, network: Network, model: Model, seed: int, simulator: s
                  "spec_sha256": _file_hash(network.source)})
 
 
-def _difference(meta: dict[str, str], model: Model, seed: int) -> str | None:
+def _difference(meta: dict[str, str], model: Model,
+                seed: int) -> tuple[str, str] | None:
     """How the model spec and seed that made a store (its ``meta``) differ from
-    ``model`` and ``seed``, in one phrase; None when they do not."""
+    ``model`` and ``seed``: ``("spec", what changed)`` or ``("seed", "seed A -> B")``
+    (the spec first); None when they do not."""
     fp = model_fingerprint(model)
     if meta.get("model_hash") != fingerprint_hash(fp):
-        return describe_change(json.loads(meta.get("model_spec", "{}")), fp)
+        return "spec", describe_change(json.loads(meta.get("model_spec", "{}")), fp)
     if str(meta.get("seed")) != str(seed):
-        return f"seed {meta.get('seed')} -> {seed}"
+        return "seed", f"seed {meta.get('seed')} -> {seed}"
     return None
 
 
 def _foreign(meta: dict[str, str], model: Model, seed: int, path: Path) -> str | None:
     """Why a store with metadata ``meta`` is not this model's with this seed (None: it is)."""
-    fp = model_fingerprint(model)
-    if meta.get("model_hash") != fingerprint_hash(fp):
-        change = describe_change(json.loads(meta.get("model_spec", "{}")), fp)
+    difference = _difference(meta, model, seed)
+    if difference is None:
+        return None
+    kind, change = difference
+    if kind == "spec":
         return (f"the store '{path}' was made from a different '{model.name}' spec "
                 f"({change}); simulate again with --fresh: {_WAYS_OUT}")
-    if str(meta.get("seed")) != str(seed):
-        return (f"the store '{path}' was made with seed {meta.get('seed')}, not {seed}; "
-                f"to keep it, set settings.seed back to {meta.get('seed')} (calnet campaign: "
-                f"--seed {meta.get('seed')}); for the new seed, simulate again with --fresh: "
-                f"{_WAYS_OUT}")
-    return None
+    return (f"the store '{path}' was made with seed {meta.get('seed')}, not {seed}; "
+            f"to keep it, set settings.seed back to {meta.get('seed')} (calnet campaign: "
+            f"--seed {meta.get('seed')}); for the new seed, simulate again with --fresh: "
+            f"{_WAYS_OUT}")
 
 
 # the fixes of a store of another spec or seed, for calnet campaign and calnet run
