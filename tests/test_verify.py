@@ -178,12 +178,18 @@ def test_a_poor_surrogate_is_flagged(calibrated, tmp_path):
                              "posterior")
 
 
+def _with_up(root, function: str, name: str):
+    """The spec with ``up`` simulated by ``verify_sims.<function>``, written to
+    ``root/name``."""
+    path = root / name
+    path.write_text(textwrap.dedent(SPEC).replace("python:verify_sims:up\n",
+                                                  f"python:verify_sims:{function}\n"))
+    return path
+
+
 def test_failed_runs_are_recorded_not_raised(calibrated, tmp_path):
     _, sur, post, root = calibrated
-    flaky = root / "flaky.yaml"
-    flaky.write_text(textwrap.dedent(SPEC).replace("python:verify_sims:up\n",
-                                                   "python:verify_sims:up_flaky\n"))
-    network = load_spec(flaky)
+    network = load_spec(_with_up(root, "up_flaky", "flaky.yaml"))
     result = verify(network, sur, post, k=8, seed=0, workdir=tmp_path)
     up_points = [p for p in result.points if p.surrogate == "up.y"]
     failed = [p for p in up_points if p.status != "ok"]
@@ -294,9 +300,7 @@ def test_verify_command_counts_the_points_a_verdict_rests_on(calibrated, tmp_pat
     from calnet.cli import app
 
     _, _, _, root = calibrated
-    flaky = root / "flaky_cli.yaml"
-    flaky.write_text(textwrap.dedent(SPEC).replace("python:verify_sims:up\n",
-                                                   "python:verify_sims:up_flaky\n"))
+    flaky = _with_up(root, "up_flaky", "flaky_cli.yaml")
     res = CliRunner().invoke(app, ["verify", str(flaky), "--run", str(root / "out"),
                                    "-k", "8"])
     assert res.exit_code == 0, res.output
@@ -316,9 +320,7 @@ def test_a_simulator_that_fails_every_point_fails_verify(calibrated):
     from calnet.cli import app
 
     _, _, _, root = calibrated
-    broken = root / "broken_cli.yaml"
-    broken.write_text(textwrap.dedent(SPEC).replace("python:verify_sims:up\n",
-                                                    "python:verify_sims:up_broken\n"))
+    broken = _with_up(root, "up_broken", "broken_cli.yaml")
     res = CliRunner().invoke(app, ["verify", str(broken), "--run", str(root / "out"),
                                    "-k", "2"])
     assert res.exit_code == 1, res.output
