@@ -41,6 +41,28 @@ def _campaign(spec, store) -> list[str]:
             "--store", str(store), "--no-progress"]
 
 
+def _signalled(argv: list[str], ready, sig: int, *, settle: float = 0.0,
+               timeout: float = 60) -> tuple[int, str, float]:
+    """Run ``argv``, wait until ``ready()`` (at most 90 s), then ``settle`` seconds, send
+    ``sig``: its exit code, its output and the seconds it took to end after the signal."""
+    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            text=True, env=os.environ.copy())
+    try:
+        deadline = time.monotonic() + 90
+        while not ready():
+            assert proc.poll() is None and time.monotonic() < deadline
+            time.sleep(0.05)
+        time.sleep(settle)
+        proc.send_signal(sig)
+        start = time.monotonic()
+        output, _ = proc.communicate(timeout=timeout)
+        waited = time.monotonic() - start
+    finally:
+        proc.kill()
+        proc.wait()
+    return proc.returncode, output, waited
+
+
 @pytest.mark.integration
 def test_kill_9_then_resume_equals_an_uninterrupted_run(tmp_path):
     spec = toy_spec(tmp_path, "python:toy_sims:slow", runs=RUNS, seed=0)
@@ -83,19 +105,8 @@ def test_ctrl_c_keeps_finished_runs(tmp_path):
     # a shell's background jobs inherit SIGINT ignored, and Python then installs no
     # KeyboardInterrupt handler: install it, as for a campaign run in a terminal
     argv = [sys.executable, "-c", _WITH_SIGINT, *_campaign(spec, store)[3:]]
-    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                            text=True, env=os.environ.copy())
-    try:
-        deadline = time.monotonic() + 90
-        while len(_finished(store)) < 3:
-            assert proc.poll() is None and time.monotonic() < deadline
-            time.sleep(0.05)
-        proc.send_signal(signal.SIGINT)
-        output, _ = proc.communicate(timeout=60)
-    finally:
-        proc.kill()
-        proc.wait()
-    assert proc.returncode == 130, output
+    code, output, _ = _signalled(argv, lambda: len(_finished(store)) >= 3, signal.SIGINT)
+    assert code == 130, output
     assert "finished work is kept" in output
     kept = _finished(store)
     assert 3 <= len(kept) < RUNS
@@ -112,22 +123,10 @@ def test_sigint_to_a_parallel_campaign_does_not_wait_for_the_runs_in_flight(tmp_
     spec = toy_spec(tmp_path, "python:toy_sims:busy", runs=12, seed=2)
     store = tmp_path / "busy.sqlite"
     argv = [sys.executable, "-c", _WITH_SIGINT, *_campaign(spec, store)[3:], "--workers", "2"]
-    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                            text=True, env=os.environ.copy())
-    try:
-        deadline = time.monotonic() + 90
-        while len(_finished(store)) < 1:  # the quick runs finish, then both workers compute
-            assert proc.poll() is None and time.monotonic() < deadline
-            time.sleep(0.05)
-        time.sleep(3)
-        proc.send_signal(signal.SIGINT)
-        start = time.monotonic()
-        output, _ = proc.communicate(timeout=120)
-        waited = time.monotonic() - start
-    finally:
-        proc.kill()
-        proc.wait()
-    assert proc.returncode == 130, output
+    # the quick runs finish, then both workers compute
+    code, output, waited = _signalled(argv, lambda: len(_finished(store)) >= 1,
+                                      signal.SIGINT, settle=3, timeout=120)
+    assert code == 130, output
     assert waited < 30, f"waited {waited:.0f} s for the runs in flight"  # they take 60 s
     kept = _finished(store)
     assert 1 <= len(kept) < 12
@@ -152,20 +151,10 @@ def test_sigterm_to_a_campaign_with_a_hung_simulator_stops_as_ctrl_c_does(tmp_pa
     resource tracker about leaked semaphores."""
     spec = toy_spec(tmp_path, "python:toy_sims:hangs", runs=12, seed=0, x_upper=0.3)
     store = tmp_path / "hung.sqlite"
-    proc = subprocess.Popen(_campaign(spec, store), stdout=subprocess.PIPE,
-                            stderr=subprocess.STDOUT, text=True, env=os.environ.copy())
-    try:
-        deadline = time.monotonic() + 90
-        while _started(store) < 1:
-            assert proc.poll() is None and time.monotonic() < deadline
-            time.sleep(0.05)
-        time.sleep(2)  # the runs x < 0.2 hang for ever
-        proc.send_signal(signal.SIGTERM)
-        output, _ = proc.communicate(timeout=60)
-    finally:
-        proc.kill()
-        proc.wait()
-    assert proc.returncode == 143, output
+    # the runs x < 0.2 hang for ever
+    code, output, _ = _signalled(_campaign(spec, store), lambda: _started(store) >= 1,
+                                 signal.SIGTERM, settle=2)
+    assert code == 143, output
     assert ("interrupted (SIGTERM): finished work is kept; run the same command again to "
             "resume") in output
     assert "resource_tracker" not in output and "Traceback" not in output, output
