@@ -80,10 +80,15 @@ def run(tmp_path_factory):
     return root, out
 
 
-def _predict(run, *args: str):
+def _invoke(run, *args: str):
+    """``calnet predict`` on the fixture's spec and run folder, with ``args``."""
     root, out = run
-    result = CliRunner().invoke(app, ["predict", str(root), "--run", str(out), "--json",
-                                      *args], terminal_width=400)
+    return CliRunner().invoke(app, ["predict", str(root), "--run", str(out), *args],
+                              terminal_width=400)
+
+
+def _predict(run, *args: str):
+    result = _invoke(run, "--json", *args)
     assert result.exit_code == 0, result.output
     return json.loads(result.stdout)["predictions"], result.stderr
 
@@ -143,9 +148,7 @@ def test_a_linked_input_outside_its_bounds_is_said(run):
     """x = 2.3 lies outside x's bounds and sends w = 0.5 x^2 (about 2.6) past down.w's
     upper bound 2: both are said, once each; x = 1 sends w = 0.5, inside, and x = 2 sends
     w = 2, on the bound, where the surrogate's mean may overshoot it a little: nothing."""
-    root, out = run
-    result = CliRunner().invoke(app, ["predict", str(root), "--run", str(out), "--at", "x=1",
-                                      "--at", "x=2.3", "--at", "x=2"], terminal_width=400)
+    result = _invoke(run, "--at", "x=1", "--at", "x=2.3", "--at", "x=2")
     assert result.exit_code == 0, result.output
     said = [line for line in result.stderr.splitlines() if "outside its bounds" in line]
     assert len(said) == 2, result.stderr
@@ -155,18 +158,14 @@ def test_a_linked_input_outside_its_bounds_is_said(run):
 
 
 def test_an_unknown_target_is_a_usage_error(run):
-    root, out = run
-    result = CliRunner().invoke(app, ["predict", str(root), "--run", str(out), "--at", "x=1",
-                                      "-d", "nosuch"], terminal_width=400)
+    result = _invoke(run, "--at", "x=1", "-d", "nosuch")
     assert result.exit_code == 2, result.output  # a bad option value, as the README says
     assert "nothing to predict for ['nosuch']; choose a calibrated data set ['yd']" in \
         result.stderr
 
 
 def test_the_table_names_the_data_set_or_the_simulator_output(run):
-    root, out = run
-    result = CliRunner().invoke(app, ["predict", str(root), "--run", str(out), "--at", "x=1",
-                                      "-d", "yd", "-d", "up.w"], terminal_width=400)
+    result = _invoke(run, "--at", "x=1", "-d", "yd", "-d", "up.w")
     assert result.exit_code == 0, result.output
     rows = [line for line in result.stdout.splitlines() if "x=1" in line]
     assert len(rows) == 2, result.stdout
