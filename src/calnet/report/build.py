@@ -3,6 +3,7 @@ CSVs, from :class:`calnet.results.RunResults` (nothing is computed here)."""
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -311,8 +312,9 @@ def _sections(ctx, results: RunResults) -> list[Section]:
 
 def _before_report(timings: dict[str, float]) -> float:
     """Seconds of the stages finished before the report, from the stage timings that
-    run_info.json holds: the report's wall time is their sum, not a second clock."""
-    return sum(v for k, v in timings.items() if k not in ("total", "report"))
+    run_info.json holds: the report's wall time is their sum, not a second clock (summed
+    exactly, so that the order the stages are listed in does not move its last digit)."""
+    return math.fsum(v for k, v in timings.items() if k not in ("total", "report"))
 
 
 def quick_spread_note(draws: dict[str, int]) -> str:
