@@ -23,9 +23,15 @@ from __future__ import annotations
 import os
 import sys
 
-__all__ = ["enable_x64", "widen_cpu_pool", "device_array", "MIN_CPU_THREADS"]
+__all__ = ["enable_x64", "widen_cpu_pool", "device_array", "MIN_CPU_THREADS", "FEW_CALLS"]
 
 MIN_CPU_THREADS = 16
+
+FEW_CALLS = {"xla_backend_optimization_level": 0}
+"""XLA compiler options of a program that runs a few times per calibration (predictives
+over the posterior draws, leave-one-out conditionals, the surrogate checks): LLVM's
+optimisation passes cost more there than they save. The sampler and the GP fits, which
+run a program thousands of times, keep XLA's default."""
 
 
 def enable_x64() -> None:

@@ -19,6 +19,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from calnet._jax import FEW_CALLS
 from calnet.calibration.calibrate_network import NetworkPosterior
 from calnet.calibration.terms import draw_index, links_into
 from calnet.chain import ChainPlan
@@ -28,7 +29,7 @@ from calnet.spec import Network
 from calnet.surrogates.fit_network import Surrogates
 
 
-@partial(jax.jit, static_argnums=(0, 1, 2))
+@partial(jax.jit, static_argnums=(0, 1, 2), compiler_options=FEW_CALLS)
 def _over_samples(plan: ChainPlan, model: str, key: str, gps, xp, thetas, eps, on):
     """Modelled mean and variance (S, n) of GP ``key`` per sample row: parameters
     ``thetas`` (model -> (S, p)), each linked output drawn with ``eps`` (link -> (S, n))

@@ -22,7 +22,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from calnet._jax import device_array
+from calnet._jax import FEW_CALLS, device_array
 from calnet.calibration.calibrate_network import NetworkPosterior, uncalibrated
 from calnet.calibration.koh import KOHModel
 from calnet.calibration.persist import FILE as POSTERIOR_FILE
@@ -102,7 +102,7 @@ class Prediction:
                 "variance_shares": self.shares()}
 
 
-@partial(jax.jit, static_argnums=(0,))
+@partial(jax.jit, static_argnums=(0,), compiler_options=FEW_CALLS)
 def _moments_over_draws(spec, on, gps, tdata, xp_new, thetas, hyper, eps, noise_new):
     """The KOH predictive of ``spec``'s one term for every posterior draw (vmap), with each
     linked surrogate ``k`` perturbed by ``on[k] * eps[k]`` (``on[k]`` 0 or 1). ``on`` is
@@ -210,7 +210,7 @@ def _setup(network: Network, surrogates: Surrogates, posterior: NetworkPosterior
                   tuple(network.process_input_keys(ds.observed_model)), log)
 
 
-@partial(jax.jit, static_argnums=(0,))
+@partial(jax.jit, static_argnums=(0,), compiler_options=FEW_CALLS)
 def _loo_conditionals(spec, gps, tdata, thetas, hyper):
     """Per draw and point, the mean and precision of the point given the other points of
     the data set under the KOH model, standardised: (S, n) each.
@@ -281,7 +281,7 @@ def _noise_at(st: _Setup, m: int, noise_var: np.ndarray | None) -> jnp.ndarray:
     return jnp.full(m, jnp.mean(st.tdata["noise_var"]))
 
 
-@partial(jax.jit, static_argnums=(0,))
+@partial(jax.jit, static_argnums=(0,), compiler_options=FEW_CALLS)
 def _means_over_draws(spec, gps, tdata, xp_new, thetas, hyper):
     """The KOH predictive mean (draws, m) of ``spec``'s one term for every posterior draw,
     without perturbed links: the variances' solves are left out of the program."""

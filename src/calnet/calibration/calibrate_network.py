@@ -208,7 +208,9 @@ def _fixed_inputs(spec: KOHModel, term: Term, gps, xp, thetas) -> dict:
     ``gp_fixed`` (:meth:`ChainPlan.at_controls`) and the discrepancy's squared distances
     per input ``d2u_fixed`` (n, n, q). One compiled program per network and shapes
     (leave-one-out folds and stages share it), instead of the set-up's many small eager
-    operations, each of which JAX would compile."""
+    operations, each of which JAX would compile. XLA's default options, not
+    :data:`calnet._jax.FEW_CALLS`: what it returns enters the sampler, whose draws change
+    with the last bit of their inputs."""
     x, dx, corr = spec.inputs({"gps": gps}, term, xp, thetas)
     plan = spec.plan
     u = plan.unit_inputs(term.model, x)

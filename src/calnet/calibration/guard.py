@@ -21,6 +21,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from calnet._jax import FEW_CALLS
 from calnet.calibration.koh import KOHModel
 from calnet.calibration.terms import draw_index, draws_at, hyper_at, make_term, parameter_keys
 from calnet.chain import ChainPlan
@@ -108,7 +109,7 @@ def _per_surrogate(spec: KOHModel, data, tdata, thetas, hyper):
     return jnp.stack([disc, *parts])
 
 
-@partial(jax.jit, static_argnums=0)
+@partial(jax.jit, static_argnums=0, compiler_options=FEW_CALLS)
 def _over_draws(spec: KOHModel, gps, tdata, thetas, hyper):
     """:func:`_per_surrogate` at every draw, (draws, 2 + links, n); compiled once per
     network structure and shapes."""

@@ -42,7 +42,7 @@ from blackjax.adaptation.step_size import dual_averaging_adaptation
 from blackjax.adaptation.window_adaptation import build_schedule
 from blackjax.mcmc import nuts
 
-from calnet._jax import device_array
+from calnet._jax import FEW_CALLS, device_array
 from calnet.calibration.diagnostics import import_arviz
 from calnet.calibration.koh import initial_point_message
 from calnet.errors import CalibrationError
@@ -347,7 +347,8 @@ def _resolve_method(chain_method: str, num_chains: int) -> tuple[str, int]:
 
 
 def _constrain_fn(spec):
-    return jax.jit(jax.vmap(jax.vmap(spec.constrain, in_axes=(None, 0)), in_axes=(None, 0)))
+    return jax.jit(jax.vmap(jax.vmap(spec.constrain, in_axes=(None, 0)), in_axes=(None, 0)),
+                   compiler_options=FEW_CALLS)
 
 
 _CONSTRAIN: OrderedDict = OrderedDict()
