@@ -9,6 +9,7 @@ report shows the outputs of ``settings.predict`` predicted through the chain.
 
 from __future__ import annotations
 
+import threading
 import time
 import warnings
 from collections.abc import Iterator
@@ -268,17 +269,31 @@ class _Context:
         train = {k: v.train for k, v in self.data.items()}
         variants = self.network.settings.compare if train else ()
         # the variants of settings.compare are calibrated beside the spec's model, in a
-        # thread: their compilation runs while the other core is idle (XLA compiles a
-        # program on one core), their sampling shares the cores with the spec's
+        # thread that starts once the spec's sampler is compiled: their compilation then
+        # runs beside its chains, not beside its compilation (two compilations at once
+        # each took twice as long on 2 cores: benchmarks/README.md)
+        compiled, failed = threading.Event(), threading.Event()
+
+        def after_compiled(*args, **kwargs):
+            compiled.wait()
+            return {} if failed.is_set() else calibrate_variants(*args, **kwargs)
+
         with one_blas_thread(), ThreadPoolExecutor(max_workers=1) as pool:
             beside = None
             if variants:
                 note("calibrating " + ", ".join(variants) + " beside the spec's model")
-                beside = pool.submit(calibrate_variants, self.network, self.sur, train,
+                beside = pool.submit(after_compiled, self.network, self.sur, train,
                                      variants, sampler=secondary_sampler(self.sampler),
                                      seed=self.seed)
-            self.post = calibrate(self.network, self.sur, data=train, seed=self.seed,
-                                  sampler=self.sampler, progress=note)
+            try:
+                self.post = calibrate(self.network, self.sur, data=train, seed=self.seed,
+                                      sampler=self.sampler, progress=note,
+                                      compiled=compiled.set)
+            except BaseException:
+                failed.set()  # the variants are not calibrated: the run stops here
+                raise
+            finally:
+                compiled.set()
             self.variants = beside.result() if beside else {}
         self.calibrated = record_calibration(self.network, self.post,
                                              folder=self.out / "posterior",

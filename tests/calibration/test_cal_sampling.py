@@ -146,6 +146,18 @@ def test_same_seed_same_draws_and_no_recompilation(oracle_run):
     assert not np.array_equal(other.posterior["theta"].values, first.posterior["theta"].values)
 
 
+def test_compiled_is_called_once_before_the_chains_run_also_from_the_cache(oracle_run):
+    ld = oracle_run[0]
+    events = []
+    for _ in range(2):  # compiled, then found in the cache
+        sample_nuts(ld, seed=0, num_chains=2, num_warmup=20, num_draws=40,
+                    compiled=lambda: events.append("compiled"),
+                    progress=lambda chain, i, total: events.append("iteration"))
+    assert events[0] == "compiled" and events.count("compiled") == 2
+    second = events.index("compiled", 1)
+    assert "iteration" in events[1:second] and events[second + 1] == "iteration"
+
+
 def test_new_data_of_same_shapes_reuses_the_compiled_sampler(oracle_run):
     # leave-one-out style: a new log-density with new data but the same spec and shapes
     ld2, mean2, _ = _build(1, name="linear")

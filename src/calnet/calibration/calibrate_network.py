@@ -234,19 +234,21 @@ def key_draws(stage: StageResult) -> dict[str, np.ndarray]:
 
 # ----------------------------------------------------------------------------- sampling
 def _sample(ld: KOHDensity, sampler: SamplerSettings, seed: int,
-            progress: Callable[[str], None] | None = None):
+            progress: Callable[[str], None] | None = None,
+            compiled: Callable[[], None] | None = None):
     """NUTS on ``ld``; ``progress`` gets plain progress lines (:class:`Lines`)."""
     return sample_nuts(ld, seed=seed, num_chains=sampler.chains, num_warmup=sampler.warmup,
                        num_draws=sampler.draws, thin=sampler.thin,
                        target_accept=sampler.target_accept, chain_method=sampler.chain_method,
-                       progress=Lines(ld.name, progress) if progress else False)
+                       progress=Lines(ld.name, progress) if progress else False,
+                       compiled=compiled)
 
 
 def calibrate(network: Network, surrogates: Surrogates, *, data=None, mode: str | None = None,
               plug: str | None = None, seed: int | None = None,
               sampler: SamplerSettings | None = None, emulator_variance: bool | None = None,
-              progress: Callable[[str], None] | None = None, warn: bool = True
-              ) -> NetworkPosterior:
+              progress: Callable[[str], None] | None = None, warn: bool = True,
+              compiled: Callable[[], None] | None = None) -> NetworkPosterior:
     """Calibrate every model of ``network`` against its data sets.
 
     Parameters
@@ -271,6 +273,11 @@ def calibrate(network: Network, surrogates: Surrogates, *, data=None, mode: str 
         (R-hat, ESS, divergences) and surrogate checks. ``False`` puts the same messages
         in the posterior's ``notes`` instead (a calibration run beside another one in a
         thread, whose warnings would mix with the other's).
+    compiled : callable, optional
+        Called with no argument as each stage's sampler is compiled (or found compiled)
+        and its chains start: another calibration can then compile beside the chains
+        instead of beside this compilation (two compilations at once each take about
+        twice as long on 2 cores).
 
     Returns
     -------
@@ -290,10 +297,11 @@ def calibrate(network: Network, surrogates: Surrogates, *, data=None, mode: str 
         return uncalibrated(network, sampler=sampler, seed=seed)
     plan = ChainPlan.from_network(network)
     if mode == "joint":
-        post = _joint(network, surrogates, data, plan, seed, sampler, emu, progress, warn)
+        post = _joint(network, surrogates, data, plan, seed, sampler, emu, progress, warn,
+                      compiled)
     else:
         post = _segmented(network, surrogates, data, plan, seed, sampler, emu, plug, progress,
-                          warn)
+                          warn, compiled)
     return _checked(network, surrogates, post, warn)
 
 
@@ -341,7 +349,7 @@ def _convergence(idata, warn: bool) -> tuple[list[str], PosteriorSummary]:
 
 
 def _joint(network, surrogates, data, plan, seed, sampler, emu, progress,
-           warn) -> NetworkPosterior:
+           warn, compiled=None) -> NetworkPosterior:
     free = _all_keys(network)
     models = tuple(m for m in network.order if network.model(m).parameters)
     if progress:
@@ -350,7 +358,7 @@ def _joint(network, surrogates, data, plan, seed, sampler, emu, progress,
                    name="joint", plan=plan)
     if ld.dim == 0:  # no parameters, known noise, no discrepancy: nothing to sample
         return _posterior(network, "joint", "-", (), {}, data, (), {}, ())
-    idata = _sample(ld, sampler, seed, progress)
+    idata = _sample(ld, sampler, seed, progress, compiled)
     problems, diagnostics = _convergence(idata, warn)
     stage = StageResult(models, tuple(data), idata, ld, diagnostics)
     return _posterior(network, "joint", "-", (stage,), key_draws(stage), data, (), {},
@@ -368,7 +376,8 @@ def _owners(network: Network, data) -> dict[str, str]:
     return owners
 
 
-def _segmented(network, surrogates, data, plan, seed, sampler, emu, plug, progress, warn):
+def _segmented(network, surrogates, data, plan, seed, sampler, emu, plug, progress, warn,
+               compiled=None):
     stages, draws, prior_only, notes = [], {}, [], []
     n = sampler.chains * (sampler.draws // sampler.thin)
     owners = _owners(network, data)
@@ -399,7 +408,7 @@ def _segmented(network, surrogates, data, plan, seed, sampler, emu, plug, progre
                        fixed={k: plug_at[k] for k in fixed_keys}, name=name, plan=plan)
         if ld.dim == 0:  # no parameters, known noise, no discrepancy: nothing to sample
             continue
-        idata = _sample(ld, sampler, seed + i, progress)
+        idata = _sample(ld, sampler, seed + i, progress, compiled)
         problems, diagnostics = _convergence(idata, warn)
         notes += problems
         moved = [k for k in fixed_keys if np.ptp(draws[k]) > 0]

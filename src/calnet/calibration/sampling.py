@@ -389,6 +389,7 @@ def sample_nuts(
     dense_mass: bool = False,
     chain_method: str = "auto",
     progress: bool | Callable[[int, int, int], None] = False,
+    compiled: Callable[[], None] | None = None,
 ):
     """Sample a calibration log-density with NUTS; return an ArviZ ``InferenceData``.
 
@@ -420,6 +421,9 @@ def sample_nuts(
         compile callbacks into the sampler, which JAX then keeps out of its on-disk
         cache. A :class:`~calnet.progress.Lines` gets lines without iteration counts
         (the start, one every 10 s, the end) from the program that ``False`` runs.
+    compiled : callable, optional
+        Called with no argument once the program is compiled (or found in the cache),
+        just before the chains run.
 
     Returns
     -------
@@ -457,6 +461,8 @@ def sample_nuts(
                          for a in (keys, u0, ids))
     args = (keys, u0, ids, ld.data)
     exe, t_compile = _compiled(cfg, args)
+    if compiled is not None:
+        compiled()
     _PROGRESS["fn"], running = _reporter(progress, ld.name, num_chains, num_warmup,
                                          num_draws, t_compile)
     try:

@@ -1,0 +1,64 @@
+"""The variants of ``settings.compare`` start compiling once the spec's sampler is compiled,
+and a failed calibration of the spec's model neither waits for them nor runs them."""
+
+from __future__ import annotations
+
+import threading
+from pathlib import Path
+
+import pytest
+
+import calnet.calibration.calibrate_network as calibrate_network
+import calnet.pipeline as pipeline
+import calnet.validation as validation
+from calnet.errors import CalibrationError
+from calnet.spec import load_spec
+
+NINB = Path(__file__).resolve().parents[1] / "examples" / "ninb"
+
+
+@pytest.fixture
+def context(tmp_path):
+    network = load_spec(NINB)
+    assert network.settings.compare  # the case study compares no_discrepancy
+    ctx = pipeline._Context(network, tmp_path, quick=True, fresh=False, loo_max=0)
+    ctx.sur = None
+    return ctx
+
+
+def test_variants_wait_for_the_spec_sampler_to_compile(context, monkeypatch):
+    events = []
+    variants_done = threading.Event()
+
+    def spec(network, sur, *, compiled, **kwargs):
+        events.append("spec compiling")
+        assert not variants_done.wait(0.5)  # nothing of the variants runs meanwhile
+        compiled()
+        assert variants_done.wait(30)  # and they run beside the spec's chains
+        events.append("spec sampled")
+        return "posterior"
+
+    def variants(network, sur, train, names, **kwargs):
+        events.append("variants")
+        variants_done.set()
+        return {name: ("net", "post") for name in names}
+
+    monkeypatch.setattr(calibrate_network, "calibrate", spec)
+    monkeypatch.setattr(validation, "calibrate_variants", variants)
+    monkeypatch.setattr(pipeline, "record_calibration", lambda *a, **k: "recorded")
+    context.calibration(lambda text: None)
+    assert events == ["spec compiling", "variants", "spec sampled"]
+    assert set(context.variants) == set(context.network.settings.compare)
+
+
+def test_a_failed_spec_calibration_does_not_run_the_variants(context, monkeypatch):
+    ran = []
+
+    def spec(network, sur, **kwargs):
+        raise CalibrationError("the log-density is not finite at the initial points")
+
+    monkeypatch.setattr(calibrate_network, "calibrate", spec)
+    monkeypatch.setattr(validation, "calibrate_variants", lambda *a, **k: ran.append(1))
+    with pytest.raises(CalibrationError, match="not finite"):
+        context.calibration(lambda text: None)
+    assert ran == []
