@@ -6,7 +6,7 @@ import pytest
 from campaign_helpers import store_rows, toy_network
 
 from calnet.campaign import run_campaign
-from calnet.campaign.executors import make_executor
+from calnet.campaign.executors import ProcessExecutor, WorkerDied, make_executor
 from calnet.errors import CampaignError
 
 
@@ -68,3 +68,21 @@ def test_unreachable_scheduler_says_so(monkeypatch):
     monkeypatch.setattr("calnet.campaign.executors.CONNECT_TIMEOUT", "1s")
     with pytest.raises(CampaignError, match="cannot reach the Dask scheduler"):
         make_executor(scheduler="tcp://127.0.0.1:9")
+
+
+@pytest.mark.timeout(120)
+def test_a_worker_deaf_to_sigterm_is_killed_when_another_dies(tmp_path):
+    """One worker dies while the other runs a simulator that ignores SIGTERM: the broken
+    pool's SIGTERM does not end it, so it is killed after the grace period (not waited
+    for), and both runs are run again, one at a time."""
+    import time
+
+    from toy_sims import deaf_sleeper_or_dies
+
+    deaf, dies = ("deaf", str(tmp_path / "marker")), ("dies", str(tmp_path / "marker"))
+    t0 = time.monotonic()
+    with ProcessExecutor(2) as executor:
+        out = dict(executor.run(deaf_sleeper_or_dies, [deaf, dies]))
+    assert time.monotonic() - t0 < 40  # the deaf run's first attempt sleeps for 60 s
+    assert out[deaf] == "deaf done"
+    assert isinstance(out[dies], WorkerDied) and "exit code 7" in str(out[dies])

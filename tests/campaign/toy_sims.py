@@ -71,6 +71,26 @@ def dies(inputs):
     return quadratic(inputs)
 
 
+def deaf_sleeper_or_dies(role, marker):
+    """For the executor tests. ``deaf`` ignores SIGTERM (as some simulators do) and, when
+    the file ``marker`` does not exist yet, writes it and sleeps for a minute; ``dies``
+    waits for ``marker``, then ends its process with exit code 7."""
+    import signal
+    from pathlib import Path
+
+    path = Path(marker)
+    if role == "deaf":
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        if not path.exists():
+            path.write_text("started")
+            time.sleep(60)
+        return "deaf done"
+    end = time.monotonic() + 30
+    while not path.exists() and time.monotonic() < end:
+        time.sleep(0.01)
+    os._exit(7)
+
+
 def broken(inputs):
     """Raises at every point (a simulator that cannot work)."""
     raise RuntimeError("license server unreachable")

@@ -29,6 +29,12 @@ Task = tuple[Any, ...]
 
 CONNECT_TIMEOUT = "20s"  # how long to try reaching an existing Dask scheduler
 EXECUTORS = ("auto", "in-process", "processes", "dask")  # the names make_executor knows
+WORKER_GRACE = 5.0
+WATCH_INTERVAL = 1.0
+"""Seconds between looks at a process pool's workers while no run finishes
+(:meth:`ProcessExecutor._nudge`)."""
+"""Seconds a broken process pool's workers have to end on the pool's SIGTERM before they
+are killed (:meth:`ProcessExecutor._restart`)."""
 
 
 class Executor(Protocol):
@@ -99,7 +105,10 @@ class ProcessExecutor:
         try:
             while self._fill(fn, stream, suspects, unsent, pending, on_submit):
                 alone = len(pending) == 1
-                done, _ = wait(pending, return_when=FIRST_COMPLETED)
+                done, _ = wait(pending, timeout=WATCH_INTERVAL, return_when=FIRST_COMPLETED)
+                if not done:
+                    self._nudge()
+                    continue
                 if any(isinstance(fut.exception(), BrokenProcessPool) for fut in done):
                     done, _ = wait(pending)  # a broken pool fails every run in flight
                 crashed = []
@@ -151,33 +160,65 @@ class ProcessExecutor:
                 self._restart()  # nothing in flight reports the break: start afresh
                 continue
             pending[future] = task
-            self._processes = list((getattr(self._pool, "_processes", None) or {}).values())
+            self._processes = self._pool_processes()
         return bool(pending)
 
     def _restart(self) -> str:
-        """A new pool for a broken one; returns `` (exit code N)`` of the dead worker."""
-        # wait: the broken pool's management thread is ending (it has killed the workers);
-        # shutdown(wait=False) would reset the pool's state under it, which can raise in
-        # that thread and hang (CPython gh-132969)
+        """A new pool for a broken one; returns `` (exit code N)`` of the dead worker.
+
+        The broken pool's management thread sends SIGTERM to the other workers and waits
+        for them. A worker that does not end on SIGTERM (a simulator that ignores it, or
+        a worker signalled while it was being started, between fork and exec, where this
+        process's SIGTERM handler still catches the signal) would keep that thread, and
+        this one, waiting for ever: what is left after :data:`WORKER_GRACE` seconds is
+        killed (SIGKILL).
+        """
+        procs = list(dict.fromkeys([*self._processes, *self._pool_processes()]))
+        end = time.monotonic() + WORKER_GRACE
+        for proc in procs:
+            proc.join(max(0.0, end - time.monotonic()))
+        killed = {proc for proc in procs if proc.exitcode is None}
+        for proc in killed:
+            proc.kill()
+        # wait: the broken pool's management thread is ending; shutdown(wait=False) would
+        # reset the pool's state under it, which can raise in that thread and hang
+        # (CPython gh-132969)
         self._pool.shutdown(wait=True, cancel_futures=True)
         codes = []
-        for proc in self._processes:
+        for proc in procs:
             # the pool's own management thread may reap the process first; its status
             # then reaches this Process object a moment later, so poll for it
             end = time.monotonic() + 5
             proc.join(5)
             while proc.exitcode is None and time.monotonic() < end:
                 proc.join(0.05)
-            codes.append(proc.exitcode)
+            if proc not in killed:
+                codes.append(proc.exitcode)
         self._pool = self._new_pool()
         self._processes = []
         code = next((c for c in codes if c not in (None, 0, -15)), None)
         return f" (exit code {code})" if code is not None else ""
 
+    def _nudge(self) -> None:
+        """Wake the pool's management thread, so that it looks at every worker again.
+
+        It watches the workers it knew of when it last woke, and ``submit`` wakes it
+        before starting a new worker (CPython 3.11-3.13): a worker started then that dies
+        is not noticed until something else wakes the thread, and the runs in flight
+        would wait for ever (or until another run finishes)."""
+        wakeup = getattr(self._pool, "_executor_manager_thread_wakeup", None)
+        lock = getattr(self._pool, "_shutdown_lock", None)
+        if wakeup is not None and lock is not None:
+            with lock:
+                wakeup.wakeup()
+
+    def _pool_processes(self) -> list[Any]:
+        return list((getattr(self._pool, "_processes", None) or {}).values())
+
     def close(self, *, wait: bool = True) -> None:
         """Shut the pool down; ``wait=False`` also stops the runs in flight (the
         interpreter would otherwise wait for them at exit)."""
-        processes = list((getattr(self._pool, "_processes", None) or {}).values())
+        processes = self._pool_processes()
         self._pool.shutdown(wait=wait, cancel_futures=True)
         if not wait:
             for proc in processes:
