@@ -1,5 +1,6 @@
 """The variants of ``settings.compare`` start compiling once the spec's sampler is compiled,
-and a failed calibration of the spec's model neither waits for them nor runs them."""
+run beside the later stages until the validation collects them, and are not run after a
+failed calibration of the spec's model."""
 
 from __future__ import annotations
 
@@ -46,9 +47,33 @@ def test_variants_wait_for_the_spec_sampler_to_compile(context, monkeypatch):
     monkeypatch.setattr(calibrate_network, "calibrate", spec)
     monkeypatch.setattr(validation, "calibrate_variants", variants)
     monkeypatch.setattr(pipeline, "record_calibration", lambda *a, **k: "recorded")
-    context.calibration(lambda text: None)
+    with context.held:
+        context.calibration(lambda text: None)
+        assert set(context.collect_variants()) == set(context.network.settings.compare)
     assert events == ["spec compiling", "variants", "spec sampled"]
-    assert set(context.variants) == set(context.network.settings.compare)
+
+
+def test_the_variants_run_beside_the_stages_after_the_calibration(context, monkeypatch):
+    """The calibration stage ends without waiting for the variants; the validation
+    stage's collect_variants does."""
+    go = threading.Event()
+
+    def spec(network, sur, *, compiled, **kwargs):
+        compiled()
+        return "posterior"
+
+    def variants(network, sur, train, names, **kwargs):
+        assert go.wait(30)
+        return {name: ("net", "post") for name in names}
+
+    monkeypatch.setattr(calibrate_network, "calibrate", spec)
+    monkeypatch.setattr(validation, "calibrate_variants", variants)
+    monkeypatch.setattr(pipeline, "record_calibration", lambda *a, **k: "recorded")
+    with context.held:
+        context.calibration(lambda text: None)  # returns while the variants still run
+        assert context.variants == {} and not context.pending.done()
+        go.set()
+        assert set(context.collect_variants()) == set(context.network.settings.compare)
 
 
 def test_a_failed_spec_calibration_does_not_run_the_variants(context, monkeypatch):
@@ -59,6 +84,7 @@ def test_a_failed_spec_calibration_does_not_run_the_variants(context, monkeypatc
 
     monkeypatch.setattr(calibrate_network, "calibrate", spec)
     monkeypatch.setattr(validation, "calibrate_variants", lambda *a, **k: ran.append(1))
-    with pytest.raises(CalibrationError, match="not finite"):
+    with pytest.raises(CalibrationError, match="not finite"), context.held:
         context.calibration(lambda text: None)
+    context.pending.result(timeout=30)
     assert ran == []

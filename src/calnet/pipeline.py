@@ -14,7 +14,7 @@ import time
 import warnings
 from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 from dataclasses import replace
 from datetime import UTC, datetime
 from pathlib import Path
@@ -103,7 +103,7 @@ def run_pipeline(spec: str | Path, *, out: Path, fresh: bool = False, quick: boo
     # thread's warnings recorded into a list that nobody reads. Import it before any stage
     # starts a thread.
     import_arviz()
-    with _display(console) as show:
+    with _display(console) as show, ctx.held:
         for i, stage in enumerate(STAGES):
             show.start(stage, i)
             t0 = time.perf_counter()
@@ -231,6 +231,10 @@ class _Context:
         self.campaigns: dict[str, CampaignSummary] = {}
         self.emulated: dict = {}  # settings.predict outputs, from the prediction stage
         self.variants: dict = {}  # settings.compare: {variant: (network, posterior)}
+        self.pending = None  # Future of the variants, calibrated in a thread
+        self.failed = threading.Event()  # the run stops: variants not started stay so
+        self.held = ExitStack()  # from the calibration to the end of the run: one BLAS
+        # thread (the variants run beside the stages), and the variants not started are not
         self.validated: dict = {}  # data set -> calnet.results.DatasetValidation
         self.comparison = None  # calnet.results.Comparison, with settings.compare
         self.explored: dict = {}  # data set -> calnet.explore.Exploration
@@ -271,20 +275,26 @@ class _Context:
         # the variants of settings.compare are calibrated beside the spec's model, in a
         # thread that starts once the spec's sampler is compiled: their compilation then
         # runs beside its chains, not beside its compilation (two compilations at once
-        # each took twice as long on 2 cores: benchmarks/README.md)
-        compiled, failed = threading.Event(), threading.Event()
+        # each took twice as long on 2 cores: benchmarks/README.md). The validation
+        # stage, which compares them, collects them: until then they run beside the
+        # rest of this stage and the prediction. BLAS stays on one thread to the end of
+        # the run (self.held, which run_pipeline closes after the last stage).
+        compiled, failed = threading.Event(), self.failed
 
         def after_compiled(*args, **kwargs):
             compiled.wait()
             return {} if failed.is_set() else calibrate_variants(*args, **kwargs)
 
-        with one_blas_thread(), ThreadPoolExecutor(max_workers=1) as pool:
-            beside = None
-            if variants:
-                note("calibrating " + ", ".join(variants) + " beside the spec's model")
-                beside = pool.submit(after_compiled, self.network, self.sur, train,
-                                     variants, sampler=secondary_sampler(self.sampler),
-                                     seed=self.seed)
+        if variants:
+            self.held.enter_context(one_blas_thread())
+            self.held.callback(failed.set)  # on the way out: what has not started, won't
+            note("calibrating " + ", ".join(variants) + " beside the spec's model")
+            pool = ThreadPoolExecutor(max_workers=1)
+            self.pending = pool.submit(after_compiled, self.network, self.sur, train,
+                                       variants, sampler=secondary_sampler(self.sampler),
+                                       seed=self.seed)
+            pool.shutdown(wait=False)
+        with one_blas_thread():
             try:
                 self.post = calibrate(self.network, self.sur, data=train, seed=self.seed,
                                       sampler=self.sampler, progress=note,
@@ -294,10 +304,18 @@ class _Context:
                 raise
             finally:
                 compiled.set()
-            self.variants = beside.result() if beside else {}
         self.calibrated = record_calibration(self.network, self.post,
                                              folder=self.out / "posterior",
                                              sampler=self.sampler)
+
+    def collect_variants(self) -> dict:
+        """The variants calibrated beside the spec's model (waits for them)."""
+        if self.pending is not None:
+            try:
+                self.variants = self.pending.result()
+            finally:
+                self.pending = None
+        return self.variants
 
     def prediction(self, note) -> None:
         def one(name):
@@ -335,7 +353,7 @@ class _Context:
                     self.network, self.sur, self.post, d, self.predictions[name],
                     sampler=self.sampler, seed=self.seed, loo_max=self.loo_max,
                     progress=note)
-            if self.variants:
+            if self.collect_variants():
                 note("comparison with " + ", ".join(self.variants))
                 self.comparison = compare_variants(
                     self.network, self.sur, self.post, tuple(self.variants),
