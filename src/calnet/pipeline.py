@@ -233,8 +233,7 @@ class _Context:
         self.variants: dict = {}  # settings.compare: {variant: (network, posterior)}
         self.pending = None  # Future of the variants, calibrated in a thread
         self.failed = threading.Event()  # the run stops: variants not started stay so
-        self.held = ExitStack()  # from the calibration to the end of the run: one BLAS
-        # thread (the variants run beside the stages), and the variants not started are not
+        self.held = ExitStack()  # what the calibration sets for the rest of the run
         self.validated: dict = {}  # data set -> calnet.results.DatasetValidation
         self.comparison = None  # calnet.results.Comparison, with settings.compare
         self.explored: dict = {}  # data set -> calnet.explore.Exploration
