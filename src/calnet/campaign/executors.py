@@ -21,6 +21,7 @@ import time
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
+from multiprocessing.connection import wait as wait_ended
 from typing import Any, Protocol
 
 from calnet.errors import CampaignError
@@ -174,10 +175,12 @@ class ProcessExecutor:
         killed (SIGKILL).
         """
         procs = list(dict.fromkeys([*self._processes, *self._pool_processes()]))
+        # a process has ended when its sentinel is ready, whoever reaped it: its exit
+        # code reaches this Process object only once the pool's thread has reaped it
         end = time.monotonic() + WORKER_GRACE
         for proc in procs:
-            proc.join(max(0.0, end - time.monotonic()))
-        killed = {proc for proc in procs if proc.exitcode is None}
+            wait_ended([proc.sentinel], max(0.0, end - time.monotonic()))
+        killed = {proc for proc in procs if not wait_ended([proc.sentinel], 0)}
         for proc in killed:
             proc.kill()
         # wait: the broken pool's management thread is ending; shutdown(wait=False) would
