@@ -47,6 +47,19 @@ def posterior_summary(network: Network, post: NetworkPosterior) -> dict:
                 "mcse_q97.5": az.mcse(p, method="quantile", prob=0.975)}
         return cache[id(stage)]
 
+    def sampled_in(stages) -> dict:
+        """The diagnostics, stages and data sets of the stages that sampled a model."""
+        out = {"divergences": sum(int(np.asarray(s.idata.sample_stats["diverging"]).sum())
+                                  for s in stages),
+               "max_rhat": max(diag(s)["summary"].max_r_hat for s in stages),
+               "min_ess_bulk": min(diag(s)["summary"].min_ess_bulk for s in stages),
+               "stage": " ; ".join("+".join(s.models) for s in stages),
+               "datasets": sorted({d for s in stages for d in s.datasets})}
+        moved_by = sorted({k for s in stages for k in s.moved_by})
+        if moved_by:
+            out["moved_by"] = moved_by
+        return out
+
     out = {}
     for model, draws in post.theta.items():
         if model in post.prior_only:
@@ -82,28 +95,11 @@ def posterior_summary(network: Network, post: NetworkPosterior) -> dict:
         if not stages:
             out[model] = {"prior_only": True}
             continue
-        div = sum(int(np.asarray(s.idata.sample_stats["diverging"]).sum()) for s in stages)
-        all_rhat = max(diag(s)["summary"].max_r_hat for s in stages)
-        all_ess = min(diag(s)["summary"].min_ess_bulk for s in stages)
-        out[model] = {"parameters": rows, "divergences": div, "max_rhat": all_rhat,
-                      "min_ess_bulk": all_ess,
-                      "stage": " ; ".join("+".join(s.models) for s in stages),
-                      "datasets": sorted({d for s in stages for d in s.datasets})}
-        moved_by = sorted({k for s in stages for k in s.moved_by})
-        if moved_by:
-            out[model]["moved_by"] = moved_by
+        out[model] = {"parameters": rows, **sampled_in(stages)}
     for stage in post.stages:  # a model without parameters whose data's hyperparameters
         for model in stage.models:  # (discrepancy, unknown noise) were sampled
             if model not in out or out[model].get("prior_only"):
-                d = diag(stage)["summary"]
-                out[model] = {"parameters": {}, "max_rhat": d.max_r_hat,
-                              "min_ess_bulk": d.min_ess_bulk,
-                              "divergences": int(np.asarray(
-                                  stage.idata.sample_stats["diverging"]).sum()),
-                              "stage": "+".join(stage.models),
-                              "datasets": sorted(stage.datasets)}
-                if stage.moved_by:
-                    out[model]["moved_by"] = sorted(stage.moved_by)
+                out[model] = {"parameters": {}, **sampled_in([stage])}
     return out
 
 

@@ -31,11 +31,11 @@ Task = tuple[Any, ...]
 CONNECT_TIMEOUT = "20s"  # how long to try reaching an existing Dask scheduler
 EXECUTORS = ("auto", "in-process", "processes", "dask")  # the names make_executor knows
 WORKER_GRACE = 5.0
+"""Seconds a broken process pool's workers have to end on the pool's SIGTERM before they
+are killed (:meth:`ProcessExecutor._restart`)."""
 WATCH_INTERVAL = 1.0
 """Seconds between looks at a process pool's workers while no run finishes
 (:meth:`ProcessExecutor._nudge`)."""
-"""Seconds a broken process pool's workers have to end on the pool's SIGTERM before they
-are killed (:meth:`ProcessExecutor._restart`)."""
 
 
 class Executor(Protocol):
