@@ -232,7 +232,6 @@ class _Context:
         self.emulated: dict = {}  # settings.predict outputs, from the prediction stage
         self.variants: dict = {}  # settings.compare: {variant: (network, posterior)}
         self.pending = None  # Future of the variants, calibrated in a thread
-        self.failed = threading.Event()  # the run stops: variants not started stay so
         self.held = ExitStack()  # what the calibration sets for the rest of the run
         self.validated: dict = {}  # data set -> calnet.results.DatasetValidation
         self.comparison = None  # calnet.results.Comparison, with settings.compare
@@ -278,7 +277,7 @@ class _Context:
         # stage, which compares them, collects them: until then they run beside the
         # rest of this stage and the prediction. BLAS stays on one thread to the end of
         # the run (self.held, which run_pipeline closes after the last stage).
-        compiled, failed = threading.Event(), self.failed
+        compiled, failed = threading.Event(), threading.Event()
 
         def after_compiled(*args, **kwargs):
             compiled.wait()
