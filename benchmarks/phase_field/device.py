@@ -1,16 +1,19 @@
 """Grid convergence and spacing scaling of the phase-field M2 on an accelerator.
 
-    PYTHONPATH=src python benchmarks/phase_field/device.py OUT_DIR [--deadline S] [--smoke]
+    PYTHONPATH=src python benchmarks/phase_field/device.py OUT_DIR [--set grid|seeds]
+        [--deadline S] [--smoke]
 
-Runs the cases of :data:`CASES` in order on jax's default device (a GPU where there is
-one) at the physics.md worked-check parameters, on the 1.92 x 0.64 um domain of the
-``default`` and ``fine`` resolutions at 5, 2.5, 1.25 and 0.625 nm cells. Before each run a
-probe times the run's chunk of steps; the run's step budget is cut to what fits before
-``--deadline`` seconds (from the start of the script), so a run that would not finish
-ends ``budget`` (reported ``nonconverged``) with its history kept, and a run that cannot
-take a tenth of its expected steps is skipped. Each finished run appends one JSON line to
+Runs the cases of :data:`SETS` in order (``grid``: resolutions and the spacing's
+scaling; ``seeds``: other seeds of the initial noise at 0.3 m/s) on jax's default device
+(a GPU where there is one) at the physics.md worked-check parameters, on the 1.92 x 0.64
+um domain of the ``default`` and ``fine`` resolutions at 5, 2.5, 1.25 and 0.625 nm cells.
+Before each run a probe times the run's chunk of steps; the run's step budget is cut to
+what fits before ``--deadline`` seconds (from the start of the script), so a run that
+would not finish ends ``budget`` with its history kept, and a run that cannot take a
+tenth of its expected steps is skipped. Each finished run appends one JSON line to
 ``OUT_DIR/pf_device.jsonl`` (summary, steps, wall time, time per step, and the front
-after every chunk). ``--smoke`` shrinks every grid (a check of the script on a CPU).
+after every chunk: time in us, cells, undercooling, k_V, tip-height mode). ``--smoke``
+shrinks every grid (a check of the script on a CPU).
 """
 
 from __future__ import annotations
@@ -32,29 +35,33 @@ from calnet.simulators.phase_field.options import PhaseFieldOptions
 PARAMS = {"sigma": 2e-6, "M": 7.5, "p_int": 15000.0}  # physics.md worked check
 WIDTH, HEIGHT = 1.92e-6, 0.64e-6  # m, the domain of the named resolutions
 
-#: (S m/s, G K/m, dx nm), in order of priority
-CASES = [
-    (0.3, 1e7, 5.0),  # the default grid: the CPU's 0.083 um, 23 cells, 6000 steps
-    (0.3, 1e7, 1.25),
-    (0.3, 2e7, 1.25),
-    (0.3, 5e6, 1.25),
-    (0.3, 1e7, 0.625),
-    (0.15, 1e7, 1.25),
-    (0.6, 1e7, 1.25),
-    (0.15, 1e7, 2.5),
-    (0.6, 1e7, 2.5),
-    (0.3, 2e7, 0.625),
-    (0.3, 5e6, 0.625),
-]
+#: (S m/s, G K/m, dx nm, seed) of each set, in order of priority
+SETS = {
+    "grid": [
+        (0.3, 1e7, 5.0, 0),  # the default grid: the CPU's 0.083 um, 23 cells, 6000 steps
+        (0.3, 1e7, 1.25, 0),
+        (0.3, 2e7, 1.25, 0),
+        (0.3, 5e6, 1.25, 0),
+        (0.3, 1e7, 0.625, 0),
+        (0.15, 1e7, 1.25, 0),
+        (0.6, 1e7, 1.25, 0),
+        (0.15, 1e7, 2.5, 0),
+        (0.6, 1e7, 2.5, 0),
+        (0.3, 2e7, 0.625, 0),
+        (0.3, 5e6, 0.625, 0),
+    ],
+    "seeds": [(0.3, 1e7, dx, seed) for dx in (2.5, 1.25, 5.0) for seed in (0, 1, 2, 3)]
+    + [(0.3, G, 1.25, seed) for G in (2e7, 5e6) for seed in (1, 2)],
+}
 
 
-def _options(dx_nm: float, smoke: bool) -> PhaseFieldOptions:
+def _options(dx_nm: float, seed: int, smoke: bool) -> PhaseFieldOptions:
     dx = dx_nm * 1e-9
     nx, ny = int(round(WIDTH / dx)), int(round(HEIGHT / dx))
     steps = int(160000 * (2.5 / dx_nm) ** 2)
     if smoke:  # a small grid and a short budget
         nx, ny, dx, steps = 24, 32, 5e-9, 600
-    return PhaseFieldOptions(dx=dx, nx=nx, ny=ny, max_steps=steps)
+    return PhaseFieldOptions(dx=dx, nx=nx, ny=ny, max_steps=steps, seed=seed)
 
 
 def _expected_steps(p, opts: PhaseFieldOptions, dt: float) -> int:
@@ -87,6 +94,7 @@ def _probe(p, opts: PhaseFieldOptions, dt: float, chunk: int) -> float:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("out", type=Path)
+    ap.add_argument("--set", choices=sorted(SETS), default="grid")
     ap.add_argument("--deadline", type=float, default=480.0)
     ap.add_argument("--smoke", action="store_true")
     args = ap.parse_args()
@@ -96,10 +104,10 @@ def main() -> None:
     dev = jax.devices()[0]
     print(f"jax {jax.__version__}, device {dev.platform}: {dev.device_kind}, "
           f"default float {jax.numpy.asarray(1.0).dtype}", flush=True)
-    for S, G, dx_nm in CASES:
+    for S, G, dx_nm, seed in SETS[args.set]:
         left = args.deadline - (time.perf_counter() - start)
         p = phase_field.parameters({"S": S, "G": G, **PARAMS})
-        opts = _options(dx_nm, args.smoke)
+        opts = _options(dx_nm, seed, args.smoke)
         dt = model.stable_time_step(p.sigma, p.mobility, opts.dx, model.CONSTANTS)
         chunk = min(max(math.ceil(opts.chunk_cells * opts.dx / (p.S * dt)), 10), 4000)
         need = _expected_steps(p, opts, dt)
@@ -108,7 +116,7 @@ def main() -> None:
         left -= time.perf_counter() - t_probe
         # the run's own compile, the per-chunk measurement and transfers: 1.3 times
         fits = int(0.9 * left / (1.3 * per_step))
-        label = f"S {S} G {G:.3g} dx {dx_nm} nm ({opts.nx} x {opts.ny})"
+        label = f"S {S} G {G:.3g} dx {dx_nm} nm ({opts.nx} x {opts.ny}) seed {seed}"
         print(f"{label}: {per_step * 1e6:.1f} us/step, chunk {chunk}, expected {need} "
               f"steps, {fits} fit in {left:.0f} s", flush=True)
         if fits < max(need // 10, 2 * chunk):
@@ -118,7 +126,7 @@ def main() -> None:
         rec = solver.run(p, opts)
         s = outputs.summary(rec.history, opts.window) if rec.history else {}
         travel = p.S * rec.time * p.G / model.CONSTANTS.freezing_range
-        row = {"S": S, "G": G, "dx_nm": dx_nm, "nx": opts.nx, "ny": opts.ny,
+        row = {"S": S, "G": G, "dx_nm": dx_nm, "seed": seed, "nx": opts.nx, "ny": opts.ny,
                "status": rec.status, "steps": rec.steps, "max_steps": opts.max_steps,
                "sim_us": rec.time * 1e6, "travel": travel, "dt": rec.dt,
                "wall": rec.wall_seconds, "us_per_step": per_step * 1e6,

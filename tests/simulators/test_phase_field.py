@@ -310,6 +310,18 @@ def test_bad_options_name_the_problem():
         phase_field.simulate(WORKED, steady_travel=0)
 
 
+def test_the_resolutions_cover_one_domain_for_one_simulated_time():
+    # the presets differ only in the grid: the same 1.92 x 0.64 um domain, and a step
+    # budget that buys the same simulated time at each grid's stable step (dt ~ dx^2)
+    base = PhaseFieldOptions()
+    dt0 = model.stable_time_step(2e-2, 7.5e-8, base.dx, C)
+    for name in phase_field.RESOLUTIONS:
+        o = PhaseFieldOptions(resolution=name)
+        assert o.nx * o.dx == pytest.approx(1.92e-6) and o.ny * o.dx == pytest.approx(0.64e-6)
+        dt = model.stable_time_step(2e-2, 7.5e-8, o.dx, C)
+        assert o.max_steps * dt == pytest.approx(base.max_steps * dt0)
+
+
 def test_registered_and_runs_from_the_cli():
     info = builtin_info("phase_field")
     assert info.outputs == phase_field.OUTPUTS and info.bounds == solidification.BOUNDS

@@ -9,6 +9,7 @@ from typing import Any
 RESOLUTIONS: dict[str, dict[str, float]] = {
     "default": {"dx": 5e-9, "nx": 384, "ny": 128, "max_steps": 40000},
     "fine": {"dx": 2.5e-9, "nx": 768, "ny": 256, "max_steps": 160000},
+    "xfine": {"dx": 1.25e-9, "nx": 1536, "ny": 512, "max_steps": 640000},
 }
 
 
@@ -18,11 +19,14 @@ class PhaseFieldOptions:
 
     Parameters
     ----------
-    resolution : {"default", "fine"}, default "default"
-        ``"default"``: 5 nm cells (4 across the 20 nm interface), a 1.92 x 0.64 um domain,
-        about a minute per run on 2 CPU cores. ``"fine"``: 2.5 nm cells on the same
-        domain, 16 times the work, for an accelerator. The fields below override the
-        preset.
+    resolution : {"default", "fine", "xfine"}, default "default"
+        All on the same 1.92 x 0.64 um domain. ``"default"``: 5 nm cells (4 across the
+        20 nm interface), about a minute per run on 2 CPU cores, under a second on an
+        H200 GPU. ``"fine"``: 2.5 nm cells, 16 times the work (about 12 min per run on
+        one core, 1-5 s on an H200). ``"xfine"``: 1.25 nm cells, 16 times ``"fine"``,
+        for an accelerator (8-39 s per run on an H200 from 0.15 to 0.6 m/s; hours on a
+        CPU). Measured costs and what each resolution gives: benchmarks/README.md. The
+        fields below override the preset.
     dx : float or None
         Grid spacing, m.
     nx, ny : int or None
