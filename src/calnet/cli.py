@@ -283,7 +283,8 @@ def simulate(
 
     Inputs and parameters not given take the middle of their bounds (a warning names the
     inputs); a value outside its bounds runs, with a warning; one the model cannot take
-    (not finite, not positive) gives status "failed" and exit code 1.
+    (not finite, not positive) gives status "failed" and exit code 1. A long run
+    (phase_field) reports its progress on stderr.
     """
     from calnet.simulators.registry import builtin_info
 
@@ -311,8 +312,13 @@ def simulate(
         if not lo <= x <= hi:
             warnings.warn(f"{k}={x:g}{unit(k)} lies outside the bounds [{lo:g}, {hi:g}]: "
                           "the model runs there, but untested", stacklevel=1)
+    extra = {}
+    if "progress" in inspect.signature(info.simulate).parameters:
+        from calnet.progress import Lines
+
+        extra["progress"] = Lines(name).update  # progress lines on stderr
     try:
-        result = info.simulate(inputs, **options)
+        result = info.simulate(inputs, **options, **extra)
     except (TypeError, ValueError) as err:
         if not options:
             raise

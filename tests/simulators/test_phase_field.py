@@ -328,9 +328,13 @@ def test_registered_and_runs_from_the_cli():
     args = ["simulate", "phase_field", "--set", "S=0.3", "--set", "G=1e7",
             *(a for k, v in TINY.items() for a in ("--option", f"{k}={v}"))]
     result = CliRunner().invoke(app, args)
-    doc = json.loads(result.output)
+    doc = json.loads(result.stdout)
     assert result.exit_code == 1 and doc["status"] == "nonconverged"
     assert {"lambda", "k_V"} <= set(doc["outputs"])
+    # progress on stderr, a line per tenth of the step budget, the last at the budget
+    lines = [ln for ln in result.stderr.splitlines() if ln.startswith("phase_field: ")]
+    steps = doc["diagnostics"]["steps"]
+    assert len(lines) >= 2 and f"{steps}/{steps} steps" in lines[-1], result.stderr
 
 
 @pytest.mark.slow
@@ -338,7 +342,7 @@ def test_cells_at_0_3_m_s_from_the_cli():
     # the "done when": the default run at 0.3 m/s, 1e7 K/m is a steady cell array
     result = CliRunner().invoke(app, ["simulate", "phase_field", "--set", "S=0.3", "--set",
                                       "G=1e7"])
-    doc = json.loads(result.output)
+    doc = json.loads(result.stdout)
     assert result.exit_code == 0 and doc["status"] == "ok", doc["message"]
     assert doc["diagnostics"]["cells"] >= 2 and doc["outputs"]["amplitude"] > 0.005
     # trapping as in Aziz's model (variant A) within 5 % at the tip of the cells

@@ -19,7 +19,7 @@ Examples
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
 from calnet.simulators.base import InputValueError, SimResult, check_input_names
@@ -67,13 +67,18 @@ def parameters(inputs: Mapping[str, float]) -> PhysicalParameters:
                               permeability=v["p_int"] * TO_SI["p_int"])
 
 
-def simulate(inputs: Mapping[str, float], **options: Any) -> SimResult:
+def simulate(inputs: Mapping[str, float], *,
+             progress: Callable[[float, str], None] | None = None,
+             **options: Any) -> SimResult:
     """Run the phase-field model once.
 
     Parameters
     ----------
     inputs : mapping of str to float
         ``S`` (m/s), ``G`` (K/m) and optionally ``sigma``, ``M``, ``p_int``.
+    progress : callable, optional
+        Called after every chunk of steps with the fraction of the step budget spent and
+        a line of text (``calnet simulate`` passes :meth:`calnet.progress.Lines.update`).
     **options
         See :class:`PhaseFieldOptions` (``resolution``, ``seed``, ``nx``, ``ny``,
         ``max_steps``, ...).
@@ -114,7 +119,7 @@ def simulate(inputs: Mapping[str, float], **options: Any) -> SimResult:
     # whose fields diverge starts again with half the step, at most MAX_HALVINGS times
     wall = 0.0
     for halvings in range(MAX_HALVINGS + 1):
-        rec = run(p, opts, dt_scale=0.5**halvings)
+        rec = run(p, opts, dt_scale=0.5**halvings, progress=progress)
         wall += rec.wall_seconds
         if rec.status != "diverged" and rec.history:
             break

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import partial
 
@@ -139,7 +140,8 @@ def diverged(xs: np.ndarray, xl: np.ndarray) -> bool:
 
 
 def run(p: PhysicalParameters, opts: PhaseFieldOptions,
-        c: PhaseFieldConstants = CONSTANTS, *, dt_scale: float = 1.0) -> PhaseFieldRun:
+        c: PhaseFieldConstants = CONSTANTS, *, dt_scale: float = 1.0,
+        progress: Callable[[float, str], None] | None = None) -> PhaseFieldRun:
     """Integrate until the front is steady (:func:`~calnet.simulators.phase_field.outputs
     .steady` over the last ``opts.steady_travel`` freezing-range lengths of isotherm
     travel, after at least ``opts.min_travel``) or ``opts.max_steps`` is spent.
@@ -147,7 +149,9 @@ def run(p: PhysicalParameters, opts: PhaseFieldOptions,
     The step is ``dt_scale`` times the stable explicit step of the run's parameters and
     grid (:func:`~calnet.simulators.phase_field.model.stable_time_step`), and the step
     budget ``opts.max_steps / dt_scale`` (the same simulated time). The run stops early
-    with status ``"diverged"`` when :func:`diverged` says so.
+    with status ``"diverged"`` when :func:`diverged` says so. ``progress``, when given,
+    is called after every chunk with the fraction of the step budget spent and a line
+    saying where the run is (:meth:`calnet.progress.Lines.update` takes both).
     """
     start = time.perf_counter()
     phi, xs, xl, y_front = initial_fields(opts, c, p.S)
@@ -178,6 +182,10 @@ def run(p: PhysicalParameters, opts: PhaseFieldOptions,
         history.append(outputs.measure(
             phi, xs, xl, y=y, t=t, dx=opts.dx, eta=c.eta, T0=c.T0,
             temperature_at=lambda yy, tt: T_ref + p.G * (yy - y_front - p.S * tt)))
+        if progress is not None:
+            progress(steps / max_steps, f"{steps}/{max_steps} steps, {t * 1e6:.2f} us "
+                     f"simulated (steady from {min_time * 1e6:.1f} us at the earliest), "
+                     f"{history[-1].cells} cells")
         if outputs.steady(history, speed=p.S, min_time=min_time, window_time=window_time):
             status = "steady"
             break
