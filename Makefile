@@ -1,7 +1,9 @@
 # Two entry points for a fresh clone (only Python >= 3.11 and pip needed):
 #   make demo   install into .venv and run the reference case study (calnet run examples/ninb)
-#   make test   install into .venv (with test extras) and run the test suite
-#   make lint   ruff over src, tests and benchmarks (CI runs it before make test)
+#   make test   install into .venv (with test extras) and run the fast tests (before a commit)
+# and for CI:
+#   make test-slow  the slow and end-to-end tests (pytest markers slow, integration)
+#   make lint       ruff over src, tests and benchmarks
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
@@ -9,7 +11,7 @@ export OPENBLAS_NUM_THREADS ?= 1
 export OMP_NUM_THREADS ?= 1
 export MKL_NUM_THREADS ?= 1
 
-.PHONY: demo test lint install clean
+.PHONY: demo test test-slow lint install clean
 
 $(BIN)/.calnet-installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -23,7 +25,10 @@ demo: install
 	$(BIN)/calnet run examples/ninb --out out/ninb
 
 test: install
-	$(BIN)/python -m pytest
+	$(BIN)/python -m pytest -m "not slow and not integration"
+
+test-slow: install
+	$(BIN)/python -m pytest -m "slow or integration"
 
 lint: install
 	$(BIN)/ruff check src tests benchmarks

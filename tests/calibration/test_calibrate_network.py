@@ -178,6 +178,7 @@ def test_prediction_matches_calibration_data_scale(both, indep):
                                 "discrepancy", "noise"}
 
 
+@pytest.mark.slow
 def test_calibrate_command_writes_posteriors_summary_and_plots(indep, tmp_path):
     import json
 
@@ -208,6 +209,7 @@ def test_calibrate_command_writes_posteriors_summary_and_plots(indep, tmp_path):
     assert load_posterior(out, network).mode == "joint"
 
 
+@pytest.mark.slow
 def test_a_short_run_warns_about_its_diagnostics(indep):
     network, sur, _ = indep
     short = SamplerSettings(chains=2, warmup=10, draws=20)
@@ -222,6 +224,7 @@ def test_a_short_run_warns_about_its_diagnostics(indep):
     assert not any(re.search(r"\b(theta|ell|sd2|se2)_", m) for m in messages), messages
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("plug", ["posterior", "mode"])
 def test_segmented_plugs_prior_draws_of_an_upstream_model_without_data(indep, plug):
     network, sur, _ = indep

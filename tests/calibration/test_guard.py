@@ -90,6 +90,7 @@ def test_a_parameter_pressed_against_its_bound_is_reported(tmp_path):
                for m in messages), messages
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("mode", ["segmented", "joint"])
 def test_a_shared_parameter_is_one_parameter(tmp_path, mode):
     root = tmp_path / mode
