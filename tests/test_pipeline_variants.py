@@ -88,3 +88,31 @@ def test_a_failed_spec_calibration_does_not_run_the_variants(context, monkeypatc
         context.calibration(lambda text: None)
     context.pending.result(timeout=30)
     assert ran == []
+
+
+def test_a_run_stopped_early_says_it_waits_for_the_variants_in_flight(context, monkeypatch):
+    """Ctrl-C after the calibration stage: the variants' chains cannot be interrupted, so
+    the run says that it waits for them, and does, before it ends."""
+    started, finished = threading.Event(), threading.Event()
+
+    def spec(network, sur, *, compiled, **kwargs):
+        compiled()
+        return "posterior"
+
+    def variants(network, sur, train, names, **kwargs):
+        started.set()
+        threading.Event().wait(0.5)  # chains in flight
+        finished.set()
+        return {}
+
+    monkeypatch.setattr(calibrate_network, "calibrate", spec)
+    monkeypatch.setattr(validation, "calibrate_variants", variants)
+    monkeypatch.setattr(pipeline, "record_calibration", lambda *a, **k: "recorded")
+    notes = []
+    with pytest.raises(KeyboardInterrupt), context.held:
+        context.calibration(notes.append)
+        assert started.wait(30)
+        raise KeyboardInterrupt
+    assert finished.is_set()
+    assert any("stopping once the calibration of no_discrepancy in flight ends" in n
+               for n in notes), notes

@@ -14,7 +14,7 @@ import time
 import warnings
 from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
-from contextlib import ExitStack, contextmanager
+from contextlib import ExitStack, contextmanager, suppress
 from dataclasses import replace
 from datetime import UTC, datetime
 from pathlib import Path
@@ -285,6 +285,7 @@ class _Context:
 
         if variants:
             self.held.enter_context(one_blas_thread())
+            self.held.callback(self._drain, variants, note)
             self.held.callback(failed.set)  # on the way out: what has not started, won't
             note("calibrating " + ", ".join(variants) + " beside the spec's model")
             pool = ThreadPoolExecutor(max_workers=1)
@@ -305,6 +306,16 @@ class _Context:
         self.calibrated = record_calibration(self.network, self.post,
                                              folder=self.out / "posterior",
                                              sampler=self.sampler)
+
+    def _drain(self, variants, note) -> None:
+        """On the way out of a run that stops before the validation (Ctrl-C, an error):
+        a variant's chains in flight cannot be interrupted, and the process cannot end
+        before them, so say so and wait here for them."""
+        if self.pending is not None and not self.pending.done():
+            note("stopping once the calibration of " + ", ".join(variants) + " in "
+                 "flight ends (its chains cannot be interrupted)")
+            with suppress(BaseException):
+                self.pending.result()
 
     def collect_variants(self) -> dict:
         """The variants calibrated beside the spec's model (waits for them)."""
