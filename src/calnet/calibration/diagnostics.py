@@ -152,7 +152,7 @@ def summarize(idata, *, hdi_probs: tuple[float, ...] = (0.94, 0.95), warn: bool 
     """
     az = import_arviz()
     post = idata.posterior
-    rhat, ess_b = az.rhat(post), az.ess(post, method="bulk")
+    rhat, ess_b = az.rhat(_halves(post)), az.ess(post, method="bulk")
     ess_t, mcse = az.ess(post, method="tail"), az.mcse(post, method="mean")
     hdis = {prob: az.hdi(post, hdi_prob=prob) for prob in hdi_probs}
     params = []
@@ -179,6 +179,21 @@ def summarize(idata, *, hdi_probs: tuple[float, ...] = (0.94, 0.95), warn: bool 
     return summary
 
 
+def _halves(post):
+    """``post`` itself, or for a single chain (the others left out as stuck) its two
+    halves as two chains: R-hat then compares them, as split R-hat does within chains,
+    instead of ArviZ logging that one chain is too few and returning NaN."""
+    if post.sizes["chain"] > 1:
+        return post
+    import xarray as xr
+
+    half = post.sizes["draw"] // 2
+    first = post.isel(chain=[0], draw=slice(0, half))
+    second = post.isel(chain=[0], draw=slice(half, 2 * half)).assign_coords(
+        chain=[1], draw=first.draw.values)
+    return xr.concat([first, second], dim="chain")
+
+
 _LABEL = re.compile(r"^(theta_shared|theta|ell|sd2|se2)(?:_(.+?))?(?:\[(.+)\])?$")
 
 
@@ -202,6 +217,33 @@ def readable(name: str) -> str:
     if kind == "se2" and owner and not coord:
         return f"the noise variance of {owner}"
     return name
+
+
+STUCK_GAP = 20.0
+"""Log-density units: a chain whose mean log density lies further than this (and
+:data:`STUCK_SDS` of its fluctuations) below the best chain's sits in a local mode."""
+STUCK_SDS = 10.0
+
+
+def stuck_chains(lp) -> list[int]:
+    """Chains stuck in a local mode far below the best chain's: their mean log density
+    lies below the best chain's by more than :data:`STUCK_GAP` and by more than
+    :data:`STUCK_SDS` times the larger of the two chains' standard deviations of the log
+    density. ``lp`` is (chains, draws).
+
+    Chains of one mode differ in mean log density by about its standard deviation over
+    the square root of the effective sample size; a gap of 20 log units is a density
+    ratio of 5e8, so such a mode carries a negligible share of the posterior (unless its
+    volume were larger by as much, which no calibration problem's has been). NUTS cannot
+    leave it: a chain started in its basin stays there.
+    """
+    lp = np.asarray(lp, dtype=float)
+    if lp.ndim != 2 or lp.shape[0] < 2:
+        return []
+    mean, sd = lp.mean(axis=1), lp.std(axis=1)
+    best = int(np.argmax(mean))
+    bar = np.maximum(STUCK_GAP, STUCK_SDS * np.maximum(sd, sd[best]))
+    return [int(c) for c in np.flatnonzero(mean[best] - mean > bar)]
 
 
 def convergence_problems(summary: PosteriorSummary) -> list[str]:

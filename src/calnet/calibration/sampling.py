@@ -27,6 +27,7 @@ from __future__ import annotations
 import sys
 import threading
 import time
+import warnings
 from collections import OrderedDict
 from collections.abc import Callable, Hashable, Iterator
 from contextlib import contextmanager, nullcontext
@@ -43,9 +44,9 @@ from blackjax.adaptation.window_adaptation import build_schedule
 from blackjax.mcmc import nuts
 
 from calnet._jax import FEW_CALLS, device_array
-from calnet.calibration.diagnostics import import_arviz
+from calnet.calibration.diagnostics import import_arviz, stuck_chains
 from calnet.calibration.koh import initial_point_message
-from calnet.errors import CalibrationError
+from calnet.errors import CalibrationError, CalibrationWarning
 from calnet.parallel import one_blas_thread
 from calnet.progress import Lines
 
@@ -274,6 +275,13 @@ def _run_chain(cfg: _Config, data, key, u0, chain):
     return (*out, state0.logdensity, ok)
 
 
+def _chains(index: list[int], n: int) -> str:
+    """``[1]`` -> ``"chain 2 of 4"``, ``[0, 2]`` -> ``"chains 1 and 3 of 4"`` (1-based)."""
+    one = [str(i + 1) for i in index]
+    names = one[0] if len(one) == 1 else ", ".join(one[:-1]) + " and " + one[-1]
+    return f"chain{'s' if len(one) > 1 else ''} {names} of {n}"
+
+
 def _stats(state, info) -> dict:
     return {"diverging": info.is_divergent, "energy": info.energy,
             "n_steps": info.num_integration_steps,
@@ -477,6 +485,20 @@ def sample_nuts(
     positions, stats, step_size, _, lp0, ok = jax.tree.map(np.asarray, out)
     if not ok.all():
         raise CalibrationError(initial_point_message(ld.name, lp0, ~ok))
+    stuck = stuck_chains(stats["lp"])
+    if stuck:  # left out: they would misstate the posterior (diagnostics.stuck_chains)
+        kept = np.setdiff1d(np.arange(num_chains), stuck)
+        mean_lp = stats["lp"].mean(axis=1)
+        gap = mean_lp[kept].max() - mean_lp[stuck]
+        warnings.warn(
+            f"{ld.name}: {_chains(stuck, num_chains)} stuck in a local mode of the "
+            f"posterior (mean log density {', '.join(f'{g:.0f}' for g in gap)} below the "
+            f"best chain's) and left out; {len(kept)} of {num_chains} chains kept. That "
+            "mode holds a negligible share of the posterior, but it is a second, far worse "
+            "fit of the data: the model or its surrogate may be poor in that region",
+            CalibrationWarning, stacklevel=2)
+        positions, step_size = positions[kept], step_size[kept]
+        stats = {k: v[kept] for k, v in stats.items()}
     keep = slice(thin - 1, None, thin)  # the program returns the sampling iterations only
     constrained = _constrain_draws(ld, positions[:, keep])
     posterior = {v: constrained[v] for v in ld.sampled_vars}
@@ -484,12 +506,13 @@ def sample_nuts(
     # a kept draw is divergent if any transition since the previous kept draw was
     div = stats["diverging"][:, :n_kept * thin]
     stats = {k: v[:, keep] for k, v in stats.items()}
-    stats["diverging"] = div.reshape(num_chains, n_kept, thin).any(axis=2)
+    stats["diverging"] = div.reshape(len(div), n_kept, thin).any(axis=2)
     stats["step_size"] = np.repeat(step_size[:, None], n_kept, axis=1)
     attrs = {"model": ld.name, "inference_library": "calnet (BlackJAX NUTS)",
              "seed": seed, "num_warmup": num_warmup, "num_draws": num_draws, "thin": thin,
              "target_accept": target_accept, "max_tree_depth": max_tree_depth,
              "dense_mass": int(dense_mass), "chain_method": method,
+             "chains_left_out": ",".join(map(str, stuck)),
              "compile_time": t_compile, "sampling_time": t_sample}
     idata = az.from_dict(posterior=posterior, sample_stats=stats,
                          observed_data={"y": np.asarray(ld.data["y"])},
