@@ -150,7 +150,7 @@ def record_calibration(network: Network, post: NetworkPosterior, *, folder: Path
     """Write ``post`` to ``folder`` (the stages' netCDFs and what ``calnet predict`` needs)
     and return its :class:`calnet.results.CalibrationResult`. ``calnet run`` and ``calnet
     calibrate`` both call it."""
-    save_posterior(post, folder)
+    save_posterior(post, folder, network)
     return calibration_result(network, post, sampler=sampler)
 
 

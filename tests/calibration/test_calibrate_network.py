@@ -158,6 +158,21 @@ def test_loading_a_posterior_checks_the_spec(both, indep, tmp_path):
         load_posterior(tmp_path, load_spec(changed))
 
 
+@pytest.mark.parametrize("setting, word", [("discrepancy: none", "discrepancy"),
+                                           ("noise: {sd: 0.1}", "noise")])
+def test_a_posterior_is_not_read_under_other_noise_or_discrepancy(both, indep, tmp_path,
+                                                                  setting, word):
+    network, _, root = indep
+    save_posterior(both[0], tmp_path, network)
+    load_posterior(tmp_path, network)  # the spec it was calibrated with
+    changed = root / f"changed_{word}.yaml"
+    changed.write_text(textwrap.dedent(SPEC).replace(
+        "columns: {x: x, y: y}}", "columns: {x: x, y: y}, " + setting + "}"))
+    with pytest.raises(CalibrationError, match=f"calibrated with other {word} settings for "
+                       "data set 'ydata'"):
+        load_posterior(tmp_path, load_spec(changed))
+
+
 def test_prediction_matches_calibration_data_scale(both, indep):
     from calnet.predict import predict
 

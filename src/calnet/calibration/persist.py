@@ -22,9 +22,12 @@ FILE = "network_posterior"
 FORMAT = 2
 
 
-def save_posterior(post, folder: str | Path) -> Path:
+def save_posterior(post, folder: str | Path, network: Network | None = None) -> Path:
     """Write ``post`` to ``folder``: each stage's ArviZ posterior as ``<models>.nc`` and
-    what prediction needs as ``network_posterior.{npz,json}``; returns the JSON path."""
+    what prediction needs as ``network_posterior.{npz,json}``; returns the JSON path.
+    With the ``network`` it was calibrated for, each data set's noise and discrepancy
+    settings are recorded too, and :func:`load_posterior` refuses a spec that changed
+    them."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     for stage in post.stages:
@@ -43,6 +46,8 @@ def save_posterior(post, folder: str | Path) -> Path:
             arrays[f"data/{ds}/noise_sd"] = np.asarray(d.noise_sd, float)
         data_meta[ds] = {"observes": d.observes, "input_keys": list(d.input_keys),
                          "labels": list(d.labels)}
+        if network is not None:
+            data_meta[ds]["settings"] = _term_settings(network, ds)
     for model, values in post.plugged.items():
         arrays[f"plugged/{model}"] = np.asarray(values, float)
     np.savez_compressed(folder / f"{FILE}.npz", **arrays)
@@ -89,11 +94,19 @@ def load_posterior(folder: str | Path, network: Network | None = None):
                             tuple(meta["prior_only"]), meta.get("timings", {}), plugged,
                             tuple(meta["notes"]))
     if network is not None:
-        _check_matches(post, network, folder)
+        _check_matches(post, network, folder, meta["data"])
     return post
 
 
-def _check_matches(post, network: Network, folder: Path) -> None:
+def _term_settings(network: Network, dataset: str) -> dict:
+    """A data set's noise and discrepancy settings, as JSON: with the data, they make its
+    KOH term, so a posterior predicts only under the settings it was calibrated with."""
+    ds = network.dataset(dataset)
+    return {"noise": ds.noise.model_dump(mode="json"),
+            "discrepancy": ds.discrepancy.model_dump(mode="json")}
+
+
+def _check_matches(post, network: Network, folder: Path, data_meta: dict) -> None:
     names = {m.name for m in network.models}
     for model, draws in post.theta.items():
         if model not in names or draws.shape[1] != len(network.model(model).parameters):
@@ -112,3 +125,13 @@ def _check_matches(post, network: Network, folder: Path) -> None:
             raise CalibrationError(f"the posterior in '{folder}': data set '{ds}' has inputs "
                                    f"{list(d.input_keys)} but the spec gives {keys}; "
                                    "calibrate again")
+        then = data_meta.get(ds, {}).get("settings")
+        now = _term_settings(network, ds)
+        changed = [k for k in now if then is not None and then.get(k) != now[k]]
+        if changed:
+            raise CalibrationError(
+                f"the posterior in '{folder}' was calibrated with other "
+                f"{' and '.join(changed)} settings for data set '{ds}' ("
+                + "; ".join(f"{k}: {then.get(k)} there, {now[k]} in this spec"
+                            for k in changed)
+                + "); calibrate again with this spec, or use the spec it was calibrated with")
