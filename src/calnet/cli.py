@@ -162,8 +162,9 @@ def user_errors(func: Callable[..., Any]) -> Callable[..., Any]:
                 raise
             except KeyboardInterrupt:
                 _show_warnings(caught)
-                err_console.print("[bold red]interrupted[/]: finished work is kept; run the "
-                                  "same command again to resume")
+                err_console.print("[bold red]interrupted[/]: finished simulation runs are "
+                                  "kept; the same command resumes them (later stages start "
+                                  "again)")
                 raise typer.Exit(130) from None
             except Exception as err:
                 if os.environ.get("CALNET_DEBUG"):

@@ -9,10 +9,11 @@ report shows the outputs of ``settings.predict`` predicted through the chain.
 
 from __future__ import annotations
 
+import signal
 import threading
 import time
 import warnings
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import ExitStack, contextmanager, suppress
 from dataclasses import replace
@@ -103,13 +104,19 @@ def run_pipeline(spec: str | Path, *, out: Path, fresh: bool = False, quick: boo
     # thread's warnings recorded into a list that nobody reads. Import it before any stage
     # starts a thread.
     import_arviz()
-    with _display(console) as show, ctx.held:
+    with _display(console) as show, _interrupt_latch() as interrupted, ctx.held:
+
+        def note(text: str) -> None:
+            interrupted()
+            show.note(text)
+
         for i, stage in enumerate(STAGES):
+            interrupted()
             show.start(stage, i)
             t0 = time.perf_counter()
             with warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("always", CalibrationWarning)
-                getattr(ctx, stage)(show.note)
+                getattr(ctx, stage)(note)
             ctx.warnings += [str(w.message) for w in caught]
             for w in caught:
                 warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
@@ -166,6 +173,36 @@ def _write_run_info(ctx: _Context, spec: str | Path, started: datetime) -> None:
             "campaign_stores": {k: str(v.resolve()) for k, v in ctx.stores.items()},
             "compiled_sampler_cache": cache_info(), **run_environment()}
     write_run_info(ctx.out / "run_info.json", info)
+
+
+@contextmanager
+def _interrupt_latch() -> Iterator[Callable[[], None]]:
+    """Ctrl-C raises KeyboardInterrupt as usual and also latches, and the callable yielded
+    raises KeyboardInterrupt (in the main thread) once it has. Python drops an exception
+    raised inside a garbage-collection callback (XLA's runs often), so a Ctrl-C that lands
+    there would otherwise be lost and the run go on; the stages call it between steps.
+    Where SIGINT is ignored (a shell's background job) or handled by someone else, or off
+    the main thread, nothing is installed."""
+    main = threading.main_thread()
+    if (threading.current_thread() is not main
+            or signal.getsignal(signal.SIGINT) is not signal.default_int_handler):
+        yield lambda: None
+        return
+    hit = threading.Event()
+
+    def handler(signum, frame):
+        hit.set()
+        raise KeyboardInterrupt
+
+    def check() -> None:
+        if hit.is_set() and threading.current_thread() is main:
+            raise KeyboardInterrupt
+
+    signal.signal(signal.SIGINT, handler)
+    try:
+        yield check
+    finally:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 @contextmanager

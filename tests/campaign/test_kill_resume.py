@@ -107,7 +107,7 @@ def test_ctrl_c_keeps_finished_runs(tmp_path):
     argv = [sys.executable, "-c", _WITH_SIGINT, *_campaign(spec, store)[3:]]
     code, output, _ = _signalled(argv, lambda: len(_finished(store)) >= 3, signal.SIGINT)
     assert code == 130, output
-    assert "finished work is kept" in output
+    assert "finished simulation runs are kept" in output
     kept = _finished(store)
     assert 3 <= len(kept) < RUNS
     summary = run_campaign(load_spec(spec), "toy", store=store, progress=False)
@@ -155,8 +155,8 @@ def test_sigterm_to_a_campaign_with_a_hung_simulator_stops_as_ctrl_c_does(tmp_pa
     code, output, _ = _signalled(_campaign(spec, store), lambda: _started(store) >= 1,
                                  signal.SIGTERM, settle=2)
     assert code == 143, output
-    assert ("interrupted (SIGTERM): finished work is kept; run the same command again to "
-            "resume") in output
+    assert ("interrupted (SIGTERM): finished simulation runs are kept; the same command "
+            "resumes them (later stages start again)") in output
     assert "resource_tracker" not in output and "Traceback" not in output, output
     kept = _finished(store)
     assert len(kept) < 12

@@ -59,8 +59,9 @@ def sigterm_exit() -> Iterator[None]:
     except Terminated:
         from rich.console import Console
 
-        Console(stderr=True).print("[bold red]interrupted[/] (SIGTERM): finished work is "
-                                   "kept; run the same command again to resume",
+        Console(stderr=True).print("[bold red]interrupted[/] (SIGTERM): finished "
+                                   "simulation runs are kept; the same command resumes "
+                                   "them (later stages start again)",
                                    soft_wrap=True)
         raise typer.Exit(TERMINATED_EXIT) from None
 
