@@ -113,6 +113,9 @@ def test_arviz_banner_is_kept_out(tmp_path):
     (["predict", "examples/ninb"], "give the settings to predict at"),
     (["simulate", "solidification", "--set", "S=fast"], "--set S: 'fast' is not a number"),
     (["simulate", "solidification", "--option", "variant"], "--option expects NAME=VALUE"),
+    (["simulate", "nosuch"], "unknown built-in simulator 'nosuch'"),
+    (["simulate", "solidification", "--set", "X=3"], "'solidification' has no input or "
+     "parameter ['X']"),
 ])
 def test_a_malformed_option_value_is_a_one_line_usage_error(argv, message):
     """Exit code 2, as Typer's own usage errors, and one line naming the bad value."""
@@ -127,7 +130,9 @@ def test_a_malformed_option_value_is_a_one_line_usage_error(argv, message):
      "melt_pool: inputs ['P'] must be finite and positive"),
     (["melt_pool", "--set", "P=-5", "--set", "v=0.5", "--option", "time_limit=5"],
      "melt_pool: inputs ['P'] must be finite and positive"),  # not blamed on the option
-    (["phase_field", "--set", "S=0.1", "--set", "G=-1e7"], "must be finite and > 0")])
+    (["phase_field", "--set", "S=0.1", "--set", "G=-1e7"], "must be finite and > 0"),
+    (["solidification", "--set", "S=-1", "--set", "G=1e7"],
+     "S must be finite and > 0 (in m/s), got -1")])
 def test_simulate_a_value_the_model_cannot_take_is_a_failed_run(argv, message):
     res = CliRunner().invoke(app, ["simulate", *argv])
     assert res.exit_code == 1, res.output

@@ -287,14 +287,17 @@ def simulate(
     (not finite, not positive) gives status "failed" and exit code 1. A long run
     (phase_field) reports its progress on stderr.
     """
-    from calnet.simulators.registry import builtin_info
+    from calnet.simulators.registry import builtin_info, builtin_names
 
+    if name not in builtin_names():
+        raise UsageError(f"unknown built-in simulator '{name}'; choose one of "
+                         f"{builtin_names()}")
     info = builtin_info(name)
     values = _parse_sets(set_)
     unknown = [k for k in values if k not in info.inputs + info.parameters]
     if unknown:
-        raise CalnetError(f"'{name}' has no input or parameter {unknown}; it takes "
-                          f"{list(info.inputs + info.parameters)}")
+        raise UsageError(f"'{name}' has no input or parameter {unknown}; it takes "
+                         f"{list(info.inputs + info.parameters)}")
     inputs = {**info.defaults(), **values}
     options = _parse_options(option)
 

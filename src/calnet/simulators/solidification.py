@@ -171,11 +171,11 @@ def _check_positive(**arrays: np.ndarray) -> None:
     for name, a in arrays.items():
         bad = ~(np.isfinite(a) & (a > 0))
         if np.any(bad):
-            first = a[bad].flat[0]
-            raise ValueError(
-                f"{name} must be finite and > 0 (in {UNITS[name]}), got {first!r} at "
-                f"{int(bad.sum())} of {a.size} points; fix or drop those points"
-            )
+            first = float(a[bad].flat[0])
+            where = (f" at {int(bad.sum())} of {a.size} points; fix or drop those points"
+                     if a.size > 1 else "")
+            raise ValueError(f"{name} must be finite and > 0 (in {UNITS[name]}), got "
+                             f"{first:g}{where}")
 
 
 def _diffusive_speed(P_si: np.ndarray, variant: str, c: SolidificationConstants) -> np.ndarray:
