@@ -196,8 +196,11 @@ def cross_validate(
         mu[test], var[test] = np.asarray(m), np.asarray(v)
     sd = np.sqrt(var)
     if transform == "log":
-        mean, nat_var = np.exp(mu + 0.5 * var), np.expm1(var) * np.exp(2.0 * mu + var)
-        lo, hi = np.exp(mu - Z95 * sd), np.exp(mu + Z95 * sd)
+        # a fold that extrapolates far can give a log-scale variance whose natural-scale
+        # mean and variance overflow: they are infinite then, and the metrics say so
+        with np.errstate(over="ignore"):
+            mean, nat_var = np.exp(mu + 0.5 * var), np.expm1(var) * np.exp(2.0 * mu + var)
+            lo, hi = np.exp(mu - Z95 * sd), np.exp(mu + Z95 * sd)
     else:
         mean, nat_var, lo, hi = mu, var, mu - Z95 * sd, mu + Z95 * sd
     met = cv_metrics(y, mean, lo, hi, transform=transform)
