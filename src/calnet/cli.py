@@ -284,8 +284,8 @@ def simulate(
 
     Inputs and parameters not given take the middle of their bounds (a warning names the
     inputs); a value outside its bounds runs, with a warning; one the model cannot take
-    (not finite, not positive) gives status "failed" and exit code 1. A long run
-    (phase_field) reports its progress on stderr.
+    (not finite, not positive) gives status "failed" and exit code 1. A run reports its
+    progress on stderr (a line at least every 10 s).
     """
     from calnet.simulators.registry import builtin_info, builtin_names
 
@@ -316,18 +316,22 @@ def simulate(
         if not lo <= x <= hi:
             warnings.warn(f"{k}={x:g}{unit(k)} lies outside the bounds [{lo:g}, {hi:g}]: "
                           "the model runs there, but untested", stacklevel=1)
-    extra = {}
-    if "progress" in inspect.signature(info.simulate).parameters:
-        from calnet.progress import Lines
+    from calnet.progress import Lines
 
-        extra["progress"] = Lines(name).update  # progress lines on stderr
+    lines, extra = Lines(name), {}
+    if "progress" in inspect.signature(info.simulate).parameters:
+        extra["progress"] = lines.update  # progress lines on stderr
     try:
-        result = info.simulate(inputs, **options, **extra)
+        # and a line after every quiet 10 s, so that a long step does not look hung
+        with lines.heartbeat(lambda: "running"):
+            result = info.simulate(inputs, **options, **extra)
     except (TypeError, ValueError) as err:
         if not options:
             raise
         raise CalnetError(f"{name} with --option {options}: {err}; fix the option names "
                           "or values") from None
+    if lines.elapsed() >= lines.every_s:  # a run long enough to have reported progress
+        lines.note(f"{result.status}")
     doc = {"simulator": name, "version": info.version, "inputs": inputs,
            "status": result.status, "message": result.message, "outputs": result.outputs,
            "diagnostics": result.diagnostics}

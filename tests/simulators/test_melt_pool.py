@@ -493,3 +493,16 @@ def test_corners_converge_or_say_why(P, v, side):
     o = res.outputs
     assert all(math.isfinite(x) and x > 0 for x in o.values())
     assert NI5NB.T_liquidus < o["T0"] < 8000.0 and 1e4 < o["G0"] < 1e9
+
+
+def test_progress_reports_every_newton_solve():
+    said = []
+    res = melt_pool.simulate({"P": 150.0, "v": 0.8}, **COARSE,
+                             progress=lambda fraction, text: said.append((fraction, text)))
+    assert res.status == "ok"
+    stages = res.diagnostics["stages"]
+    assert len(said) == len(stages) >= 2
+    fractions = [f for f, _ in said]
+    assert fractions == sorted(fractions) and 0 < fractions[-1] <= 1
+    assert said[0][1].startswith("sizing mesh (") and said[-1][1].startswith("fine mesh (")
+    assert said[-1][1].endswith(f"{stages[-1]['iterations']} Newton iterations, converged")

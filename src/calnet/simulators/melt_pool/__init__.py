@@ -20,7 +20,7 @@ Examples
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
@@ -70,7 +70,9 @@ def _check_inputs(inputs: Mapping[str, float]
     return values["P"], values["v"], theta, None
 
 
-def simulate(inputs: Mapping[str, float], **options: Any) -> SimResult:
+def simulate(inputs: Mapping[str, float], *,
+             progress: Callable[[float, str], None] | None = None,
+             **options: Any) -> SimResult:
     """Run the melt-pool model once.
 
     Parameters
@@ -78,6 +80,9 @@ def simulate(inputs: Mapping[str, float], **options: Any) -> SimResult:
     inputs : mapping of str to float
         ``P`` (W) and ``v`` (m/s), and optionally any of :data:`PARAMETERS` (units in
         :data:`UNITS`); missing parameters default to the middle of :data:`BOUNDS`.
+    progress : callable, optional
+        Called after every Newton solve with the share of the iteration budget spent and
+        a line of text (``calnet simulate`` passes :meth:`calnet.progress.Lines.update`).
     **options
         Keyword-only options, see :class:`MeltPoolOptions` (``resolution``,
         ``absorptivity``, ``kvz_mode``, ``anisotropy``, ``rtol``, ``max_iter``, ...).
@@ -99,7 +104,7 @@ def simulate(inputs: Mapping[str, float], **options: Any) -> SimResult:
                          {"converged": False, "theta": theta, "options": opts.to_dict(),
                           "version": VERSION})
     try:
-        rec = run(P, v, theta, opts)
+        rec = run(P, v, theta, opts, progress=progress)
     except (ValueError, FloatingPointError, np.linalg.LinAlgError, RuntimeError) as err:
         return SimResult({k: float("nan") for k in OUTPUTS}, "failed",
                          f"melt_pool raised {type(err).__name__}: {err}",

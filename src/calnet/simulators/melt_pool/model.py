@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -131,7 +132,8 @@ def _start(mesh: Mesh, P: float, v: float, theta: dict[str, float], opts: MeltPo
 
 
 def run(P: float, v: float, theta: dict[str, float], opts: MeltPoolOptions,
-        mat: AlloyProperties = NI5NB) -> RunRecord:
+        mat: AlloyProperties = NI5NB, *,
+        progress: Callable[[float, str], None] | None = None) -> RunRecord:
     """Solve one case; see :func:`calnet.simulators.melt_pool.simulate`.
 
     Continuation in laser power on the sizing mesh (half the resolution, sized by the
@@ -141,7 +143,8 @@ def run(P: float, v: float, theta: dict[str, float], opts: MeltPoolOptions,
     keyhole branch only where it stops existing (the state a track started on cold
     material reaches). The pool found at ``P`` sizes the fine mesh, and the fine solve
     starts from the interpolated field; a further re-mesh happens only if the fine pool
-    still leaves its finely meshed box.
+    still leaves its finely meshed box. ``progress``, when given, is called after every
+    Newton solve with the share of ``max_iter`` spent and a line saying where the run is.
     """
     start = time.monotonic()
     deadline = None if opts.time_limit is None else start + opts.time_limit
@@ -180,6 +183,11 @@ def run(P: float, v: float, theta: dict[str, float], opts: MeltPoolOptions,
                            "n_cells": mesh.size, "iterations": report.iterations,
                            "cpu_s": time.process_time() - cpu,
                            "converged": report.converged})
+            if progress is not None:
+                progress(min(iterations / opts.max_iter, 1.0),
+                         f"{stages[-1]['mesh']} mesh ({mesh.size} cells) at {p_stage:.0f} W: "
+                         f"{report.iterations} Newton iterations, "
+                         + ("converged" if report.converged else "not converged"))
             if not report.converged:
                 break
             T0, dt0 = report.T, WARM_DT0
