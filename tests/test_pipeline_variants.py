@@ -12,7 +12,7 @@ import pytest
 import calnet.calibration.calibrate_network as calibrate_network
 import calnet.pipeline as pipeline
 import calnet.validation as validation
-from calnet.errors import CalibrationError
+from calnet.errors import CalibrationError, CalibrationWarning
 from calnet.spec import load_spec
 
 NINB = Path(__file__).resolve().parents[1] / "examples" / "ninb"
@@ -135,3 +135,28 @@ def test_a_ctrl_c_that_python_drops_still_stops_the_run():
         with pytest.raises(KeyboardInterrupt):
             interrupted()
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
+def test_a_variant_that_changes_nothing_is_not_calibrated(context, monkeypatch):
+    # the case study's discrepancy is the reference study's, not orthogonal already
+    settings = context.network.settings.model_copy(
+        update={"compare": ("non_orthogonal", "no_discrepancy")})
+    context.network = context.network.model_copy(update={"settings": settings})
+    asked = []
+
+    def spec(network, sur, *, compiled, **kwargs):
+        compiled()
+        return "posterior"
+
+    def variants(network, sur, train, names, **kwargs):
+        asked.extend(names)
+        return {name: ("net", "post") for name in names}
+
+    monkeypatch.setattr(calibrate_network, "calibrate", spec)
+    monkeypatch.setattr(validation, "calibrate_variants", variants)
+    monkeypatch.setattr(pipeline, "record_calibration", lambda *a, **k: "recorded")
+    with pytest.warns(CalibrationWarning, match="settings.compare: non_orthogonal changes "
+                      "nothing in this spec"), context.held:
+        context.calibration(lambda text: None)
+        assert set(context.collect_variants()) == {"no_discrepancy"}
+    assert asked == ["no_discrepancy"]

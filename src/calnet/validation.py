@@ -203,6 +203,13 @@ def variant(network: Network, name: str) -> Network:
     return network.model_copy(update={"data": data})
 
 
+def same_as_spec(network: Network, variants) -> tuple[str, ...]:
+    """The ``variants`` that change nothing in ``network`` (``no_discrepancy`` where no
+    data set has a discrepancy, ``non_orthogonal`` where none is orthogonal): comparing
+    them would compare the spec's model with itself."""
+    return tuple(name for name in variants if variant(network, name) == network)
+
+
 def secondary_sampler(sampler: SamplerSettings) -> SamplerSettings:
     """The sampler of the calibrations made beside the spec's own (exact leave-one-out
     refits, the variants of :func:`compare_variants`): at most 2 chains of 300 warm-up and
