@@ -128,6 +128,14 @@ def test_nan_in_data(base_spec, write_spec):
     assert "2 missing/NaN" in str(err) and "[2, 3]" in str(err)
 
 
+def test_every_bad_column_is_reported(base_spec, write_spec):
+    bad = "id,power,speed,width,split\n1,100,0.5,nan,train\n2,150,,80,test\n3,1,1,1,train\n"
+    err = _error(write_spec(base_spec, width=bad))
+    said = [str(err), *err.more]
+    assert any("column 'speed' has 1 missing/NaN" in s and "[3]" in s for s in said), said
+    assert any("column 'width' has 1 missing/NaN" in s and "[2]" in s for s in said), said
+
+
 def test_csv_without_data_rows(base_spec, write_spec):
     err = _error(write_spec(base_spec, width="id,power,speed,width,split\n"))
     assert "no data rows" in str(err) and err.field == "data.width"

@@ -91,8 +91,15 @@ def read_dataset(network: Network, ds: Dataset) -> ExperimentalData:
     wanted = network.process_input_keys(ds.observed_model)
     resolved = {network.resolve_column_key(ds, k, wanted + [ds.observes]): col
                 for k, col in ds.columns.items()}
-    columns = {key: _numeric_column(frame, resolved[key], path, field)
-               for key in (*wanted, ds.observes)}
+    columns, problems = {}, []
+    for key in (*wanted, ds.observes):  # every column's problem, not only the first's
+        try:
+            columns[key] = _numeric_column(frame, resolved[key], path, field)
+        except SpecError as err:
+            problems.append(err)
+    if problems:
+        raise SpecError(problems[0].reason, file=str(path), field=problems[0].field,
+                        more=[e.reason for e in problems[1:]])
     x = np.column_stack([columns[k] for k in wanted]) if wanted else np.empty((len(frame), 0))
     y = columns[ds.observes]
     out = network.model(ds.observed_model).output(ds.observed_output)
