@@ -42,12 +42,12 @@ settings:
 SAMPLER = SamplerSettings(chains=2, warmup=300, draws=300, target_accept=0.95)
 
 
-def _case(root, runs: int, lower=0.5, upper=2.0, a_true=1.3):
+def _case(root, runs: int, lower=0.5, upper=2.0, a_true=1.3, beyond=()):
     root.mkdir()
     (root / "guard_sims.py").write_text(SIMS)
     spec = SPEC.replace("RUNS", str(runs)).replace("LOWER", str(lower))
     (root / "network.yaml").write_text(textwrap.dedent(spec.replace("UPPER", str(upper))))
-    x = np.linspace(0.0, 1.0, 15)
+    x = np.concatenate([np.linspace(0.0, 1.0, 15 - len(beyond)), beyond])
     y = a_true * x + 0.8 * np.sin(9 * x) + 0.02 * np.random.default_rng(1).standard_normal(15)
     write_csv(root / "d.csv", x=x, y=y)
     with on_path(root):
@@ -81,6 +81,18 @@ def test_a_good_surrogate_passes_quietly(tmp_path):
     assert not [m for m in messages if "sets the answer" in m], messages
     lo, hi = np.percentile(post.theta["m"][:, 0], [2.5, 97.5])
     assert lo < 1.3 < hi
+
+
+def test_data_outside_the_bounds_are_named_not_more_runs(tmp_path):
+    """Two points far outside the input's bounds: the surrogate's variance there, not a
+    lack of runs, sets the answer, and the check says so instead of asking for runs."""
+    with pytest.warns(UserWarning, match="outside the model's input bounds"):
+        post, messages = _case(tmp_path / "beyond", runs=60, beyond=(2.5, 3.0))
+    (check,) = post.checks
+    assert check.outside == 2 and check.outside_share > 0.9, check.to_dict()
+    said = [m for m in messages if "sets the answer" in m]
+    assert len(said) == 1 and "at the 2 data point(s) outside the input bounds" in said[0]
+    assert "runs of 'm'" not in said[0]
 
 
 def test_a_parameter_pressed_against_its_bound_is_reported(tmp_path):

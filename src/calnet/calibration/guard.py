@@ -49,6 +49,10 @@ class SurrogateCheck:
     needed : dict of ``model.output`` -> int
         Rough number of runs that would bring that surrogate's sd to RATIO_TARGET of
         the data's sd.
+    outside : int
+        Data points outside the network's input bounds, where the surrogates extrapolate.
+    outside_share : float
+        Their share of the summed surrogate variance.
     """
 
     dataset: str
@@ -56,6 +60,8 @@ class SurrogateCheck:
     data_sd: float
     runs: dict[str, int]
     needed: dict[str, int]
+    outside: int = 0
+    outside_share: float = 0.0
 
     @property
     def ratio(self) -> float:
@@ -73,15 +79,21 @@ class SurrogateCheck:
         k = self.dominant
         model = k.split(".")[0]
         total = math.sqrt(sum(v**2 for v in self.surrogate_sd.values()))
-        return (f"{self.dataset}: the surrogate, not the data, sets the answer: the surrogate "
+        head = (f"{self.dataset}: the surrogate, not the data, sets the answer: the surrogate "
                 f"sd at the posterior ({total:.3g}) is {self.ratio:.2g} x the data's noise and "
-                f"discrepancy sd ({self.data_sd:.3g}), mostly from {k}; about "
-                f"{self.needed[k]} runs of '{model}' (now {self.runs[k]}) would bring it to "
-                f"{RATIO_TARGET:g} x; check with 'calnet verify'")
+                f"discrepancy sd ({self.data_sd:.3g}), mostly from {k}")
+        if self.outside_share > 0.5:
+            return (f"{head}, at the {self.outside} data point(s) outside the input bounds "
+                    f"({self.outside_share:.0%} of it), where the surrogate extrapolates: "
+                    "more runs inside the bounds will not help; widen the bounds and extend "
+                    "the campaign over those points, or leave them out")
+        return (f"{head}; about {self.needed[k]} runs of '{model}' (now {self.runs[k]}) "
+                f"would bring it to {RATIO_TARGET:g} x; check with 'calnet verify'")
 
     def to_dict(self) -> dict:
         return {"surrogate_sd": self.surrogate_sd, "data_sd": self.data_sd,
                 "ratio": self.ratio, "runs": self.runs, "runs_needed": self.needed,
+                "outside_bounds": self.outside, "outside_share": self.outside_share,
                 "warning": self.message()}
 
 
@@ -130,8 +142,13 @@ def check_surrogates(network, surrogates, posterior, *, n_draws: int = 50
         term, tdata = make_term(network, d, emulator_variance=True, plan=plan)
         hy = hyper_at(hyper, idx, len(term.ell_priors))
         spec = KOHModel(plan, (), (), (), (term.without_priors(),))
-        var = np.asarray(_over_draws(spec, gps, tdata, thetas, hy)).mean(axis=(0, 2))
+        per_point = np.asarray(_over_draws(spec, gps, tdata, thetas, hy)).mean(axis=0)
+        var = per_point.mean(axis=1)
         disc, var = max(float(var[0]), 0.0), var[1:]
+        outside = _outside_bounds(network, d)
+        surrogate = np.clip(per_point[1:], 0.0, None).sum(axis=0)  # (n,)
+        share = (float(surrogate[outside].sum() / surrogate.sum())
+                 if outside.any() and surrogate.sum() > 0 else 0.0)
         keys = (term.key, *term.links)
         noise = (float(np.mean(tdata["noise_var"])) if term.noise_known
                  else float(np.mean(hyper["se2"])))
@@ -144,7 +161,19 @@ def check_surrogates(network, surrogates, posterior, *, n_draws: int = 50
             dim = int(surrogates[k].gp.n_inputs)
             factor = (ratio / RATIO_TARGET) ** 2
             needed[k] = int(min(1e6, math.ceil(runs[k] * max(factor, 1.0) ** (dim / 3.0))))
-        out.append(SurrogateCheck(ds, sds, data_sd, runs, needed))
+        out.append(SurrogateCheck(ds, sds, data_sd, runs, needed, int(outside.sum()), share))
+    return out
+
+
+def _outside_bounds(network, data) -> np.ndarray:
+    """Which of ``data``'s points lie outside the bounds of the network's process inputs
+    (the data reader warns of them; the surrogates extrapolate there), (n,)."""
+    x = np.asarray(data.x, dtype=float)
+    out = np.zeros(len(x), dtype=bool)
+    for j, key in enumerate(data.input_keys):
+        model, name = key.split(".")
+        var = network.model(model).variable(name)
+        out |= (x[:, j] < var.lower) | (x[:, j] > var.upper)
     return out
 
 
