@@ -32,7 +32,7 @@ from calnet.calibration.summary import calibration_result
 from calnet.campaign import default_store, load_runs, run_campaign
 from calnet.campaign.failures import store_failure_note
 from calnet.emulation import output_slices
-from calnet.errors import CalibrationWarning, CalnetError, CampaignWarning
+from calnet.errors import CalibrationWarning, CalnetError, CampaignError, CampaignWarning
 from calnet.explore import explore
 from calnet.parallel import map_threads, one_blas_thread
 from calnet.predict import predict_data
@@ -288,6 +288,14 @@ class _Context:
             run_campaign(self.network, name, store=store, progress=note, fresh=self.fresh)
             runs = load_runs(self.network, name, store=store)
             failed = store_failure_note(store, self.network.model(name))
+            if not runs.status_counts.get("ok"):  # nothing to fit; the models after it
+                # would get no chain design and be simulated for nothing
+                raise CampaignError(f"no run of '{name}' finished ok ("
+                                    + ", ".join(f"{k} {n}" for k, n in
+                                                sorted(runs.status_counts.items()))
+                                    + f"); {failed or 'see its store'}; fix the simulator "
+                                    "and run the same command again (the models after it "
+                                    "were not simulated)")
             if failed:  # recorded with the stage, shown at the end of the run
                 warnings.warn(failed, CampaignWarning, stacklevel=2)
             self.stores[name] = Path(store)

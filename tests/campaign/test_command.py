@@ -163,3 +163,56 @@ def test_a_campaign_with_many_failed_runs_ends_with_a_warning_saying_where(tmp_p
     assert round(100 * int(warning.group(1)) / 20) == int(warning.group(2))
     assert text.index("warning: toy:") > text.index("more not ok")  # at the end
 
+
+
+def _chain_spec(folder, upstream: str):
+    """``up`` (inputs x; parameters a, b; outputs y, z) feeds ``down.x`` from ``up.y``."""
+    import yaml
+
+    def model(sim):
+        return {"simulator": sim, "inputs": {"x": {"lower": -2.0, "upper": 3.0}},
+                "parameters": {"a": {"lower": 0.0, "upper": 1.0, "shared": True},
+                               "b": {"lower": -1.0, "upper": 1.0, "shared": True}},
+                "outputs": {"y": {}, "z": {}}, "campaign": {"runs": 6}}
+    spec = {"name": "chain", "models": {"up": model(upstream),
+                                        "down": model("python:toy_sims:quadratic")},
+            "links": [{"from": "up.y", "to": "down.x"}], "settings": {"seed": 0}}
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "network.yaml").write_text(yaml.safe_dump(spec, sort_keys=False))
+    return folder / "network.yaml"
+
+
+def test_models_downstream_of_one_without_an_ok_run_are_not_simulated(tmp_path):
+    spec = _chain_spec(tmp_path, "python:toy_sims:broken")
+    result = CliRunner().invoke(app, ["campaign", str(spec), "--no-progress"])
+    assert result.exit_code == 1, result.output
+    said = " ".join(result.output.split())
+    assert "no run of up finished ok" in said and "down, downstream of it, not simulated" in said
+    assert not (tmp_path / "campaigns" / "down.sqlite").exists()
+
+
+def test_a_chain_design_made_without_parent_runs_is_recorded_as_what_it_is(tmp_path):
+    import sqlite3
+
+    spec = _chain_spec(tmp_path, "python:toy_sims:quadratic")
+    result = CliRunner().invoke(app, ["campaign", str(spec), "--model", "down",
+                                      "--no-progress"])
+    assert result.exit_code == 0, result.output
+    assert "its design is a Latin hypercube instead" in " ".join(result.output.split())
+    with sqlite3.connect(tmp_path / "campaigns" / "down.sqlite") as db:
+        meta = dict(db.execute("SELECT key, value FROM meta"))
+    db.close()
+    assert meta["design_kind"] == "lhs" and "not a chain design" in meta["design"]
+
+
+def test_calnet_run_stops_at_a_model_without_an_ok_run(tmp_path):
+    from calnet.cli import app as calnet
+
+    spec = _chain_spec(tmp_path, "python:toy_sims:broken")
+    result = CliRunner().invoke(calnet, ["run", str(spec), "--out", str(tmp_path / "out"),
+                                         "--quick"])
+    assert result.exit_code == 1, result.output
+    said = " ".join(result.output.split())
+    assert "no run of 'up' finished ok (failed 6)" in said
+    assert "the models after it were not simulated" in said and "Traceback" not in said
+    assert not (tmp_path / "campaigns" / "down.sqlite").exists()

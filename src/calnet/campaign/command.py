@@ -78,8 +78,11 @@ def campaign(
     if export:
         check_export(export)
     console = Console(highlight=False)
-    useless = []
+    useless, skipped = [], []
     for name in names:
+        if any(a in useless for a in network.ancestors(name)):
+            skipped.append(name)  # no chain design, and nothing to feed its inputs
+            continue
         if import_:
             summary = import_runs(network, name, import_, store=store, seed=seed)
         else:
@@ -97,10 +100,12 @@ def campaign(
             if note:
                 warnings.warn(note, CampaignWarning, stacklevel=2)
     if useless:
+        after = (f"; {', '.join(skipped)}, downstream of {'it' if len(useless) == 1 else 'them'},"
+                 " not simulated" if skipped else "")
         raise CampaignError(f"no run of {', '.join(useless)} finished ok (the first failures "
-                            "are listed above); fix the simulator, then run again with "
-                            "--retry-failed (a store that holds no ok run starts afresh by "
-                            "itself when the model's spec has changed)")
+                            f"are listed above){after}; fix the simulator, then run again "
+                            "with --retry-failed (a store that holds no ok run starts afresh "
+                            "by itself when the model's spec has changed)")
 
 
 def print_summary(summary: Any, console: Any) -> None:

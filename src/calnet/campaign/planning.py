@@ -158,8 +158,13 @@ def plan(db: RunStore, network: Network, model: Model, choice: DesignChoice, run
     meta = db.meta()
     if not meta.get("design_kind") and (rows or new):
         label = stored_design(meta) or choice.label
-        db.set_meta({"design_kind": label,
-                     "design": DESCRIPTIONS.get(label, f"points of {label[5:]}")})
+        description = DESCRIPTIONS.get(label, f"points of {label[5:]}")
+        if label == "chain" and not rows and groups[-1][1] == "lhs":
+            # the parents had no runs: the points are a Latin hypercube, and say so
+            label = "lhs"
+            description = (DESCRIPTIONS["lhs"] + " (not a chain design: the parents had no "
+                           "runs)")
+        db.set_meta({"design_kind": label, "design": description})
     return max(runs, have)
 
 
