@@ -145,7 +145,9 @@ def test_simulate_a_value_the_model_cannot_take_is_a_failed_run(argv, message):
 def test_simulate_says_what_it_defaults_and_what_lies_outside_the_bounds():
     res = CliRunner().invoke(app, ["simulate", "solidification", "--set", "S=50"])
     assert res.exit_code == 0, res.output
-    assert json.loads(res.stdout)["status"] == "ok"
+    doc = json.loads(res.stdout)
+    assert doc["status"] == "ok"
+    assert doc["units"]["lambda"] == "um" and doc["units"]["S"] == "m/s"  # with the numbers
     assert "G not given: G=1.1e+07 K/m (the middle of the bounds)" in res.stderr
     assert "S=50 m/s lies outside the bounds [0.05, 0.6]" in res.stderr
     quiet = CliRunner().invoke(app, ["simulate", "solidification", "--set", "S=0.3", "--set",

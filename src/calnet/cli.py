@@ -334,6 +334,7 @@ def simulate(
         lines.note(f"{result.status}")
     doc = {"simulator": name, "version": info.version, "inputs": inputs,
            "status": result.status, "message": result.message, "outputs": result.outputs,
+           "units": {k: info.units.get(k, "1") for k in (*inputs, *result.outputs)},
            "diagnostics": result.diagnostics}
     print(json.dumps(doc, indent=2, default=_json_default))
     if result.status != "ok":

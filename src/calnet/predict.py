@@ -631,9 +631,13 @@ def prediction_targets(network: Network, surrogates: Surrogates, posterior: Netw
     names = list(asked) or [*posterior.hyper, *network.settings.predict]
     unknown = [d for d in names if d not in (surrogates.items if "." in d else posterior.hyper)]
     if unknown:
+        choices = [f"a calibrated data set {list(posterior.hyper)}" if posterior.hyper
+                   else "", f"an output with a surrogate {list(surrogates.items)}"
+                   if surrogates.items else ""]
         raise (UsageError if asked else CalnetError)(
-            f"nothing to predict for {unknown}; choose a calibrated data set "
-            f"{list(posterior.hyper)} or an output with a surrogate {list(surrogates.items)}")
+            f"nothing to predict for {unknown}; choose "
+            + (" or ".join(c for c in choices if c) or "nothing: this run calibrated no "
+               "data set and fitted no surrogate"))
     if not names:
         raise CalnetError("nothing to predict: the network has no data sets and "
                           "settings.predict is empty; pass -d model.output")
