@@ -50,9 +50,10 @@ def describe_network(network: Network, console: Console) -> None:
         console.print("[bold]data sets[/]")
         for ds in network.data:
             data = read_dataset(network, ds)
-            console.print(f"  {ds.name}: {ds.path} observes {ds.observes}; "
-                          f"{len(data.y)} points ({int((~data.is_test).sum())} train, "
-                          f"{int(data.is_test.sum())} test); inputs {list(data.input_keys)}")
+            console.print(escape(f"  {ds.name}: {ds.path} observes {ds.observes}; "
+                                 f"{len(data.y)} points ({int((~data.is_test).sum())} "
+                                 f"train, {int(data.is_test.sum())} test); inputs "
+                                 f"{list(data.input_keys)}"), soft_wrap=True)
 
 
 def unused_outputs(network: Network, model: str) -> list[str]:
