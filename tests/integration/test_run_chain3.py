@@ -126,8 +126,13 @@ def test_cli_calibrate_and_predict_with_data_but_no_parameters(tmp_path, monkeyp
     m3 = calibration_result(network, post).models["M3"]
     assert m3["parameters"] == {} and m3["datasets"] == ["yd"]
     assert m3["max_rhat"] > 0 and m3["min_ess_bulk"] > 0 and "prior_only" not in m3
-    res = runner.invoke(app, ["predict", str(work), "--run", str(out), "--at", "x=0.8",
-                              "--json"])
+    # the run in `out` was calibrated with the known noise: this spec no longer has it
+    predict = ["predict", str(work), "--run", str(out), "--at", "x=0.8", "--json"]
+    res = runner.invoke(app, predict)
+    assert res.exit_code == 1 and "calibrated with other noise settings" in res.output
+    spec["data"]["yd"]["noise"] = {"sd": 0.02}  # the spec the run was calibrated with
+    (work / "network.yaml").write_text(yaml.safe_dump(spec))
+    res = runner.invoke(app, predict)
     assert res.exit_code == 0, res.output
     preds = {p["dataset"] or p["observes"]: p for p in json.loads(res.output)["predictions"]}
     assert set(preds) == {"yd", "M3.y"}  # the data set, and settings.predict's output
