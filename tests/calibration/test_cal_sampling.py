@@ -322,32 +322,32 @@ class _TwoModes:
         raise AssertionError("the test gives the initial points")
 
 
-def test_a_chain_stuck_in_a_far_lower_mode_is_left_out_and_named():
+def test_a_chain_stuck_in_a_far_lower_mode_runs_again_from_the_others():
     init = np.array([[0.05], [10.0], [-0.05], [0.0]])  # the second chain starts in the trap
-    with pytest.warns(CalibrationWarning, match=r"chain 2 of 4 stuck in a local mode .* 3 of "
-                      r"4 chains kept") as caught:
+    with pytest.warns(CalibrationWarning, match=r"chain 2 of 4 stuck in a local mode .* "
+                      r"every chain ran again, the stuck ones from the others' last draws\. "
+                      ) as caught:
         idata = sample_nuts(_TwoModes(), seed=0, num_chains=4, num_warmup=200,
                             num_draws=1000, init=init)
     assert "(mean log density 30 below" in str(caught[0].message)
     theta = idata.posterior["theta"].values[..., 0]
-    assert theta.shape == (3, 1000) and idata.posterior.attrs["chains_left_out"] == "1"
-    # what is left is the main mode, N(0, 0.1^2): no draw near the trap
+    assert theta.shape == (4, 1000) and idata.posterior.attrs["chains_restarted"] == "1"
+    # the posterior is the main mode, N(0, 0.1^2): no draw near the trap
     assert abs(theta.mean()) < 0.02 and 0.08 < theta.std() < 0.12 and np.abs(theta).max() < 1
     summary = summarize(idata, warn=False)
-    assert summary.n_chains == 3 and summary.max_r_hat < 1.01
+    assert summary.n_chains == 4 and summary.max_r_hat < 1.01
 
 
-def test_chains_of_one_mode_are_all_kept(oracle_run):
+def test_chains_of_one_mode_are_not_run_again(oracle_run):
     assert oracle_run[3].posterior.sizes["chain"] == 4
-    assert oracle_run[3].posterior.attrs["chains_left_out"] == ""
+    assert oracle_run[3].posterior.attrs["chains_restarted"] == ""
 
 
-def test_one_chain_left_gets_a_split_r_hat(caplog):
-    """With two chains and one stuck, R-hat compares the kept chain's two halves (ArviZ
-    alone logs that one chain is too few and gives NaN)."""
-    with pytest.warns(CalibrationWarning, match="chain 2 of 2 stuck"):
-        idata = sample_nuts(_TwoModes(), seed=1, num_chains=2, num_warmup=200, num_draws=1000,
-                            init=np.array([[0.0], [10.0]]))
+def test_one_chain_gets_a_split_r_hat(caplog):
+    """R-hat of a single chain compares its two halves (ArviZ alone logs that one chain
+    is too few and gives NaN)."""
+    idata = sample_nuts(_TwoModes(), seed=1, num_chains=1, num_warmup=200, num_draws=1000,
+                        init=np.array([[0.0]]))
     summary = summarize(idata, warn=False)
     # finite and near 1 (quarters of one chain of 1000 draws: about 0.01 of Monte Carlo
     # spread), where ArviZ alone gives NaN

@@ -459,46 +459,64 @@ def sample_nuts(
     if u0.shape != (num_chains, ld.dim):
         raise CalibrationError(f"{ld.name}: init must have shape ({num_chains}, {ld.dim}), "
                                f"got {u0.shape}")
-    keys = np.asarray(jax.random.split(jax.random.fold_in(jax.random.PRNGKey(seed), 1),
-                                       num_chains))
     ids = np.arange(num_chains)
-    # host arrays: pmap places each device's share itself (a JAX array would be cut by a
-    # compiled slicing program), and reshaping them compiles nothing
-    if method == "parallel":  # (devices, chains per device, ...)
-        keys, u0, ids = (a.reshape((groups, num_chains // groups) + a.shape[1:])
-                         for a in (keys, u0, ids))
-    args = (keys, u0, ids, ld.data)
+
+    def host(a):  # host arrays: pmap places each device's share itself (a JAX array would
+        # be cut by a compiled slicing program), and reshaping them compiles nothing
+        if method != "parallel":
+            return a
+        return a.reshape((groups, num_chains // groups) + a.shape[1:])
+
+    def chain_keys(stream: int):
+        return np.asarray(jax.random.split(
+            jax.random.fold_in(jax.random.PRNGKey(seed), stream), num_chains))
+
+    args = (host(chain_keys(1)), host(u0), host(ids), ld.data)
     exe, t_compile = _compiled(cfg, args)
     if compiled is not None:
         compiled()
-    _PROGRESS["fn"], running = _reporter(progress, ld.name, num_chains, num_warmup,
-                                         num_draws, t_compile)
-    try:
-        t0 = time.perf_counter()
-        with running, one_blas_thread():  # XLA's LAPACK calls go to OpenBLAS
-            out = jax.block_until_ready(exe(*args))
-        t_sample = time.perf_counter() - t0
-    finally:
-        _PROGRESS["fn"] = None
-    if method == "parallel":  # back to (chains, ...)
-        out = jax.tree.map(lambda a: np.asarray(a).reshape((num_chains,) + a.shape[2:]), out)
-    positions, stats, step_size, _, lp0, ok = jax.tree.map(np.asarray, out)
+
+    def run(args):
+        _PROGRESS["fn"], running = _reporter(progress, ld.name, num_chains, num_warmup,
+                                             num_draws, t_compile)
+        try:
+            with running, one_blas_thread():  # XLA's LAPACK calls go to OpenBLAS
+                out = jax.block_until_ready(exe(*args))
+        finally:
+            _PROGRESS["fn"] = None
+        if method == "parallel":  # back to (chains, ...)
+            out = jax.tree.map(lambda a: np.asarray(a).reshape((num_chains,) + a.shape[2:]),
+                               out)
+        return jax.tree.map(np.asarray, out)
+
+    t0 = time.perf_counter()
+    positions, stats, step_size, _, lp0, ok = run(args)
     if not ok.all():
         raise CalibrationError(initial_point_message(ld.name, lp0, ~ok))
     stuck = stuck_chains(stats["lp"])
-    if stuck:  # left out: they would misstate the posterior (diagnostics.stuck_chains)
+    if stuck:
+        # a chain stuck in a far lower mode would misstate the posterior
+        # (diagnostics.stuck_chains): every chain runs again, warm-up included, the stuck
+        # ones from the other chains' last draws, so that the posterior keeps its chains
         kept = np.setdiff1d(np.arange(num_chains), stuck)
         mean_lp = stats["lp"].mean(axis=1)
         gap = mean_lp[kept].max() - mean_lp[stuck]
+        restart = positions[:, -1].copy()
+        restart[stuck] = positions[kept[np.arange(len(stuck)) % len(kept)], -1]
+        positions, stats, step_size, _, lp0, ok = run(
+            (host(chain_keys(2)), host(restart), host(ids), ld.data))
+        still = stuck_chains(stats["lp"]) if ok.all() else list(range(num_chains))
         warnings.warn(
             f"{ld.name}: {_chains(stuck, num_chains)} stuck in a local mode of the "
             f"posterior (mean log density {', '.join(f'{g:.0f}' for g in gap)} below the "
-            f"best chain's) and left out; {len(kept)} of {num_chains} chains kept. That "
-            "mode holds a negligible share of the posterior, but it is a second, far worse "
-            "fit of the data: the model or its surrogate may be poor in that region",
+            "best chain's); every chain ran again, the stuck ones from the others' last "
+            "draws" + (f", and {_chains(still, num_chains)} stuck again" if still else "")
+            + ". That mode holds a negligible share of the posterior, but it is a second, "
+            "far worse fit of the data: the model or its surrogate may be poor there",
             CalibrationWarning, stacklevel=2)
-        positions, step_size = positions[kept], step_size[kept]
-        stats = {k: v[kept] for k, v in stats.items()}
+        if not ok.all():
+            raise CalibrationError(initial_point_message(ld.name, lp0, ~ok))
+    t_sample = time.perf_counter() - t0
     keep = slice(thin - 1, None, thin)  # the program returns the sampling iterations only
     constrained = _constrain_draws(ld, positions[:, keep])
     posterior = {v: constrained[v] for v in ld.sampled_vars}
@@ -506,13 +524,13 @@ def sample_nuts(
     # a kept draw is divergent if any transition since the previous kept draw was
     div = stats["diverging"][:, :n_kept * thin]
     stats = {k: v[:, keep] for k, v in stats.items()}
-    stats["diverging"] = div.reshape(len(div), n_kept, thin).any(axis=2)
+    stats["diverging"] = div.reshape(num_chains, n_kept, thin).any(axis=2)
     stats["step_size"] = np.repeat(step_size[:, None], n_kept, axis=1)
     attrs = {"model": ld.name, "inference_library": "calnet (BlackJAX NUTS)",
              "seed": seed, "num_warmup": num_warmup, "num_draws": num_draws, "thin": thin,
              "target_accept": target_accept, "max_tree_depth": max_tree_depth,
              "dense_mass": int(dense_mass), "chain_method": method,
-             "chains_left_out": ",".join(map(str, stuck)),
+             "chains_restarted": ",".join(map(str, stuck)),
              "compile_time": t_compile, "sampling_time": t_sample}
     idata = az.from_dict(posterior=posterior, sample_stats=stats,
                          observed_data={"y": np.asarray(ld.data["y"])},
