@@ -173,6 +173,26 @@ def test_a_posterior_is_not_read_under_other_noise_or_discrepancy(both, indep, t
         load_posterior(tmp_path, load_spec(changed))
 
 
+@pytest.mark.parametrize("old, new, said", [
+    ("parameters: {a: {lower: 0.5, upper: 1.5}}", "parameters: {a: {lower: 0.5, upper: 3}}",
+     "model 'up' (parameters)"),
+    ("outputs: {w: {measurable: true}}", "outputs: {w: {measurable: true, transform: log}}",
+     "model 'down' (outputs)"),
+    ("campaign: {runs: 20}", "campaign: {runs: 40}", None),  # the saved surrogates stand
+])
+def test_a_posterior_is_not_read_with_other_models(both, indep, tmp_path, old, new, said):
+    network, _, root = indep
+    save_posterior(both[0], tmp_path, network)
+    changed = root / "changed_model.yaml"
+    changed.write_text(textwrap.dedent(SPEC).replace(old, new))
+    if said is None:
+        load_posterior(tmp_path, load_spec(changed))
+        return
+    with pytest.raises(CalibrationError, match=r"calibrated with another spec: "
+                       + re.escape(said) + " differ"):
+        load_posterior(tmp_path, load_spec(changed))
+
+
 def test_prediction_matches_calibration_data_scale(both, indep):
     from calnet.predict import predict
 

@@ -52,6 +52,7 @@ def save_posterior(post, folder: str | Path, network: Network | None = None) -> 
         arrays[f"plugged/{model}"] = np.asarray(values, float)
     np.savez_compressed(folder / f"{FILE}.npz", **arrays)
     meta = {"format": FORMAT, "mode": post.mode, "plug": post.plug,
+            **({"spec": _spec_settings(network)} if network is not None else {}),
             "prior_only": list(post.prior_only), "models": list(post.theta),
             "hyper": {ds: list(h) for ds, h in post.hyper.items()},
             "data": data_meta,
@@ -94,8 +95,60 @@ def load_posterior(folder: str | Path, network: Network | None = None):
                             tuple(meta["prior_only"]), meta.get("timings", {}), plugged,
                             tuple(meta["notes"]))
     if network is not None:
+        _check_spec(meta.get("spec"), network, folder)
         _check_matches(post, network, folder, meta["data"])
     return post
+
+
+_DESCRIBED = {"__all__": {"description"}}
+
+
+def _spec_settings(network: Network) -> dict:
+    """What of the spec a posterior depends on, as JSON: each model's inputs, parameters
+    (bounds, priors, sharing) and outputs (transforms), and the links. Not the
+    simulators, campaigns or surrogate settings: the surrogates saved beside the
+    posterior stand in for them."""
+    parts = {"inputs", "parameters", "outputs"}
+    return {"models": {m.name: m.model_dump(mode="json", include=parts,
+                                            exclude={k: _DESCRIBED for k in parts})
+                       for m in network.models},
+            "links": sorted(f"{ln.source} -> {ln.target}" for ln in network.links)}
+
+
+def _check_spec(then: dict | None, network: Network, folder: Path) -> None:
+    """Refuse a spec whose models or links differ from those the posterior in ``folder``
+    was calibrated with (``then``, recorded by :func:`save_posterior`; None for a
+    posterior saved without its network, which is not checked here)."""
+    if then is None:
+        return
+    now = _spec_settings(network)
+    changed = []
+    if then["links"] != now["links"]:
+        changed.append(f"the links ({', '.join(then['links']) or 'none'} there)")
+    for name in sorted(set(then["models"]) | set(now["models"])):
+        a, b = then["models"].get(name), now["models"].get(name)
+        if a is None or b is None:
+            changed.append(f"model '{name}' ({'not in this spec' if b is None else 'new'})")
+        elif a != b:
+            changed.append(f"model '{name}' ({', '.join(k for k in a if a[k] != b.get(k))})")
+    if changed:
+        raise CalibrationError(
+            f"the posterior in '{folder}' was calibrated with another spec: "
+            + "; ".join(changed) + " differ; calibrate again with this spec, or use the "
+            "spec it was calibrated with")
+
+
+def _differences(name: str, then, now) -> str:
+    """``noise.sd 0.02 there, none here``: the fields of a setting that differ."""
+    if isinstance(then, dict) and isinstance(now, dict):
+        keys = [k for k in {**then, **now} if then.get(k) != now.get(k)]
+        return "; ".join(f"{name}.{k} {_plain(then.get(k))} there, {_plain(now.get(k))} here"
+                         for k in keys)
+    return f"{name} {_plain(then)} there, {_plain(now)} here"
+
+
+def _plain(value) -> str:
+    return "none" if value is None else str(value)
 
 
 def _term_settings(network: Network, dataset: str) -> dict:
@@ -132,6 +185,5 @@ def _check_matches(post, network: Network, folder: Path, data_meta: dict) -> Non
             raise CalibrationError(
                 f"the posterior in '{folder}' was calibrated with other "
                 f"{' and '.join(changed)} settings for data set '{ds}' ("
-                + "; ".join(f"{k}: {then.get(k)} there, {now[k]} in this spec"
-                            for k in changed)
+                + "; ".join(_differences(k, then.get(k), now[k]) for k in changed)
                 + "); calibrate again with this spec, or use the spec it was calibrated with")
