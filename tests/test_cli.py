@@ -172,3 +172,30 @@ def test_a_read_only_output_folder_is_said_in_words(tmp_path, monkeypatch):
     assert res.exit_code == 1, res.output
     assert res.output.strip() == (f"error: cannot write '{tmp_path / 'x'}': the file system "
                                   "is read-only (write to another folder)")
+
+
+def test_a_ctrl_c_that_python_drops_still_exits_130():
+    """A KeyboardInterrupt dropped where it was raised (Python drops it inside a gc
+    callback) still ends the command with 130 and one line, not with 0."""
+    import os
+    import signal
+    import time
+
+    import typer
+
+    from calnet.cli import user_errors
+
+    def calibrate_like() -> None:
+        try:
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(1)
+        except KeyboardInterrupt:
+            pass  # dropped
+        print("finished")
+
+    cmd = typer.Typer()
+    cmd.command("calibrate")(user_errors(calibrate_like))
+    cmd.command("other")(lambda: None)
+    result = CliRunner().invoke(cmd, ["calibrate"])
+    assert result.exit_code == 130, result.output
+    assert result.stderr.strip() == "interrupted"  # one line; no campaign runs to keep here

@@ -125,7 +125,9 @@ def test_a_ctrl_c_that_python_drops_still_stops_the_run():
     import signal
     import time
 
-    with pipeline._interrupt_latch() as interrupted:
+    from calnet.interrupts import latch
+
+    with latch() as interrupted:
         interrupted()  # nothing yet
         try:
             os.kill(os.getpid(), signal.SIGINT)

@@ -32,6 +32,7 @@ from calnet import __version__
 from calnet.calibration.devices import configure_host_devices, enable_compilation_cache
 from calnet.errors import CalnetError, SpecError, UsageError
 from calnet.files import make_folder, replacing
+from calnet.interrupts import latch
 
 
 def _reflow(text: str | None) -> str | None:
@@ -141,7 +142,9 @@ def user_errors(func: Callable[..., Any]) -> Callable[..., Any]:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             try:
-                result = func(*args, **kwargs)
+                with latch() as interrupted:
+                    result = func(*args, **kwargs)
+                    interrupted()  # a Ctrl-C that Python dropped still ends in 130
             except SpecError as err:
                 _show_warnings(caught)
                 err_console.print(f"[bold red]error:[/] {err}", soft_wrap=True)
@@ -162,9 +165,10 @@ def user_errors(func: Callable[..., Any]) -> Callable[..., Any]:
                 raise
             except KeyboardInterrupt:
                 _show_warnings(caught)
-                err_console.print("[bold red]interrupted[/]: finished simulation runs are "
-                                  "kept; the same command resumes them (later stages start "
-                                  "again)")
+                kept = (": finished simulation runs are kept; the same command resumes them "
+                        "(later stages start again)" if func.__name__ in ("run", "campaign")
+                        else "")
+                err_console.print(f"[bold red]interrupted[/]{kept}")
                 raise typer.Exit(130) from None
             except Exception as err:
                 if os.environ.get("CALNET_DEBUG"):

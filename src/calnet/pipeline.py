@@ -9,11 +9,10 @@ report shows the outputs of ``settings.predict`` predicted through the chain.
 
 from __future__ import annotations
 
-import signal
 import threading
 import time
 import warnings
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import ExitStack, contextmanager, suppress
 from dataclasses import replace
@@ -34,6 +33,7 @@ from calnet.campaign.failures import store_failure_note
 from calnet.emulation import output_slices
 from calnet.errors import CalibrationWarning, CalnetError, CampaignError, CampaignWarning
 from calnet.explore import explore
+from calnet.interrupts import latch
 from calnet.parallel import map_threads, one_blas_thread
 from calnet.predict import predict_data
 from calnet.report.build import write_outputs
@@ -104,7 +104,7 @@ def run_pipeline(spec: str | Path, *, out: Path, fresh: bool = False, quick: boo
     # thread's warnings recorded into a list that nobody reads. Import it before any stage
     # starts a thread.
     import_arviz()
-    with _display(console) as show, _interrupt_latch() as interrupted, ctx.held:
+    with _display(console) as show, latch() as interrupted, ctx.held:
 
         def note(text: str) -> None:
             interrupted()
@@ -173,36 +173,6 @@ def _write_run_info(ctx: _Context, spec: str | Path, started: datetime) -> None:
             "campaign_stores": {k: str(v.resolve()) for k, v in ctx.stores.items()},
             "compiled_sampler_cache": cache_info(), **run_environment()}
     write_run_info(ctx.out / "run_info.json", info)
-
-
-@contextmanager
-def _interrupt_latch() -> Iterator[Callable[[], None]]:
-    """Ctrl-C raises KeyboardInterrupt as usual and also latches, and the callable yielded
-    raises KeyboardInterrupt (in the main thread) once it has. Python drops an exception
-    raised inside a garbage-collection callback (XLA's runs often), so a Ctrl-C that lands
-    there would otherwise be lost and the run go on; the stages call it between steps.
-    Where SIGINT is ignored (a shell's background job) or handled by someone else, or off
-    the main thread, nothing is installed."""
-    main = threading.main_thread()
-    if (threading.current_thread() is not main
-            or signal.getsignal(signal.SIGINT) is not signal.default_int_handler):
-        yield lambda: None
-        return
-    hit = threading.Event()
-
-    def handler(signum, frame):
-        hit.set()
-        raise KeyboardInterrupt
-
-    def check() -> None:
-        if hit.is_set() and threading.current_thread() is main:
-            raise KeyboardInterrupt
-
-    signal.signal(signal.SIGINT, handler)
-    try:
-        yield check
-    finally:
-        signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 @contextmanager
