@@ -5,9 +5,10 @@ from calnet.results import CalibrationResult, DatasetValidation, RunResults
 
 GUARD = ("pdas: the surrogate, not the data, sets the answer: the surrogate sd at the "
          "posterior (0.107) is 0.68 x the data's noise and discrepancy sd (0.157), ...")
-RHAT = ("micro: R-hat 1.018 > 1.01 for ell_width[v]; chains disagree - run longer "
-        "warm-up/draws or check for multimodality")
-ESS = "micro: bulk ESS 178 < 400 for ell_width[v]; increase num_draws"
+RHAT = ("micro: R-hat 1.018 > 1.01 for ell_width[v]; chains disagree - raise "
+        "settings.sampler.warmup and draws; chains that still disagree sit in separate "
+        "modes the data cannot tell apart")
+ESS = "micro: bulk ESS 178 < 400 for ell_width[v]; raise settings.sampler.draws"
 BOUND = "micro.b: the posterior presses against its upper bound 1.6 (median 1.59); ..."
 
 

@@ -4,7 +4,7 @@ variant's notes once, and a quick run's Sobol spread is labelled indicative."""
 from calnet.report.build import comparison_tables, quick_spread_note
 from calnet.results import VariantScore
 
-NOTE = "M: bulk ESS 179 < 400 for se2_d1; increase num_draws"
+NOTE = "M: bulk ESS 179 < 400 for se2_d1; raise settings.sampler.draws"
 
 
 def score(elpd, notes=()):

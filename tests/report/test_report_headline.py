@@ -47,7 +47,9 @@ def test_warnings_that_matter_come_first_and_convergence_reads_once():
         box.warnings[0])
     assert box.warnings[1] == ("micro: the sampler has not converged (max R-hat 1.018 > "
                                "1.01, min bulk ESS 178 < 400, 3 divergent transitions); "
-                               "run more draws.")
+                               "raise settings.sampler.warmup and draws; chains that still "
+                               "disagree sit in separate modes the data cannot tell apart; "
+                               "raise settings.sampler.target_accept (e.g. 0.95).")
     assert box.warnings[2:] == (BOUND,)  # the sampler's own messages are not repeated
     assert "see the warnings" in box.lines[1] and "3 divergent" in box.lines[1]
     assert box.more == "The run's 4 warning(s) in full: section 7."

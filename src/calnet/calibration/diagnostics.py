@@ -252,12 +252,13 @@ def convergence_problems(summary: PosteriorSummary) -> list[str]:
     if summary.max_r_hat > RHAT_MAX:
         worst = max(summary.parameters, key=lambda p: p.r_hat)
         out.append(f"{m}: R-hat {worst.r_hat:.3f} > {RHAT_MAX} for {readable(worst.name)}; "
-                   "chains disagree - run longer warm-up/draws or check for multimodality")
+                   "chains disagree - raise settings.sampler.warmup and draws; chains that "
+                   "still disagree sit in separate modes the data cannot tell apart")
     if summary.min_ess_bulk < ESS_MIN:
         worst = min(summary.parameters, key=lambda p: p.ess_bulk)
         out.append(f"{m}: bulk ESS {worst.ess_bulk:.0f} < {ESS_MIN} for "
-                   f"{readable(worst.name)}; increase num_draws")
+                   f"{readable(worst.name)}; raise settings.sampler.draws")
     if summary.divergences > 0:
-        out.append(f"{m}: {summary.divergences} divergent transitions; raise target_accept "
-                   "(e.g. 0.95) or reparameterise")
+        out.append(f"{m}: {summary.divergences} divergent transitions; raise "
+                   "settings.sampler.target_accept (e.g. 0.95)")
     return out

@@ -190,7 +190,16 @@ def _sampler_warning(stage: str, s: Mapping[str, Any], cal: CalibrationResult) -
         return (f"{stage}: its draws have not converged ({', '.join(problems)}); they carry "
                 f"the posterior draws of {', '.join(s['moved_by'])} (segmented mode), so "
                 "check those stages' convergence first.")
-    return f"{stage}: the sampler has not converged ({', '.join(problems)}); run more draws."
+    advice = []
+    if s["max_rhat"] > cal.rhat_max:
+        advice.append("raise settings.sampler.warmup and draws; chains that still disagree "
+                      "sit in separate modes the data cannot tell apart")
+    elif s["min_ess_bulk"] < cal.ess_min:
+        advice.append("raise settings.sampler.draws")
+    if s["divergences"]:
+        advice.append("raise settings.sampler.target_accept (e.g. 0.95)")
+    return (f"{stage}: the sampler has not converged ({', '.join(problems)}); "
+            f"{'; '.join(advice)}.")
 
 
 def _warnings(results: RunResults) -> list[str]:
