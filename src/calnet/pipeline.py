@@ -29,7 +29,7 @@ from calnet.calibration.persist import save_posterior
 from calnet.calibration.sampling import cache_info
 from calnet.calibration.summary import calibration_result
 from calnet.campaign import default_store, load_runs, run_campaign
-from calnet.campaign.failures import store_failure_note
+from calnet.campaign.failures import common_failures, store_failure_note
 from calnet.emulation import output_slices
 from calnet.errors import CalibrationWarning, CalnetError, CampaignError, CampaignWarning
 from calnet.explore import explore
@@ -260,12 +260,11 @@ class _Context:
             failed = store_failure_note(store, self.network.model(name))
             if not runs.status_counts.get("ok"):  # nothing to fit; the models after it
                 # would get no chain design and be simulated for nothing
-                raise CampaignError(f"no run of '{name}' finished ok ("
-                                    + ", ".join(f"{k} {n}" for k, n in
-                                                sorted(runs.status_counts.items()))
-                                    + f"); {failed or 'see its store'}; fix the simulator "
-                                    "and run the same command again (the models after it "
-                                    "were not simulated)")
+                why = "; ".join(common_failures(store)) or "see its store"
+                raise CampaignError(
+                    f"no run of '{name}' finished ok ({why}); the models after it were not "
+                    f"simulated. Fix the simulator, then run 'calnet campaign SPEC --model "
+                    f"{name} --retry-failed' and this command again")
             if failed:  # recorded with the stage, shown at the end of the run
                 warnings.warn(failed, CampaignWarning, stacklevel=2)
             self.stores[name] = Path(store)

@@ -115,7 +115,9 @@ def test_the_summary_counts_every_failure_beyond_the_five_shown(tmp_path, runs, 
     result = CliRunner().invoke(app, ["campaign", str(spec), "--executor", "in-process",
                                       "--no-progress"])
     assert result.exit_code == 1, result.output
-    assert result.output.count("license server unreachable") == 5
+    summary, error = result.output.split("error:")
+    assert summary.count("license server unreachable") == 5  # the first five, and
+    assert f"(toy: {runs} runs: failed: RuntimeError: license server" in " ".join(error.split())
     assert f"... {more} more not ok (see the store)" in result.output
 
 
@@ -213,6 +215,7 @@ def test_calnet_run_stops_at_a_model_without_an_ok_run(tmp_path):
                                          "--quick"])
     assert result.exit_code == 1, result.output
     said = " ".join(result.output.split())
-    assert "no run of 'up' finished ok (failed 6)" in said
+    assert "no run of 'up' finished ok (6 runs: failed: " in said and "license server" in said
+    assert "--retry-failed" in said
     assert "the models after it were not simulated" in said and "Traceback" not in said
     assert not (tmp_path / "campaigns" / "down.sqlite").exists()

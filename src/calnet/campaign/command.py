@@ -61,7 +61,7 @@ def campaign(
     from rich.console import Console
 
     from calnet.campaign.campaign import import_runs, run_campaign
-    from calnet.campaign.failures import store_failure_note
+    from calnet.campaign.failures import common_failures, store_failure_note
     from calnet.campaign.table import check_export, export_runs
     from calnet.spec import load_spec
 
@@ -78,7 +78,7 @@ def campaign(
     if export:
         check_export(export)
     console = Console(highlight=False)
-    useless, skipped = [], []
+    useless, skipped, why = [], [], {}
     for name in names:
         if any(a in useless for a in network.ancestors(name)):
             skipped.append(name)  # no chain design, and nothing to feed its inputs
@@ -95,6 +95,7 @@ def campaign(
             console.print(f"exported to {export_runs(summary.store_path, export)}")
         if (summary.planned or summary.imported) and not summary.n_ok:
             useless.append(name)
+            why[name] = "; ".join(common_failures(summary.store_path))
         elif summary.planned or summary.imported:  # shown at the end, with the warnings
             note = store_failure_note(summary.store_path, network.model(name))
             if note:
@@ -102,8 +103,9 @@ def campaign(
     if useless:
         after = (f"; {', '.join(skipped)}, downstream of {'it' if len(useless) == 1 else 'them'},"
                  " not simulated" if skipped else "")
-        raise CampaignError(f"no run of {', '.join(useless)} finished ok (the first failures "
-                            f"are listed above){after}; fix the simulator, then run again "
+        said = "; ".join(f"{name}: {why[name]}" for name in useless if why[name])
+        raise CampaignError(f"no run of {', '.join(useless)} finished ok ({said}){after}; "
+                            "fix the simulator, then run again "
                             "with --retry-failed (a store that holds no ok run starts afresh "
                             "by itself when the model's spec has changed)")
 

@@ -76,6 +76,20 @@ def store_failure_note(store: str | Path, model: Model, *,
     return failure_note(model.name, rows, design_columns(model), limit=limit)
 
 
+def common_failures(store: str | Path, most: int = 2) -> list[str]:
+    """The ``most`` commonest messages of the runs in ``store`` that did not finish ok,
+    each as ``"N runs: status: message"``, commonest first."""
+    from collections import Counter
+
+    from calnet.campaign.store import RunStore
+
+    with RunStore(Path(store), readonly=True) as db:
+        rows = db.rows()
+    counts = Counter(f"{r['status']}: {r.get('message') or 'no message'}" for r in rows
+                     if r["status"] not in ("ok", "pending", None))
+    return [f"{n} run{'s' if n > 1 else ''}: {text}" for text, n in counts.most_common(most)]
+
+
 def _separating(bad: list, ok: list, columns: Sequence[str]) -> list[tuple[str, str]]:
     """``(range of the bad runs, range of the ok runs)`` for each column whose two
     ranges do not overlap."""
