@@ -171,3 +171,20 @@ def test_the_table_names_the_data_set_or_the_simulator_output(run):
     assert len(rows) == 2, result.stdout
     assert rows[0].split("│")[1].strip() == "yd: down.y (measured)"
     assert rows[1].split("│")[1].strip() == "up.w (simulator)"
+
+
+def test_a_run_that_did_not_finish_is_refused(run):
+    """A rerun stopped part-way leaves the files of two runs in its folder: predict says
+    so instead of mixing a new posterior with an old report."""
+    from calnet.files import mark_complete, mark_incomplete
+
+    _, out = run
+    mark_incomplete(out, "validation")
+    try:
+        result = _invoke(run, "--at", "x=0.5")
+        assert result.exit_code == 1, result.output
+        assert "did not finish (it stopped in its validation stage)" in " ".join(
+            result.output.split())
+    finally:
+        mark_complete(out)
+    assert _invoke(run, "--at", "x=0.5").exit_code == 0

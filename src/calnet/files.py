@@ -10,6 +10,7 @@ and the cause (:func:`write_error`).
 from __future__ import annotations
 
 import errno
+import json
 import os
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -93,3 +94,32 @@ def replacing(path: str | Path) -> Iterator[Path]:
             tmp.unlink(missing_ok=True)
         except OSError:
             pass
+
+
+INCOMPLETE = "run_incomplete.json"
+"""Present in a run folder while ``calnet run`` writes to it: a run that stopped early
+(Ctrl-C, an error) leaves the files of two runs mixed there, and ``calnet predict`` and
+``calnet verify`` refuse such a folder."""
+
+
+def mark_incomplete(out: Path, stage: str) -> None:
+    """Record in ``out`` that the run is at ``stage`` and not finished."""
+    (Path(out) / INCOMPLETE).write_text(json.dumps({"stage": stage}) + "\n")
+
+
+def mark_complete(out: Path) -> None:
+    """Record in ``out`` that the run finished."""
+    (Path(out) / INCOMPLETE).unlink(missing_ok=True)
+
+
+def check_complete(run_dir: Path) -> None:
+    """Raise :class:`CalnetError` when ``run_dir`` holds a run that did not finish."""
+    path = Path(run_dir) / INCOMPLETE
+    if path.is_file():
+        try:
+            stage = json.loads(path.read_text()).get("stage", "?")
+        except (OSError, ValueError):
+            stage = "?"
+        raise CalnetError(f"the run in '{run_dir}' did not finish (it stopped in its {stage} "
+                          "stage), so its files may mix two runs; run 'calnet run' with this "
+                          "--out again to finish it")

@@ -33,6 +33,7 @@ from calnet.campaign.failures import common_failures, store_failure_note
 from calnet.emulation import output_slices
 from calnet.errors import CalibrationWarning, CalnetError, CampaignError, CampaignWarning
 from calnet.explore import explore
+from calnet.files import mark_complete, mark_incomplete
 from calnet.interrupts import latch
 from calnet.parallel import map_threads, one_blas_thread
 from calnet.predict import predict_data
@@ -112,6 +113,7 @@ def run_pipeline(spec: str | Path, *, out: Path, fresh: bool = False, quick: boo
 
         for i, stage in enumerate(STAGES):
             interrupted()
+            mark_incomplete(out, stage)
             show.start(stage, i)
             t0 = time.perf_counter()
             with warnings.catch_warnings(record=True) as caught:
@@ -124,6 +126,7 @@ def run_pipeline(spec: str | Path, *, out: Path, fresh: bool = False, quick: boo
             timings["total"] = round(time.perf_counter() - t_start, 2)  # so far
             show.done(stage, timings[stage])
     _write_run_info(ctx, spec, started)
+    mark_complete(out)
     console.print(f"report: {out / 'report.html'}  metrics: {out / 'metrics.json'}  "
                   f"total wall time {timings['total']:.1f} s", soft_wrap=True)
     return ctx.results.to_metrics()

@@ -599,7 +599,10 @@ def _names(keys: list[str]) -> str:
 def load_surrogates(network: Network, run_dir: str | Path) -> Surrogates:
     """The surrogates that ``calnet run`` (or ``calnet surrogates``) wrote to ``run_dir``,
     checked to be ``network``'s (a run folder of another spec fails here)."""
+    from calnet.files import check_complete
+
     run_dir = Path(run_dir)
+    check_complete(run_dir)
     sur_dir = run_dir / "surrogates"
     if not (sur_dir / "surrogates.json").is_file():
         raise CalnetError(f"no fitted surrogates in '{sur_dir}'; run 'calnet run SPEC --out "
