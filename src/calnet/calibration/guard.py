@@ -87,8 +87,9 @@ class SurrogateCheck:
                     f"({self.outside_share:.0%} of it), where the surrogate extrapolates: "
                     "more runs inside the bounds will not help; widen the bounds and extend "
                     "the campaign over those points, or leave them out")
-        return (f"{head}; about {self.needed[k]} runs of '{model}' (now {self.runs[k]}) "
-                f"would bring it to {RATIO_TARGET:g} x; check with 'calnet verify'")
+        return (f"{head}; at most about {self.needed[k]} runs of '{model}' (now "
+                f"{self.runs[k]}) would bring it to {RATIO_TARGET:g} x (a worst-case rate: a "
+                "smooth model needs fewer); check with 'calnet verify'")
 
     def to_dict(self) -> dict:
         return {"surrogate_sd": self.surrogate_sd, "data_sd": self.data_sd,

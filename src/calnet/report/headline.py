@@ -170,9 +170,13 @@ def _lines(results: RunResults) -> list[str]:
 def _surrogate_warning(name: str, check: Mapping[str, Any]) -> str:
     worst = max(check["surrogate_sd"], key=check["surrogate_sd"].get)
     model = worst.split(".")[0]
-    return (f"{name}: the surrogate, not the data, sets the answer (surrogate sd "
-            f"{check['ratio']:.2g} x the data's noise and discrepancy sd, mostly {worst}); "
-            f"about {check['runs_needed'][worst]} runs of '{model}' (now "
+    head = (f"{name}: the surrogate, not the data, sets the answer (surrogate sd "
+            f"{check['ratio']:.2g} x the data's noise and discrepancy sd, mostly {worst})")
+    if check.get("outside_share", 0.0) > 0.5:
+        return (f"{head}, at the {check['outside_bounds']} data point(s) outside the input "
+                "bounds, where it extrapolates: widen the bounds and the campaign, or leave "
+                "those points out.")
+    return (f"{head}; at most about {check['runs_needed'][worst]} runs of '{model}' (now "
             f"{check['runs'][worst]}) would fix that.")
 
 
