@@ -199,3 +199,20 @@ def test_a_ctrl_c_that_python_drops_still_exits_130():
     result = CliRunner().invoke(cmd, ["calibrate"])
     assert result.exit_code == 130, result.output
     assert result.stderr.strip() == "interrupted"  # one line; no campaign runs to keep here
+
+
+def test_calnet_debug_shows_the_traceback_and_keeps_exit_code_3(monkeypatch):
+    import typer
+
+    from calnet.cli import user_errors
+
+    def broken() -> None:
+        raise ZeroDivisionError("a bug")
+
+    cmd = typer.Typer()
+    cmd.command("broken")(user_errors(broken))
+    cmd.command("other")(lambda: None)
+    monkeypatch.setenv("CALNET_DEBUG", "1")
+    result = CliRunner().invoke(cmd, ["broken"])
+    assert result.exit_code == 3, result.output
+    assert "Traceback" in result.stderr and "internal error: ZeroDivisionError" in result.stderr

@@ -171,8 +171,10 @@ def user_errors(func: Callable[..., Any]) -> Callable[..., Any]:
                 err_console.print(f"[bold red]interrupted[/]{kept}")
                 raise typer.Exit(130) from None
             except Exception as err:
-                if os.environ.get("CALNET_DEBUG"):
-                    raise
+                if os.environ.get("CALNET_DEBUG"):  # the traceback; the same exit code
+                    import traceback
+
+                    traceback.print_exc()
                 _show_warnings(caught)
                 if isinstance(err, OSError) and err.filename:  # a path given, e.g. --out a file
                     from calnet.files import write_cause
