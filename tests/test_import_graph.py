@@ -27,7 +27,7 @@ from pathlib import Path
 SRC = Path(__file__).resolve().parents[1] / "src"
 
 LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
-    ("utilities", ("calnet", "calnet._jax", "calnet.errors", "calnet.files",
+    ("utilities", ("calnet", "calnet._jax", "calnet.errors", "calnet.files", "calnet.interrupts",
                    "calnet.parallel", "calnet.progress")),
     ("simulators", ("calnet.simulators",)),
     ("spec", ("calnet.spec",)),
