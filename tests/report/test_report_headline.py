@@ -114,7 +114,8 @@ def test_draws_moved_by_upstream_draws_point_at_the_upstream_stage():
 
 def test_a_surrogate_that_extrapolates_to_the_data_names_the_points_not_runs():
     checks = {"pdas": {"ratio": 3.1, "warning": "pdas: ...", "outside_bounds": 2,
-                       "outside_share": 0.97, "surrogate_sd": {"micro.lam": 0.5},
+                       "outside_share": 0.97, "extrapolating": True,
+                       "surrogate_sd": {"micro.lam": 0.5},
                        "runs": {"micro.lam": 30}, "runs_needed": {"micro.lam": 9000}}}
     box = headline(results([], cal=calibration(summary(), checks=checks)), warnings_section=7)
     said = box.warnings[0]  # the surrogate checks come first

@@ -180,9 +180,9 @@ def summarize(idata, *, hdi_probs: tuple[float, ...] = (0.94, 0.95), warn: bool 
 
 
 def _halves(post):
-    """``post`` itself, or for a single chain (the others left out as stuck) its two
-    halves as two chains: R-hat then compares them, as split R-hat does within chains,
-    instead of ArviZ logging that one chain is too few and returning NaN."""
+    """``post`` itself, or for a single chain its two halves as two chains: R-hat then
+    compares them, as split R-hat does within chains, instead of ArviZ logging that one
+    chain is too few and returning NaN."""
     if post.sizes["chain"] > 1:
         return post
     import xarray as xr

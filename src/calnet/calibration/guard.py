@@ -25,11 +25,15 @@ from calnet._jax import FEW_CALLS
 from calnet.calibration.koh import KOHModel
 from calnet.calibration.terms import draw_index, draws_at, hyper_at, make_term, parameter_keys
 from calnet.chain import ChainPlan
+from calnet.spec.data import outside_bounds
 
 #: the surrogate sd above this fraction of the data's sd triggers the warning
 RATIO_WARN = 0.5
 #: the estimate of runs needed aims at this fraction
 RATIO_TARGET = 0.25
+#: above this share of the surrogate variance at data points outside the input bounds,
+#: the check names those points instead of asking for runs
+OUTSIDE_SHARE = 0.5
 
 
 @dataclass(frozen=True)
@@ -69,6 +73,11 @@ class SurrogateCheck:
         return total / self.data_sd if self.data_sd > 0 else math.inf
 
     @property
+    def extrapolating(self) -> bool:
+        """Whether data points outside the input bounds carry most of the surrogate sd."""
+        return self.outside_share > OUTSIDE_SHARE
+
+    @property
     def dominant(self) -> str:
         return max(self.surrogate_sd, key=self.surrogate_sd.get)
 
@@ -82,7 +91,7 @@ class SurrogateCheck:
         head = (f"{self.dataset}: the surrogate, not the data, sets the answer: the surrogate "
                 f"sd at the posterior ({total:.3g}) is {self.ratio:.2g} x the data's noise and "
                 f"discrepancy sd ({self.data_sd:.3g}), mostly from {k}")
-        if self.outside_share > 0.5:
+        if self.extrapolating:
             return (f"{head}, at the {self.outside} data point(s) outside the input bounds "
                     f"({self.outside_share:.0%} of it), where the surrogate extrapolates: "
                     "more runs inside the bounds will not help; widen the bounds and extend "
@@ -95,6 +104,7 @@ class SurrogateCheck:
         return {"surrogate_sd": self.surrogate_sd, "data_sd": self.data_sd,
                 "ratio": self.ratio, "runs": self.runs, "runs_needed": self.needed,
                 "outside_bounds": self.outside, "outside_share": self.outside_share,
+                "extrapolating": self.extrapolating,
                 "warning": self.message()}
 
 
@@ -146,7 +156,7 @@ def check_surrogates(network, surrogates, posterior, *, n_draws: int = 50
         per_point = np.asarray(_over_draws(spec, gps, tdata, thetas, hy)).mean(axis=0)
         var = per_point.mean(axis=1)
         disc, var = max(float(var[0]), 0.0), var[1:]
-        outside = _outside_bounds(network, d)
+        outside = outside_bounds(network, d.input_keys, d.x).any(axis=1)
         surrogate = np.clip(per_point[1:], 0.0, None).sum(axis=0)  # (n,)
         share = (float(surrogate[outside].sum() / surrogate.sum())
                  if outside.any() and surrogate.sum() > 0 else 0.0)
@@ -163,18 +173,6 @@ def check_surrogates(network, surrogates, posterior, *, n_draws: int = 50
             factor = (ratio / RATIO_TARGET) ** 2
             needed[k] = int(min(1e6, math.ceil(runs[k] * max(factor, 1.0) ** (dim / 3.0))))
         out.append(SurrogateCheck(ds, sds, data_sd, runs, needed, int(outside.sum()), share))
-    return out
-
-
-def _outside_bounds(network, data) -> np.ndarray:
-    """Which of ``data``'s points lie outside the bounds of the network's process inputs
-    (the data reader warns of them; the surrogates extrapolate there), (n,)."""
-    x = np.asarray(data.x, dtype=float)
-    out = np.zeros(len(x), dtype=bool)
-    for j, key in enumerate(data.input_keys):
-        model, name = key.split(".")
-        var = network.model(model).variable(name)
-        out |= (x[:, j] < var.lower) | (x[:, j] > var.upper)
     return out
 
 

@@ -172,7 +172,7 @@ def _surrogate_warning(name: str, check: Mapping[str, Any]) -> str:
     model = worst.split(".")[0]
     head = (f"{name}: the surrogate, not the data, sets the answer (surrogate sd "
             f"{check['ratio']:.2g} x the data's noise and discrepancy sd, mostly {worst})")
-    if check.get("outside_share", 0.0) > 0.5:
+    if check.get("extrapolating"):
         return (f"{head}, at the {check['outside_bounds']} data point(s) outside the input "
                 "bounds, where it extrapolates: widen the bounds and the campaign, or leave "
                 "those points out.")

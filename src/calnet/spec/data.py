@@ -231,23 +231,33 @@ def _split_mask(frame, ds: Dataset, path, field: str) -> np.ndarray:
     return mask
 
 
-def _check_bounds(network: Network, ds: Dataset, keys: list[str], x: np.ndarray, path,
-                  field: str) -> None:
-    outside = np.zeros(len(x), dtype=bool)
-    detail = []
+def outside_bounds(network: Network, keys, x) -> np.ndarray:
+    """Which values of ``x`` (n, k), columns the variables ``keys`` (``model.name``), lie
+    outside their variable's bounds: (n, k)."""
+    x = np.asarray(x, dtype=float)
+    out = np.zeros(x.shape, dtype=bool)
     for j, key in enumerate(keys):
         model, name = key.split(".")
         var = network.model(model).variable(name)
+        out[:, j] = (x[:, j] < var.lower) | (x[:, j] > var.upper)
+    return out
+
+
+def _check_bounds(network: Network, ds: Dataset, keys: list[str], x: np.ndarray, path,
+                  field: str) -> None:
+    variables = [network.model(k.split(".")[0]).variable(k.split(".")[1]) for k in keys]
+    for j, (key, var) in enumerate(zip(keys, variables, strict=True)):
         if getattr(var, "scale", "linear") == "log" and np.any(x[:, j] <= 0):
             rows = (np.flatnonzero(x[:, j] <= 0) + 2).tolist()
             raise SpecError(f"{key} has {len(rows)} value(s) <= 0 on line(s) {rows[:10]}, "
                             "but its scale is log (the surrogates take its logarithm); fix "
                             "or remove those rows", file=str(path), field=f"{field}.columns")
-        out = (x[:, j] < var.lower) | (x[:, j] > var.upper)
-        if out.any():
-            detail.append(f"{key} in [{x[out, j].min():g}, {x[out, j].max():g}] vs bounds "
-                          f"[{var.lower:g}, {var.upper:g}]")
-        outside |= out
+    mask = outside_bounds(network, keys, x)
+    detail = [f"{key} in [{x[mask[:, j], j].min():g}, {x[mask[:, j], j].max():g}] vs bounds "
+              f"[{var.lower:g}, {var.upper:g}]"
+              for j, (key, var) in enumerate(zip(keys, variables, strict=True))
+              if mask[:, j].any()]
+    outside = mask.any(axis=1)
     if not outside.any():
         return
     strict = ds.strict if ds.strict is not None else network.settings.strict
