@@ -322,6 +322,47 @@ def test_the_resolutions_cover_one_domain_for_one_simulated_time():
         assert o.max_steps * dt == pytest.approx(base.max_steps * dt0)
 
 
+def test_every_preset_starts_from_the_same_front():
+    # the perturbation is drawn per 5 nm noise cell, so a finer grid of the same domain
+    # holds the default grid's front, each height repeated over the cells it covers; on
+    # the default grid every cell has its own draw (the per-cell noise of a seed)
+    c = model.CONSTANTS
+    base = PhaseFieldOptions(seed=3)
+    _, _, _, y0 = solver.initial_fields(base, c, 0.3)
+    h0 = base.amplitude * base.dx * np.random.default_rng(3).uniform(-1.0, 1.0, base.nx)
+    np.testing.assert_array_equal(
+        solver.front_noise(np.random.default_rng(3), base.nx, base.dx, base.noise_cell, 1.0),
+        h0)
+    for name, k in (("fine", 2), ("xfine", 4)):
+        o = PhaseFieldOptions(resolution=name, seed=3)
+        h = solver.front_noise(np.random.default_rng(3), o.nx, o.dx, o.noise_cell, 1.0)
+        np.testing.assert_allclose(h, np.repeat(h0, k), rtol=1e-12)
+        # and the phase field built on it: the front crosses phi = 1/2 at y0 + h
+        phi, _, _, y_front = solver.initial_fields(o, c, 0.3)
+        assert y_front == pytest.approx(y0)
+        y = (np.arange(o.ny) + 0.5) * o.dx
+        col = np.argmax(np.abs(h))
+        i = np.nonzero(phi[:, col] >= 0.5)[0].max()  # last solid-side row
+        assert y[i] <= y_front + h[col] <= y[i + 1]
+    # a grid that does not divide the noise cells still gets the same heights per place
+    h = solver.front_noise(np.random.default_rng(3), 500, 1.92e-6 / 500, 5e-9, 1.0)
+    x = (np.arange(500) + 0.5) * 1.92e-6 / 500 / 5e-9  # column centres, in noise cells
+    inside = np.abs(x - np.round(x)) > 1e-6  # centres on a noise cell's edge: either side
+    np.testing.assert_allclose(h[inside], h0[np.floor(x[inside]).astype(int)], rtol=1e-12)
+
+
+def test_an_initial_cell_count_seeds_a_cosine_array():
+    o = PhaseFieldOptions(seed=1, initial_cells=24)
+    phi, *_ = solver.initial_fields(o, model.CONSTANTS, 0.3)
+    h = outputs.front_heights(phi, (np.arange(o.ny) + 0.5) * o.dx)
+    mode, _ = outputs.dominant_mode(h - h.mean(), o.dx)
+    assert mode == 24
+    with pytest.raises(ValueError, match="initial_cells must be in"):
+        PhaseFieldOptions(initial_cells=200)
+    with pytest.raises(ValueError, match="noise_cell > 0"):
+        PhaseFieldOptions(noise_cell=0.0)
+
+
 def test_registered_and_runs_from_the_cli():
     info = builtin_info("phase_field")
     assert info.outputs == phase_field.OUTPUTS and info.bounds == solidification.BOUNDS

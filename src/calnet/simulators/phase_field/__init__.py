@@ -30,7 +30,7 @@ from calnet.simulators.solidification import BOUNDS as _M2_BOUNDS
 from calnet.simulators.solidification import TO_SI
 
 NAME = "phase_field"
-VERSION = "0.3.1"
+VERSION = "0.4.0"
 MAX_HALVINGS = 2
 """Times a diverged run starts again with half the time step before it is reported failed."""
 INPUTS: tuple[str, ...] = ("S", "G")

@@ -35,8 +35,18 @@ class PhaseFieldOptions:
         Step budget; a run not steady by then is reported ``"nonconverged"``.
     seed : int, default 0
         Seed of the random interface perturbation (same seed, same result).
+    noise_cell : float, default 5e-9
+        Width of the perturbation's cells, m. The initial front height is drawn once per
+        noise cell, the whole number of them nearest to ``nx dx / noise_cell`` across the
+        domain, and is constant within one; so grids of different spacing over one domain
+        start from the same front. The default is the ``default`` preset's cell, on
+        which every grid cell has its own draw.
     amplitude : float, default 1.0
-        Amplitude of the perturbation, in cells (0 gives a flat front).
+        Amplitude of the perturbation, in noise cells (0 gives a flat front).
+    initial_cells : int, default 0
+        When > 0, a cosine with this many periods across the domain, of twice the noise's
+        amplitude, is added to the random heights: the front starts as an array of that
+        many cells, a way to ask whether an array of a given spacing is stable.
     front_row : float, default 0.6
         Fraction of ``ny`` at which the moving frame holds the front tip.
     chunk_cells : float, default 8.0
@@ -73,7 +83,9 @@ class PhaseFieldOptions:
     ny: int | None = None
     max_steps: int | None = None
     seed: int = 0
+    noise_cell: float = 5e-9
     amplitude: float = 1.0
+    initial_cells: int = 0
     front_row: float = 0.6
     chunk_cells: float = 8.0
     window: int = 12
@@ -106,6 +118,11 @@ class PhaseFieldOptions:
             raise ValueError(f"front_row must be in [0.3, 0.9], got {self.front_row}")
         if self.window < 3 or self.chunk_cells <= 0 or self.amplitude < 0:
             raise ValueError("need window >= 3, chunk_cells > 0 and amplitude >= 0")
+        if self.initial_cells < 0 or 2 * self.initial_cells > self.nx:
+            raise ValueError(f"initial_cells must be in [0, nx/2] = [0, {self.nx // 2}], got "
+                             f"{self.initial_cells}")
+        if not self.noise_cell > 0:
+            raise ValueError(f"need noise_cell > 0 (m), got {self.noise_cell}")
         if not (self.min_travel >= 0 and self.steady_travel > 0):
             raise ValueError(f"need min_travel >= 0 and steady_travel > 0, got "
                              f"{self.min_travel} and {self.steady_travel}")
@@ -118,9 +135,9 @@ class PhaseFieldOptions:
         if unknown:
             raise ValueError(f"unknown phase_field options {unknown}; expected some of "
                              f"{sorted(known)}")
-        ints = {"nx", "ny", "max_steps", "seed", "window"}
-        floats = {"antitrapping", "dx", "amplitude", "front_row", "chunk_cells", "min_travel",
-                  "steady_travel"}
+        ints = {"nx", "ny", "max_steps", "seed", "window", "initial_cells"}
+        floats = {"antitrapping", "dx", "amplitude", "noise_cell", "front_row", "chunk_cells",
+                  "min_travel", "steady_travel"}
         conv = {k: int(v) if k in ints else float(v) if k in floats else v
                 for k, v in kwargs.items()}
         return cls(**conv)

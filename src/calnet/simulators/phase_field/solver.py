@@ -70,8 +70,27 @@ class PhaseFieldRun:
     fields: dict[str, np.ndarray] = field(repr=False)
 
 
+def front_noise(rng: np.random.Generator, nx: int, dx: float, noise_cell: float,
+                amplitude: float) -> np.ndarray:
+    """Height perturbation (m) of the ``nx`` columns: one uniform draw in
+    ``[-amplitude, amplitude]`` noise cells per noise cell, held over the grid cells whose
+    centres it covers.
+
+    The number of noise cells is the whole number nearest to ``nx dx / noise_cell`` (at
+    least 1), so two grids over one domain get the same front from the same seed; where
+    it equals ``nx`` each grid cell has its own draw."""
+    n = max(1, round(nx * dx / noise_cell))
+    draws = rng.uniform(-1.0, 1.0, n)
+    if n == nx:
+        return amplitude * dx * draws
+    cell = nx * dx / n
+    owner = ((2 * np.arange(nx) + 1) * n) // (2 * nx)  # noise cell of each column centre
+    return amplitude * cell * draws[owner]
+
+
 def initial_fields(opts: PhaseFieldOptions, c: PhaseFieldConstants, speed: float):
-    """Flat front at ``front_row`` with a seeded random height perturbation.
+    """Flat front at ``front_row`` with a seeded random height perturbation
+    (:func:`front_noise`), plus a cosine of ``initial_cells`` periods.
 
     ``opts.start == "solidus"``: behind the front the solid has ``c0``; ahead, the liquid
     carries the steady planar (Tiller) boundary layer
@@ -83,7 +102,10 @@ def initial_fields(opts: PhaseFieldOptions, c: PhaseFieldConstants, speed: float
     dx, ny, nx = opts.dx, opts.ny, opts.nx
     y = (np.arange(ny) + 0.5)[:, None] * dx
     y_front = opts.front_row * ny * dx
-    h = y_front + opts.amplitude * dx * rng.uniform(-1.0, 1.0, nx)
+    h = y_front + front_noise(rng, nx, dx, opts.noise_cell, opts.amplitude)
+    if opts.initial_cells:
+        x = (np.arange(nx) + 0.5) / nx
+        h += 2.0 * opts.amplitude * opts.noise_cell * np.cos(2 * math.pi * opts.initial_cells * x)
     z = y - h[None, :]
     arg = np.clip(z / c.eta, -0.5, 0.5) * math.pi
     phi = 0.5 * (1.0 - np.sin(arg))
