@@ -65,6 +65,17 @@ def test_linear_additive_indices_are_variance_shares():
     assert np.allclose(r.S1, exact, atol=0.03) and np.allclose(r.ST, exact, atol=0.03)
 
 
+def test_one_input_carries_all_the_variance_exactly():
+    # with one input S1 = ST = 1 by definition; the estimators would scatter around it
+    # (an interval of [1.006, 1.007] was seen), so the identity is returned
+    r = sobol_indices(lambda x: np.exp(x[:, 0]), [[0.0, 2.0]], names=["P"], n_base=256)
+    assert r.S1.tolist() == [1.0] and r.ST.tolist() == [1.0]
+    assert r.S1_conf.tolist() == [0.0] and r.ST_conf.tolist() == [0.0]
+    spread = sobol_over_draws(lambda d: (lambda x: d[0] * x[:, 0] ** 2), np.array([[1.0], [3.0]]),
+                              [[0.0, 1.0]], names=["P"], n_base=64, n_bootstrap=10)
+    assert np.all(spread.ST_draws == 1.0) and np.all(spread.ST_hi == 1.0)
+
+
 def test_jansen_agrees_with_salib_total_effect(ishigami_result):
     j = jansen_total(ishigami, PI_BOX, n=4096, seed=1)
     # Independent estimates: the difference has standard deviation about

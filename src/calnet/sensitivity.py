@@ -259,6 +259,8 @@ def analyze_outputs(y: np.ndarray, *, names: Sequence[str], n_base: int,
     Returns
     -------
     SobolResult
+        With one input, ``S1 = ST = 1`` with intervals of zero width: the identity, not
+        an estimate (the estimators scatter around it by their Monte Carlo error).
     """
     from SALib.analyze import sobol as sobol_analyze
 
@@ -271,6 +273,13 @@ def analyze_outputs(y: np.ndarray, *, names: Sequence[str], n_base: int,
         raise SensitivityError(f"conf_level must be in (0, 1), got {conf_level}")
     if int(n_bootstrap) < 2:
         raise SensitivityError(f"n_bootstrap must be >= 2, got {n_bootstrap}")
+    if d == 1:  # one input carries all the variance: S1 = ST = 1 exactly, no estimate
+        one, zero = np.ones(1), np.zeros(1)
+        return SobolResult(names=tuple(names), S1=one, S1_conf=zero, ST=one.copy(),
+                           ST_conf=zero.copy(), conf_level=float(conf_level),
+                           n_base=int(n_base), n_evals=int(y.size),
+                           output_mean=float(y.mean()), output_var=float(y.var()),
+                           seed=int(seed))
     problem = {"num_vars": d, "names": list(names), "bounds": [[0.0, 1.0]] * d}
     si = sobol_analyze.analyze(problem, y, calc_second_order=False,
                                num_resamples=int(n_bootstrap), conf_level=conf_level,
