@@ -4,7 +4,9 @@
 runs not ``ok`` is above :data:`FAILED_SHARE_LIMIT`: its surrogate is trained on the
 rest only, so a region where the simulator fails is a region the surrogate does not
 know. The warning says how many, of which status, and which input or parameter ranges
-separate them from the ``ok`` runs.
+separate them from the ``ok`` runs: one range of each column that holds them all apart,
+or, for failures with more than one cause, up to three one-sided ranges beyond every ok
+run that together hold most of them.
 
 Examples
 --------
@@ -55,12 +57,21 @@ def failure_note(model: str, rows: Iterable[Mapping[str, Any]], columns: Sequenc
     text = f"{model}: {len(bad)} of {len(done)} runs ({share}) did not finish ok ({counts})"
 
     ok = [r for r in done if r["status"] == "ok"]
-    where = _separating(bad, ok, columns) if ok else []
+    if not ok:
+        return text
+    where = _separating(bad, ok, columns)
     if where:
-        text += ("; they lie at " + ", ".join(w[0] for w in where) + ", the ok runs at "
-                 + ", ".join(w[1] for w in where) + " (the surrogate extrapolates there)")
-    elif ok:
-        text += "; no single input or parameter range separates them from the ok runs"
+        return (text + "; they lie at " + ", ".join(w[0] for w in where) + ", the ok runs at "
+                + ", ".join(w[1] for w in where) + " (the surrogate extrapolates there)")
+    regions, others = _regions(bad, ok, columns)
+    if not regions:
+        return text + "; no input or parameter range separates them from the ok runs"
+    parts = [f"{c} {'>' if up else '<'} {edge:.3g} ({len(idx)} run{'s' if len(idx) > 1 else ''})"
+             for c, up, edge, idx in regions]
+    text += ("; they lie where " + " or ".join(parts) + ", beyond every ok run (the surrogate "
+             "extrapolates there)")
+    if others:
+        text += f"; the other {others} lie{'s' if others == 1 else ''} among the ok runs"
     return text
 
 
@@ -100,6 +111,37 @@ def _separating(bad: list, ok: list, columns: Sequence[str]) -> list[tuple[str, 
         if b and g and (min(b) > max(g) or max(b) < min(g)):
             out.append((f"{c} {_span(b)}", f"{c} {_span(g)}"))
     return out
+
+
+def _regions(bad: list, ok: list, columns: Sequence[str], most: int = 3,
+             least: int = 2) -> tuple[list[tuple[str, bool, float, set[int]]], int]:
+    """Failures with more than one cause: up to ``most`` one-sided ranges, each beyond
+    every ok run of one column (``x`` above the largest or below the smallest ok
+    value), chosen greedily to hold the most runs not ok, each at least ``least`` of
+    them; kept only when together they hold at least half of them. Returns
+    ``[(column, above, the ok runs' edge, indices of the runs it holds)]`` and how many
+    runs not ok they leave out."""
+    candidates = []
+    for c in columns:
+        g = [r["inputs"][c] for r in ok if c in r["inputs"]]
+        if not g:
+            continue
+        for up, edge in ((True, max(g)), (False, min(g))):
+            held = {i for i, r in enumerate(bad) if c in r["inputs"]
+                    and (r["inputs"][c] > edge if up else r["inputs"][c] < edge)}
+            if held:
+                candidates.append((c, up, edge, held))
+    chosen: list[tuple[str, bool, float, set[int]]] = []
+    left = set(range(len(bad)))
+    while candidates and len(chosen) < most:
+        best = max(candidates, key=lambda t: len(t[3] & left))
+        if len(best[3] & left) < least:
+            break
+        chosen.append((best[0], best[1], best[2], best[3] & left))
+        left -= best[3]
+    if 2 * (len(bad) - len(left)) < len(bad):
+        return [], len(bad)
+    return chosen, len(left)
 
 
 def _span(values: list[float]) -> str:
