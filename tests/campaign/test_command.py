@@ -196,6 +196,8 @@ def test_models_downstream_of_one_without_an_ok_run_are_not_simulated(tmp_path):
 def test_a_chain_design_made_without_parent_runs_is_recorded_as_what_it_is(tmp_path):
     import sqlite3
 
+    import yaml
+
     spec = _chain_spec(tmp_path, "python:toy_sims:quadratic")
     result = CliRunner().invoke(app, ["campaign", str(spec), "--model", "down",
                                       "--no-progress"])
@@ -205,6 +207,20 @@ def test_a_chain_design_made_without_parent_runs_is_recorded_as_what_it_is(tmp_p
         meta = dict(db.execute("SELECT key, value FROM meta"))
     db.close()
     assert meta["design_kind"] == "lhs" and "not a chain design" in meta["design"]
+    # the parents' runs exist now; continuing the stand-in design says so, every time
+    for argv in (["--model", "up"], ["--model", "down"], ["--model", "down", "--runs", "12"]):
+        result = CliRunner().invoke(app, ["campaign", str(spec), *argv, "--no-progress"])
+        assert result.exit_code == 0, result.output
+        said = " ".join(result.output.split())
+        assert ("holds a Latin hypercube, not a chain design" in said) == (argv[1] == "down"), said
+    assert "--fresh for a chain design" in said and "campaign.design: lhs" in said
+    # a spec that names the design keeps it without the note
+    doc = yaml.safe_load(spec.read_text())
+    doc["models"]["down"]["campaign"] = {**doc["models"]["down"].get("campaign", {}),
+                                         "design": "lhs"}
+    spec.write_text(yaml.safe_dump(doc, sort_keys=False))
+    result = CliRunner().invoke(app, ["campaign", str(spec), "--model", "down", "--no-progress"])
+    assert result.exit_code == 0 and "not a chain design" not in result.output, result.output
 
 
 def test_calnet_run_stops_at_a_model_without_an_ok_run(tmp_path):

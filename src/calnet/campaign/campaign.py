@@ -31,6 +31,7 @@ from calnet.campaign.planning import (
     DesignChoice,
     choose_design,
     design_conflict,
+    fallback_note,
     plan,
     settings_of,
     spec_design,
@@ -194,6 +195,7 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
         problem = design_conflict(choice, db.meta(), path)
         if problem:
             raise CampaignError(problem)
+        _warn_fallback(network, model, choice, db.meta(), path)
         total = plan(db, network, model, choice,
                      target_runs(runs, network, model, choice, db.planned(), db.imported()),
                      seed)
@@ -333,9 +335,17 @@ def _complete_readonly(path: Path, network: Network, model: Model, seed: int,
             counts = db.status_counts()
     except (CampaignError, sqlite3.DatabaseError):
         return None  # let the writing path give the full diagnosis
+    _warn_fallback(network, model, choice, meta, path)
     return CampaignSummary(model.name, path, planned, planned, 0, 0, counts, {},
                            time.perf_counter() - start, "none", 0, seed, 0,
                            meta.get("design_kind") or choice.label)
+
+
+def _warn_fallback(network: Network, model: Model, choice: DesignChoice,
+                   meta: dict[str, str], path: Path) -> None:
+    note = fallback_note(network, model, choice, meta, shown_path(path, network.root))
+    if note:
+        warnings.warn(note, CampaignWarning, stacklevel=3)
 
 
 def _stale_without_results(path: Path, network: Network, model: Model, seed: int) -> bool:

@@ -93,6 +93,24 @@ def choose_design(network: Network, model: Model, meta: dict[str, str],
     return DesignChoice("file" if kind.startswith("file:") else kind, False, label=kind)
 
 
+#: The part of a store's design description that marks a chain design made without runs
+#: of the parents (a Latin hypercube instead).
+NOT_CHAIN = "not a chain design: the parents had no runs"
+
+
+def fallback_note(network: Network, model: Model, choice: DesignChoice,
+                  meta: dict[str, str], path: Path) -> str | None:
+    """A note when ``model``'s store continues a Latin hypercube that stood in for a chain
+    design (its parents had no runs when it was planned) and the spec names no design:
+    the points do not follow the parents' runs."""
+    if choice.explicit or choice.label != "lhs" or NOT_CHAIN not in meta.get("design", ""):
+        return None
+    return (f"the store '{path}' of '{model.name}' holds a Latin hypercube, not a chain "
+            "design: its parents had no runs when it was planned, so its points do not "
+            "follow theirs; simulate it again with --fresh for a chain design, or set "
+            f"models.{model.name}.campaign.design: lhs to keep it without this note")
+
+
 def spec_design(network: Network, model: Model) -> DesignChoice | None:
     """The design the spec sets for ``model`` (a design file read and validated), or None
     when it sets none."""
@@ -162,8 +180,7 @@ def plan(db: RunStore, network: Network, model: Model, choice: DesignChoice, run
         if label == "chain" and not rows and groups[-1][1] == "lhs":
             # the parents had no runs: the points are a Latin hypercube, and say so
             label = "lhs"
-            description = (DESCRIPTIONS["lhs"] + " (not a chain design: the parents had no "
-                           "runs)")
+            description = f"{DESCRIPTIONS['lhs']} ({NOT_CHAIN})"
         db.set_meta({"design_kind": label, "design": description})
     return max(runs, have)
 
