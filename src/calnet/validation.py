@@ -177,8 +177,9 @@ def pit_check(name: str, pit) -> dict:
                  "too wide" if np.mean(np.abs(pit - 0.5) < 0.25) > 0.75 else
                  "biased" if abs(float(np.mean(pit)) - 0.5) > 0.15 else "miscalibrated")
         message = (f"{name}: the leave-one-out predictive is {shape} ({outside} of {n} "
-                   f"points outside its 95 % band, PIT uniformity p = {p_ks:.2g}); the "
-                   "model, its discrepancy or its noise does not describe these data")
+                   f"points outside its 95 % band where {0.05 * n:.1f} are expected, "
+                   f"p = {p_out:.2g}; PIT uniformity p = {p_ks:.2g}); the model, its "
+                   "discrepancy or its noise does not describe these data")
     return {"ks_pvalue": p_ks, "outside95": outside, "outside_pvalue": p_out,
             "flagged": flagged, "message": message}
 

@@ -158,5 +158,11 @@ def test_pit_check_on_known_pit_values():
     assert not pit_check("d", rng.uniform(size=200))["flagged"]
     narrow = pit_check("d", np.concatenate([rng.uniform(0, 0.01, 30), rng.uniform(0.99, 1, 30)]))
     assert narrow["flagged"] and "too narrow" in narrow["message"]
+    # flagged by the count outside the band: the message quotes that test's p-value
+    four = pit_check("d", np.r_[0.01, 0.99, 0.005, 0.98, np.linspace(0.1, 0.9, 8)])
+    assert four["flagged"] and four["ks_pvalue"] > 0.1 and four["outside_pvalue"] < 0.01
+    assert (f"4 of 12 points outside its 95 % band where 0.6 are expected, "
+            f"p = {four['outside_pvalue']:.2g}; PIT uniformity p = "
+            f"{four['ks_pvalue']:.2g}") in four["message"], four["message"]
     wide = pit_check("d", rng.uniform(0.4, 0.6, 60))
     assert wide["flagged"] and "too wide" in wide["message"]

@@ -260,7 +260,8 @@ def _sections(ctx, results: RunResults) -> list[Section]:
                 f"{loo['n_unreliable']}",
                 " / ".join(fmt(c.get(f"pit_coverage{q}")) for q in (50, 80, 95)),
                 ("flagged" if check["flagged"] else "ok")
-                + f" (p = {fmt(min(check['ks_pvalue'], check['outside_pvalue']))})"])
+                + f" (outside the band p = {fmt(check['outside_pvalue'])}, uniformity "
+                f"p = {fmt(check['ks_pvalue'])})"])
     brows = [[name, src, fmt(share)] for name, v in results.validation.items()
              for src, share in v.variance_shares.items()]
     tables = [
