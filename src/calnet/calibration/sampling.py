@@ -371,6 +371,20 @@ def _constrain_draws(ld, positions) -> dict[str, np.ndarray]:
     return jax.tree.map(np.asarray, _CONSTRAIN[ld.spec](ld.data, device_array(positions, float)))
 
 
+def _where(ld, positions, chains) -> dict[int, str]:
+    """``{chain: "a = 1.2, b = 3.4"}``: the mean of each parameter's draws in the given
+    chains of ``positions`` (chain, draw, dim), for a message."""
+    draws = _constrain_draws(ld, positions[np.asarray(chains)])
+    # the calibration parameters where the density has them, else every sampled variable
+    shown = [v for v, _ in getattr(ld.spec, "groups", ())] or list(ld.sampled_vars)
+    out = {}
+    for k, c in enumerate(chains):
+        parts = [f"{name} = {float(np.mean(draws[var][k][..., j])):.4g}"
+                 for var in shown for j, name in enumerate(ld.coords[ld.dims[var][0]])]
+        out[c] = ", ".join(parts)
+    return out
+
+
 def _check_settings(num_chains, num_warmup, num_draws, thin, target_accept, max_tree_depth):
     if num_chains < 1 or num_warmup < 0 or num_draws < 1 or thin < 1:
         raise CalibrationError(
@@ -476,9 +490,10 @@ def sample_nuts(
     if compiled is not None:
         compiled()
 
-    def run(args):
+    def run(args, again: bool = False):
+        # the second pass (stuck chains) reuses the compiled program: no compile to report
         _PROGRESS["fn"], running = _reporter(progress, ld.name, num_chains, num_warmup,
-                                             num_draws, t_compile)
+                                             num_draws, 0.0 if again else t_compile)
         try:
             with running, one_blas_thread():  # XLA's LAPACK calls go to OpenBLAS
                 out = jax.block_until_ready(exe(*args))
@@ -501,18 +516,25 @@ def sample_nuts(
         kept = np.setdiff1d(np.arange(num_chains), stuck)
         mean_lp = stats["lp"].mean(axis=1)
         gap = mean_lp[kept].max() - mean_lp[stuck]
+        best = int(kept[np.argmax(mean_lp[kept])])
+        where = _where(ld, positions, [*stuck, best])
         restart = positions[:, -1].copy()
         restart[stuck] = positions[kept[np.arange(len(stuck)) % len(kept)], -1]
         positions, stats, step_size, _, lp0, ok = run(
-            (host(chain_keys(2)), host(restart), host(ids), ld.data))
+            (host(chain_keys(2)), host(restart), host(ids), ld.data), again=True)
         still = stuck_chains(stats["lp"]) if ok.all() else list(range(num_chains))
+        at = "; ".join(f"chain {c + 1} at {where[c]}" for c in stuck)
         warnings.warn(
             f"{ld.name}: {_chains(stuck, num_chains)} stuck in a local mode of the "
             f"posterior (mean log density {', '.join(f'{g:.0f}' for g in gap)} below the "
-            "best chain's); every chain ran again, the stuck ones from the others' last "
-            "draws" + (f", and {_chains(still, num_chains)} stuck again" if still else "")
+            f"best chain's; {at}, against {where[best]} for chain {best + 1}); every chain "
+            "ran again, the stuck ones from the others' last draws"
+            + (f", and {_chains(still, num_chains)} stuck again" if still else "")
             + ". That mode holds a negligible share of the posterior, but it is a second, "
-            "far worse fit of the data: the model or its surrogate may be poor there",
+            "far worse fit of the data: the model or its surrogate may be poor there (with "
+            "the surrogate's variance in the likelihood, a worse fit costs less where the "
+            "surrogate is uncertain, often at the edges of the campaign's box: more runs "
+            "there remove such a mode)",
             CalibrationWarning, stacklevel=2)
         if not ok.all():
             raise CalibrationError(initial_point_message(ld.name, lp0, ~ok))
