@@ -132,6 +132,23 @@ def test_a_good_surrogate_agrees_with_its_simulator(good):
     assert len(good.points) == 3 * 6
 
 
+def test_a_surrogate_sd_far_above_its_error_is_noted_not_failed():
+    from calnet.verify import VerifyPoint, summarise
+
+    def points(zs):
+        return [VerifyPoint("M.y", i, 0, {}, {}, "ok", "", 1.0 + 0.1 * z, 1.0, 0.1, z)
+                for i, z in enumerate(zs)]
+
+    wide = summarise("M.y", None, points(0.18 * np.array([1, -1] * 8)))  # RMS z 0.18
+    assert wide.agrees and wide.rms_z == pytest.approx(0.18)
+    assert wide.note.startswith("its sd overstates its error about 6 times here (RMS z 0.18 "
+                                "over 16 points")
+    assert wide.to_dict()["note"] == wide.note
+    # a sd that states the error (RMS z 1), or too few points to tell: no note
+    assert summarise("M.y", None, points([1.0, -1.0] * 8)).note == ""
+    assert summarise("M.y", None, points([0.1, -0.1] * 3)).note == ""
+
+
 def test_simulator_values_are_the_true_function_at_posterior_points(calibrated, good):
     network, _, post, _ = calibrated
     data_x = set(np.round(post.data["ydata"].x[:, 0], 12))

@@ -668,6 +668,8 @@ def verify(
         console.print(f"{c.surrogate}: " + (escape(text) if c.agrees
                                             else f"[yellow]{escape(text)}[/]"),
                       soft_wrap=True)
+        if c.note:
+            console.print(f"{c.surrogate}: {escape(c.note)}", soft_wrap=True)
     for note in result.notes:
         console.print(f"note: {escape(note)}", soft_wrap=True)
     console.print(f"written to {run_dir / 'verify.json'}")

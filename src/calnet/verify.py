@@ -32,6 +32,9 @@ from calnet.spec import Network
 from calnet.surrogates.fit_network import Surrogates
 
 Z_LIMIT = 3.0
+#: an RMS z below this, over at least WIDE_MIN_POINTS points, is noted as an overstated sd
+WIDE_RMS_Z = 0.4
+WIDE_MIN_POINTS = 8
 
 
 @dataclass(frozen=True)
@@ -100,6 +103,11 @@ class SurrogateCheck:
         Share of the ``n`` points with ``|z| > 3``.
     verdict : str
         ``"agrees"``, or what is wrong and what to do.
+    rms_z : float
+        Root mean square of ``z``: about 1 where the surrogate's sd states its error.
+    note : str
+        Empty, or, where at least :data:`WIDE_MIN_POINTS` points have an ``rms_z`` below
+        :data:`WIDE_RMS_Z`, that the surrogate's sd overstates its error.
     """
 
     surrogate: str
@@ -110,6 +118,8 @@ class SurrogateCheck:
     max_abs_z: float
     share_beyond: float
     verdict: str
+    rms_z: float = math.nan
+    note: str = ""
 
     @property
     def agrees(self) -> bool:
@@ -119,7 +129,7 @@ class SurrogateCheck:
         return {"surrogate": self.surrogate, "transform": self.transform, "n": self.n,
                 "n_failed": self.n_failed, "rmse": _num(self.rmse),
                 "max_abs_z": _num(self.max_abs_z), "share_beyond_3sd": _num(self.share_beyond),
-                "verdict": self.verdict}
+                "rms_z": _num(self.rms_z), "verdict": self.verdict, "note": self.note}
 
 
 @dataclass(frozen=True)
@@ -275,8 +285,15 @@ def summarise(key: str, transform: str | None, points: Sequence[VerifyPoint]) ->
     verdict = "agrees" if beyond == 0 else (
         f"surrogate off where the posterior puts its mass: {beyond} of {n} points beyond "
         f"{Z_LIMIT:g} sd; add runs near the posterior")
+    rms_z = float(np.sqrt(np.mean(z**2)))
+    note = ""
+    if n >= WIDE_MIN_POINTS and rms_z < WIDE_RMS_Z:
+        note = (f"its sd overstates its error about {1 / max(rms_z, 1e-12):.0f} times here "
+                f"(RMS z {rms_z:.2f} over {n} points, 1 for a sd that states the error): "
+                "predictive bands carry more emulator variance than its real error, and "
+                "the emulator's share of a prediction's variance is an upper bound")
     return SurrogateCheck(key, transform, n, n_failed, float(np.sqrt(np.mean(err**2))),
-                          float(z.max()), beyond / n, verdict)
+                          float(z.max()), beyond / n, verdict, rms_z, note)
 
 
 # ----------------------------------------------------------------------------- helpers
