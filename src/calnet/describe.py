@@ -33,7 +33,7 @@ def describe_network(network: Network, console: Console) -> None:
             table.add_row(var.name, "input", var.unit, f"[{var.lower:g}, {var.upper:g}]  {role}")
         for var in model.parameters:
             table.add_row(var.name, "parameter", var.unit,
-                          f"[{var.lower:g}, {var.upper:g}]  prior {_prior(var.prior)}"
+                          f"[{var.lower:g}, {var.upper:g}]  prior {var.prior_text()}"
                           + _sharing(network, name, var.name))
         uses = network.output_uses(name)
         for var in model.outputs:
@@ -131,11 +131,6 @@ def _sharing(network: Network, model: str, name: str) -> str:
     others = [m for m in network.order if m != model
               and any(p.name == name and p.shared for p in network.model(m).parameters)]
     return f"  shared with {', '.join(others)}" if others else "  shared"
-
-
-def _prior(prior) -> str:
-    args = {k: v for k, v in prior.model_dump().items() if k != "dist"}
-    return f"{prior.dist}({', '.join(f'{k}={v:g}' for k, v in args.items())})"
 
 
 def _output_role(network: Network, model: str, var, uses: dict[str, tuple[str, ...]]) -> str:

@@ -219,8 +219,9 @@ def test_predict_settings_refuse_non_positive_log_scale_input(base_spec, write_s
 
 def test_normal_prior_without_mass_inside_the_bounds(base_spec, write_spec):
     k = base_spec["models"]["heat"]["parameters"]["k"]  # bounds [10, 30]
-    k["prior"] = {"dist": "normal", "mu": 35, "sigma": 1}  # 5 sigma out: usable
-    load_spec(write_spec(base_spec))
+    k["prior"] = {"dist": "normal", "mu": 35, "sigma": 1}  # 5 sigma out: usable, named
+    with pytest.warns(SpecWarning, match="models.heat.parameters.k: prior normal"):
+        load_spec(write_spec(base_spec))
     k["prior"] = {"dist": "normal", "mu": 100, "sigma": 0.5}
     err = _error(write_spec(base_spec))
     assert err.field == "models.heat.parameters.k" and "has no mass there" in str(err)
