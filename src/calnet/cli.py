@@ -227,12 +227,17 @@ def _show_warnings(caught: list[warnings.WarningMessage]) -> None:
 @app.command()
 @user_errors
 def check(spec: SpecArg) -> None:
-    """Load and validate a spec, then print the network."""
-    from calnet.describe import describe_network
+    """Load and validate a spec and its campaign.import tables, then print the network."""
+    from calnet.describe import describe_network, import_problems
     from calnet.spec import load_spec
 
     network = load_spec(spec)
     describe_network(network, console)
+    problems = import_problems(network)
+    if problems:
+        (field, msg), *others = problems
+        raise SpecError(msg, file=network.source, field=field,
+                        more=[f"{f}: {m}" for f, m in others])
 
 
 def _parse_sets(values: list[str], flag: str = "--set") -> dict[str, float]:
