@@ -582,15 +582,15 @@ def _warn_extra(network: Any, targets: list[str], extra: list[str]) -> None:
                   stacklevel=1)
 
 
-def _read_points(path: Path) -> list[dict[str, float]]:
+def _read_points(path: Path) -> list[dict[str, float | str]]:
     """:func:`calnet.predict.read_points`, refusing a header that names a column twice."""
     from calnet.predict import read_points
     from calnet.spec.data import repeated_header
 
     twice = repeated_header(path) if path.is_file() else None
     if twice:
-        raise CalnetError(f"--csv {path}: column '{twice}' appears twice in the header; give "
-                          "each column its own name")
+        raise UsageError(f"--csv {path}: column '{twice}' appears twice in the header; give "
+                         "each column its own name")
     return read_points(path)
 
 
