@@ -102,3 +102,52 @@ def test_check_says_which_models_share_a_parameter(tmp_path):
     shared = [line for line in rows.values() if line.startswith("k ")]
     assert len(shared) == 2 and "shared with B" in shared[0] and "shared with A" in shared[1]
     assert not any("shared" in line for line in rows.values() if line.startswith("c "))
+
+
+@pytest.mark.parametrize(("prior", "said"), [
+    ("{dist: normal, mu: 10, sigma: 0.5}", "prior normal(mu=10, sigma=0.5) puts 6.4e-56 % of "
+     "its mass within [0.5, 2] and most of it above 2"),
+    ("{dist: gamma, a: 2, b: 100}", "most of it below 0.5"),
+    ("{dist: lognormal, mu: 0, sigma: 0.5}", None),
+    ("{dist: normal, mu: 2.5, sigma: 0.5}", None),  # 16 % within: truncated, not refuted
+])
+def test_check_warns_of_a_prior_whose_mass_lies_beyond_the_bounds(spec, prior, said):
+    text = (spec / "network.yaml").read_text()
+    (spec / "network.yaml").write_text(text.replace(
+        "{a: {lower: 0.5, upper: 2.0}}", f"{{a: {{lower: 0.5, upper: 2.0, prior: {prior}}}}}"))
+    result = CliRunner().invoke(app, ["check", str(spec)])
+    assert result.exit_code == 0, result.output
+    warned = [line for line in result.output.splitlines() if "models.M.parameters.a" in line]
+    if said is None:
+        assert not warned, result.output
+    else:
+        assert len(warned) == 1 and said in warned[0], result.output
+        assert "move the prior into the bounds" in warned[0]
+
+
+RUNS = "x,a,y,z,w\n0.6,1.0,0.6,0.6,1.6\n1.0,1.5,1.5,1.0,2.5\n1.5,0.7,1.05,1.5,2.2\n"
+
+
+@pytest.mark.parametrize(("table", "strict", "said"), [
+    (None, False, "runs.csv'; check the path"),
+    (RUNS.replace("1.5,1.0,2.5", "nan,1.0,2.5"), False,
+     "runs.csv: column 'y', row 2: nan in a run with status ok"),
+    (RUNS.replace("1.5,0.7", "2.5,0.7"), True, "runs.csv: column 'x': 1 row(s) outside its "
+     "bounds [0.5, 2] (first: row 3, 2.5)"),
+    (RUNS, False, None),
+])
+def test_check_reads_the_campaign_import_tables(spec, table, strict, said):
+    text = (spec / "network.yaml").read_text().replace(
+        "campaign: {runs: 10}", "campaign: {import: runs.csv}")
+    if strict:
+        text = text.replace("settings:\n", "settings:\n  strict: true\n")
+    (spec / "network.yaml").write_text(text)
+    if table is not None:
+        (spec / "runs.csv").write_text(table)
+    result = CliRunner().invoke(app, ["check", str(spec)])
+    if said is None:
+        assert result.exit_code == 0, result.output
+        return
+    errors = [line for line in result.output.splitlines() if line.startswith("error:")]
+    assert result.exit_code == 2 and len(errors) == 1, result.output
+    assert "models.M.campaign.import: " in errors[0] and said in errors[0], errors

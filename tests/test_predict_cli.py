@@ -128,14 +128,31 @@ def test_a_simulator_outputs_prediction_depends_on_the_point_only(run):
 def test_extra_columns_and_names_are_ignored_alike(run, tmp_path):
     plain, _ = _predict(run, "--at", "x=0.3")
     points = tmp_path / "points.csv"
-    points.write_text("x,id,y_measured\n0.3,7,0.1\n")
+    points.write_text("x,id,y_measured,label\n0.3,7,0.1,first point\n")
     from_csv, warned_csv = _predict(run, "--csv", str(points))
     from_at, warned_at = _predict(run, "--at", "x=0.3,id=7,y_measured=0.1")
     assert from_csv == from_at == plain
-    for warned in (warned_csv, warned_at):
+    for warned, extra in ((warned_csv, "id, y_measured, label"), (warned_at, "id, y_measured")):
         lines = [line for line in warned.splitlines() if "ignored" in line]
-        assert lines == ["warning: ignored id, y_measured: not process inputs of yd (it takes "
-                         "x)"], warned
+        assert lines == [f"warning: ignored {extra}: not process inputs of yd (it takes x)"], \
+            warned
+
+
+@pytest.mark.parametrize(("text", "said"), [
+    (None, "--csv: no file"),
+    ("x\n", "no rows"),
+    ("x,x\n0.3,0.4\n", "column 'x' appears twice"),
+    ("x,label\n0.3,a\nfast,b\n", "point 2: up.x = 'fast' is not a number"),
+    ("xx\n0.3\n", "point 1: missing x"),
+])
+def test_a_bad_points_file_is_a_usage_error(run, tmp_path, text, said):
+    """As for a bad --at value: one line, exit code 2."""
+    points = tmp_path / "points.csv"
+    if text is not None:
+        points.write_text(text)
+    result = _invoke(run, "--csv", str(points))
+    assert result.exit_code == 2, result.output
+    assert said in result.output, result.output
 
 
 def test_a_target_asked_twice_is_predicted_once(run):

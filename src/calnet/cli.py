@@ -227,12 +227,17 @@ def _show_warnings(caught: list[warnings.WarningMessage]) -> None:
 @app.command()
 @user_errors
 def check(spec: SpecArg) -> None:
-    """Load and validate a spec, then print the network."""
-    from calnet.describe import describe_network
+    """Load and validate a spec and its campaign.import tables, then print the network."""
+    from calnet.describe import describe_network, import_problems
     from calnet.spec import load_spec
 
     network = load_spec(spec)
     describe_network(network, console)
+    problems = import_problems(network)
+    if problems:
+        (field, msg), *others = problems
+        raise SpecError(msg, file=network.source, field=field,
+                        more=[f"{f}: {m}" for f, m in others])
 
 
 def _parse_sets(values: list[str], flag: str = "--set") -> dict[str, float]:
@@ -577,15 +582,15 @@ def _warn_extra(network: Any, targets: list[str], extra: list[str]) -> None:
                   stacklevel=1)
 
 
-def _read_points(path: Path) -> list[dict[str, float]]:
+def _read_points(path: Path) -> list[dict[str, float | str]]:
     """:func:`calnet.predict.read_points`, refusing a header that names a column twice."""
     from calnet.predict import read_points
     from calnet.spec.data import repeated_header
 
     twice = repeated_header(path) if path.is_file() else None
     if twice:
-        raise CalnetError(f"--csv {path}: column '{twice}' appears twice in the header; give "
-                          "each column its own name")
+        raise UsageError(f"--csv {path}: column '{twice}' appears twice in the header; give "
+                         "each column its own name")
     return read_points(path)
 
 

@@ -10,8 +10,11 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
+from calnet.campaign.importing import read_runs
+from calnet.campaign.planning import settings_of
 from calnet.campaign.runners import load_callable, resolve_program
 from calnet.errors import CampaignError
+from calnet.files import shown_path
 from calnet.spec.data import read_dataset
 from calnet.spec.network import Network
 
@@ -33,7 +36,7 @@ def describe_network(network: Network, console: Console) -> None:
             table.add_row(var.name, "input", var.unit, f"[{var.lower:g}, {var.upper:g}]  {role}")
         for var in model.parameters:
             table.add_row(var.name, "parameter", var.unit,
-                          f"[{var.lower:g}, {var.upper:g}]  prior {_prior(var.prior)}"
+                          f"[{var.lower:g}, {var.upper:g}]  prior {var.prior_text()}"
                           + _sharing(network, name, var.name))
         uses = network.output_uses(name)
         for var in model.outputs:
@@ -63,6 +66,25 @@ def unused_outputs(network: Network, model: str) -> list[str]:
             "does not list it, so it gets no surrogate and is never predicted; add it to "
             "settings.predict to emulate it, or remove it from the spec"
             for out, use in network.output_uses(model).items() if not use]
+
+
+def import_problems(network: Network) -> list[tuple[str, str]]:
+    """``(field, message)`` for each ``campaign.import`` table that the campaign would
+    refuse, read with the campaign's own reader: a missing file, a missing column, a
+    value that is not a finite number, a value outside the bounds with ``settings.strict``.
+    A value outside the bounds without it is a :class:`~calnet.errors.CampaignWarning`."""
+    out = []
+    for model in network.models:
+        name = settings_of(network, model).import_
+        if name is None:
+            continue
+        table = network.path(name)
+        try:
+            read_runs(table, model, strict=network.settings.strict,
+                      shown=shown_path(table, network.root))
+        except CampaignError as err:
+            out.append((f"models.{model.name}.campaign.import", str(err)))
+    return out
 
 
 def simulator_problem(network: Network, model: str) -> str | None:
@@ -131,11 +153,6 @@ def _sharing(network: Network, model: str, name: str) -> str:
     others = [m for m in network.order if m != model
               and any(p.name == name and p.shared for p in network.model(m).parameters)]
     return f"  shared with {', '.join(others)}" if others else "  shared"
-
-
-def _prior(prior) -> str:
-    args = {k: v for k, v in prior.model_dump().items() if k != "dist"}
-    return f"{prior.dist}({', '.join(f'{k}={v:g}' for k, v in args.items())})"
 
 
 def _output_role(network: Network, model: str, var, uses: dict[str, tuple[str, ...]]) -> str:

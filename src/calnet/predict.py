@@ -491,7 +491,7 @@ def resolve_input(network: Network, target: str, name: str) -> str | None:
     return matches[0] if matches else None
 
 
-def settings_matrix(network: Network, target: str, rows: list[dict[str, float]], *,
+def settings_matrix(network: Network, target: str, rows: list[dict[str, float | str]], *,
                     skip: Collection[str] = ()) -> tuple[np.ndarray, list[str]]:
     """Process settings for predicting ``target`` (a data set or ``model.output``) as an
     array ``(n, k)``.
@@ -500,7 +500,9 @@ def settings_matrix(network: Network, target: str, rows: list[dict[str, float]],
     process input must be given; names that are not process inputs of the target's
     chain are an error, except those in ``skip`` (inputs of other targets predicted
     from the same rows), which are ignored. Returns the array and a list of warnings for
-    values outside the declared bounds (the surrogates extrapolate there).
+    values outside the declared bounds (the surrogates extrapolate there). A point that
+    misses an input or gives one that is not a finite number (text from a CSV cell, for
+    instance) is a :class:`~calnet.errors.UsageError`.
     """
     model = target_model(network, target)
     what = target if "." in target else network.dataset(target).observes
@@ -509,27 +511,30 @@ def settings_matrix(network: Network, target: str, rows: list[dict[str, float]],
     x = np.empty((len(rows), len(keys)))
     notes: list[str] = []
     for r, row in enumerate(rows):
-        given: dict[str, float] = {}
+        given: dict[str, float | str] = {}
         for name, value in row.items():
             key = resolve_input(network, target, name)
             if key is None:
                 if name in skip:
                     continue
-                raise CalnetError(f"'{name}' is not a process input of '{what}'; "
-                                  f"give {_names(keys)}")
+                raise UsageError(f"'{name}' is not a process input of '{what}'; "
+                                 f"give {_names(keys)}")
             given[key] = value
         missing = [k for k in keys if k not in given]
         if missing:
-            raise CalnetError(f"point {r + 1}: missing {_names(missing)}; '{what}' "
-                              f"needs {_names(keys)}")
+            raise UsageError(f"point {r + 1}: missing {_names(missing)}; '{what}' "
+                             f"needs {_names(keys)}")
         for j, (key, (m, i)) in enumerate(zip(keys, pairs, strict=True)):
             value = given[key]
+            if isinstance(value, str):
+                raise UsageError(f"point {r + 1}: {key} = '{value}' is not a number; give "
+                                 "a number for every input")
             if not np.isfinite(value):
-                raise CalnetError(f"point {r + 1}: {key} = {value} is not a finite number")
+                raise UsageError(f"point {r + 1}: {key} = {value} is not a finite number")
             var = network.model(m).variable(i)
             if getattr(var, "scale", "linear") == "log" and value <= 0:
-                raise CalnetError(f"point {r + 1}: {key} = {value:g} must be > 0 (its scale "
-                                  "is log)")
+                raise UsageError(f"point {r + 1}: {key} = {value:g} must be > 0 (its scale "
+                                 "is log)")
             if not var.lower <= value <= var.upper:
                 unit = f" {var.unit}" if var.unit != "1" else ""  # not "[0, 1] 1"
                 notes.append(f"point {r + 1}: {key} = {value:g} lies outside its bounds "
@@ -656,31 +661,43 @@ def _takes(network: Network, target: str, name: str) -> bool:
 
 
 def shared_inputs(network: Network, targets: Sequence[str],
-                  rows: list[dict[str, float]]) -> set[str]:
+                  rows: list[dict[str, float | str]]) -> set[str]:
     """The names in ``rows`` that some of ``targets`` take: a point given for several
     targets may carry inputs that only some of them take (``skip`` of
     :func:`settings_matrix`)."""
     return {k for row in rows for k in row if any(_takes(network, t, k) for t in targets)}
 
 
-def read_points(path: str | Path) -> list[dict[str, float]]:
+def read_points(path: str | Path) -> list[dict[str, float | str]]:
     """Process settings from a CSV file, one point per row under a header of input names
-    (bare ``P`` or qualified ``melt_pool.P``): ``[{name: value}, ...]``."""
+    (bare ``P`` or qualified ``melt_pool.P``): ``[{name: value}, ...]``.
+
+    A cell that is not a number stays text (an ID or label column, for instance): the
+    columns that are not process inputs are ignored, and text in an input column is
+    refused by :func:`settings_matrix`. A missing, unreadable or empty file is a
+    :class:`~calnet.errors.UsageError`.
+    """
     import pandas as pd  # pandas only where points come from a file
 
     path = Path(path)
     if not path.is_file():
-        raise CalnetError(f"--csv: no file '{path}'")
+        raise UsageError(f"--csv: no file '{path}'; give a CSV file of points, one column "
+                         "per input")
     try:
         frame = pd.read_csv(path)
     except Exception as err:  # noqa: BLE001 - any parse failure is the user's file
-        raise CalnetError(f"--csv {path}: cannot read it as CSV ({err})") from None
+        raise UsageError(f"--csv {path}: cannot read it as CSV ({err})") from None
     if frame.empty:
-        raise CalnetError(f"--csv {path}: no rows; write one point per row under the header")
-    bad = [c for c in frame.columns if not pd.api.types.is_numeric_dtype(frame[c])]
-    if bad:
-        raise CalnetError(f"--csv {path}: column(s) {bad} are not numeric")
-    return [{str(k): float(v) for k, v in row.items()} for row in frame.to_dict("records")]
+        raise UsageError(f"--csv {path}: no rows; write one point per row under the header")
+    return [{str(k): _cell(v) for k, v in row.items()} for row in frame.to_dict("records")]
+
+
+def _cell(value: object) -> float | str:
+    """A CSV cell as a float, or as its text where it is not a number."""
+    try:
+        return float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        return str(value)
 
 
 def shares_per_point(prediction: Prediction) -> list[dict[str, float]]:

@@ -12,7 +12,7 @@ import pytest
 from network_helpers import fitted_network, on_path, write_csv
 
 from calnet.calibration.calibrate_network import calibrate
-from calnet.errors import CalibrationWarning
+from calnet.errors import CalibrationWarning, SpecWarning
 from calnet.spec.models import SamplerSettings
 
 SIMS = '''
@@ -29,7 +29,7 @@ models:
   m:
     simulator: python:guard_sims:wiggly
     inputs: {x: {lower: 0, upper: 1}}
-    parameters: {a: {lower: LOWER, upper: UPPER}}
+    parameters: {a: {lower: LOWER, upper: UPPERPRIOR}}
     outputs: {y: {measurable: true}}
     campaign: {runs: RUNS}
 data:
@@ -42,10 +42,11 @@ settings:
 SAMPLER = SamplerSettings(chains=2, warmup=300, draws=300, target_accept=0.95)
 
 
-def _case(root, runs: int, lower=0.5, upper=2.0, a_true=1.3, beyond=()):
+def _case(root, runs: int, lower=0.5, upper=2.0, a_true=1.3, beyond=(), prior=""):
     root.mkdir()
     (root / "guard_sims.py").write_text(SIMS)
     spec = SPEC.replace("RUNS", str(runs)).replace("LOWER", str(lower))
+    spec = spec.replace("PRIOR", f", prior: {prior}" if prior else "")
     (root / "network.yaml").write_text(textwrap.dedent(spec.replace("UPPER", str(upper))))
     x = np.concatenate([np.linspace(0.0, 1.0, 15 - len(beyond)), beyond])
     y = a_true * x + 0.8 * np.sin(9 * x) + 0.02 * np.random.default_rng(1).standard_normal(15)
@@ -98,8 +99,22 @@ def test_data_outside_the_bounds_are_named_not_more_runs(tmp_path):
 def test_a_parameter_pressed_against_its_bound_is_reported(tmp_path):
     post, messages = _case(tmp_path / "bound", runs=60, lower=0.5, upper=1.1, a_true=1.3)
     assert np.median(post.theta["m"][:, 0]) > 1.05
-    assert any("m.a: the posterior presses against its upper bound 1.1" in m
-               for m in messages), messages
+    said = [m for m in messages if "m.a: the posterior presses against its upper bound 1.1"
+            in m]
+    assert len(said) == 1 and "the data ask for values outside [0.5, 1.1]" in said[0]
+
+
+def test_a_prior_beyond_the_bound_pressed_against_is_named(tmp_path):
+    """The prior's own mass lies above the upper bound: the message names the prior, not
+    only the data, as what asks for values beyond it."""
+    with pytest.warns(SpecWarning, match="models.m.parameters.a: prior normal"):
+        post, messages = _case(tmp_path / "prior", runs=60, lower=0.5, upper=1.1,
+                               a_true=1.3, prior="{dist: normal, mu: 3, sigma: 0.3}")
+    said = [m for m in messages if "m.a: the posterior presses against its upper bound 1.1"
+            in m]
+    assert len(said) == 1, messages
+    assert ("the prior or the data ask for values outside [0.5, 1.1]: the prior "
+            "normal(mu=3, sigma=0.3) puts 100 % of its mass above 1.1") in said[0], said
 
 
 @pytest.mark.slow

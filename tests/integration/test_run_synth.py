@@ -139,7 +139,7 @@ def _check_predict(work: Path, out: Path, tmp_path: Path) -> None:
     assert lines[0] == "dataset,output,thermal.P,thermal.v,mean,lower95,upper95"
     assert len(lines) == 1 + 2 * 3  # two points for each of the three data sets
     res = runner.invoke(app, ["predict", str(work), "--run", str(out), "--at", "P=200"])
-    assert res.exit_code == 1 and "missing v" in res.output
+    assert res.exit_code == 2 and "missing v" in res.output  # a bad --at value
     res = runner.invoke(app, ["predict", str(work), "--run", str(tmp_path / "none"),
                               "--at", "P=200,v=1"])
     assert res.exit_code == 1 and "no fitted surrogates" in res.output

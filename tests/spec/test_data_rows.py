@@ -30,7 +30,7 @@ def test_a_points_file_with_a_column_named_twice_is_refused(tmp_path):
     points.write_text("P,v,P\n200,0.5,210\n")
     result = CliRunner().invoke(app, ["predict", "examples/ninb", "--csv", str(points)],
                                 terminal_width=400)
-    assert result.exit_code == 1, result.output
+    assert result.exit_code == 2, result.output
     assert result.output.strip() == (f"error: --csv {points}: column 'P' appears twice in the "
                                      "header; give each column its own name")
 

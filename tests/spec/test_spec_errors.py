@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from calnet.errors import SpecError, SpecWarning
-from calnet.spec import load_spec
+from calnet.spec import load_spec, read_all
 
 
 def _error(path) -> SpecError:
@@ -219,8 +219,9 @@ def test_predict_settings_refuse_non_positive_log_scale_input(base_spec, write_s
 
 def test_normal_prior_without_mass_inside_the_bounds(base_spec, write_spec):
     k = base_spec["models"]["heat"]["parameters"]["k"]  # bounds [10, 30]
-    k["prior"] = {"dist": "normal", "mu": 35, "sigma": 1}  # 5 sigma out: usable
-    load_spec(write_spec(base_spec))
+    k["prior"] = {"dist": "normal", "mu": 35, "sigma": 1}  # 5 sigma out: usable, named
+    with pytest.warns(SpecWarning, match="models.heat.parameters.k: prior normal"):
+        load_spec(write_spec(base_spec))
     k["prior"] = {"dist": "normal", "mu": 100, "sigma": 0.5}
     err = _error(write_spec(base_spec))
     assert err.field == "models.heat.parameters.k" and "has no mass there" in str(err)
@@ -334,3 +335,25 @@ def test_the_network_problems_come_together(base_spec, write_spec):
     assert lines[1].startswith("settings.criteria: no data set named 'nosuch'")
     assert lines[2].startswith("data.width.observes: model 'heat' has no output 'W9'")
     assert lines[3].startswith(f"data.{spacing}.observes: model 'micro' has no output 'nothing'")
+
+
+def test_columns_default_to_the_variables_own_names(base_spec, write_spec):
+    """Without ``columns`` the spacing data (through the links: heat.P, heat.v, and
+    micro.lam) is read from the columns P, v and lam."""
+    del base_spec["data"]["spacing"]["columns"]
+    net = load_spec(write_spec(base_spec, spacing="id,P,v,lam\n1,100,0.5,0.3\n"))
+    data = read_all(net)["spacing"]
+    assert data.input_keys == ("heat.P", "heat.v") and data.x.tolist() == [[100, 0.5]]
+    assert data.y.tolist() == [0.3]
+    err = _error(write_spec(base_spec, spacing="id,P,speed,lam\n1,100,0.5,0.3\n"))
+    assert err.field == "data.spacing" and err.reason.startswith(
+        "no column ['v'] (it has ['id', 'P', 'speed', 'lam']); without 'columns' each input "
+        "and the observed output are read from the column of their own name"), err
+    assert "add 'columns:" in err.reason
+
+
+def test_columns_are_needed_where_two_inputs_share_a_name(base_spec, write_spec):
+    base_spec["models"]["micro"]["inputs"]["P"] = {"unit": "W", "lower": 50, "upper": 250}
+    del base_spec["data"]["spacing"]["columns"]
+    err = _error(write_spec(base_spec))
+    assert "data.spacing: ['heat.P', 'micro.P'] share a name" in str(err), err

@@ -200,13 +200,28 @@ def check_bounds(network, posterior) -> list[str]:
             width = p.upper - p.lower
             if hi - lo > BOUND_NARROW * width:
                 continue
-            for side, bound in (("lower", p.lower), ("upper", p.upper)):
+            below, _, above = p.prior_shares()
+            for side, bound, beyond in (("lower", p.lower, below), ("upper", p.upper, above)):
                 if abs(med - bound) < BOUND_NEAR * width:
                     hint = (" (with discrepancy: {orthogonal: false} the discrepancy may take "
                             "up that misfit instead)" if orthogonal else "")
                     out.append(f"{model}.{p.name}: the posterior presses against its {side} "
-                               f"bound {bound:g} (median {med:.4g}); the data ask for values "
-                               f"outside [{p.lower:g}, {p.upper:g}]: widen the bounds and "
-                               "extend the campaign if such values are physical, otherwise "
-                               "the model misses what this parameter stands in for" + hint)
+                               f"bound {bound:g} (median {med:.4g}); "
+                               + (_prior_beyond(p, side, bound, beyond) if beyond > 0.5
+                                  else _data_beyond(p)) + hint)
     return out
+
+
+def _data_beyond(p) -> str:
+    return (f"the data ask for values outside [{p.lower:g}, {p.upper:g}]: widen the bounds "
+            "and extend the campaign if such values are physical, otherwise the model misses "
+            "what this parameter stands in for")
+
+
+def _prior_beyond(p, side: str, bound: float, beyond: float) -> str:
+    """The remedy when the prior's own median lies beyond the bound pressed against."""
+    where = "below" if side == "lower" else "above"
+    return (f"the prior or the data ask for values outside [{p.lower:g}, {p.upper:g}]: the "
+            f"prior {p.prior_text()} puts {100 * beyond:.3g} % of its mass {where} {bound:g}; "
+            "move the prior into the bounds if it is not meant to sit there, otherwise widen "
+            "the bounds and extend the campaign")

@@ -89,8 +89,13 @@ def read_dataset(network: Network, ds: Dataset) -> ExperimentalData:
         raise SpecError(f"column '{twice}' appears twice in the header; give each column its "
                         "own name", file=str(path), field=field)
     wanted = network.process_input_keys(ds.observed_model)
-    resolved = {network.resolve_column_key(ds, k, wanted + [ds.observes]): col
-                for k, col in ds.columns.items()}
+    resolved = network.dataset_columns(ds)
+    absent = [resolved[k] for k in (*wanted, ds.observes) if resolved[k] not in frame.columns]
+    if ds.columns is None and absent:
+        raise SpecError(f"no column {absent} (it has {list(frame.columns)}); without "
+                        "'columns' each input and the observed output are read from the "
+                        "column of their own name: rename the columns, or add 'columns: "
+                        "{variable: <csv column>, ...}'", file=str(path), field=field)
     columns, problems = {}, []
     for key in (*wanted, ds.observes):  # every column's problem, not only the first's
         try:

@@ -57,6 +57,7 @@ def load_spec(spec: str | Path, *, read_data: bool = True) -> Network:
     raw = _read_yaml(path)
     network = parse_spec(raw, root=path.parent, source=str(path))
     check_simulators(network)
+    check_priors(network)
     if read_data:
         read_all(network)
     return network
@@ -242,4 +243,27 @@ def check_simulators(network: Network) -> None:
         if undeclared:
             warnings.warn(f"{network.source}: models.{model.name}: parameters {undeclared} "
                           "are not declared and stay at the simulator's defaults",
+                          SpecWarning, stacklevel=3)
+
+
+#: a parameter prior with less than this share of its mass within the bounds is named
+PRIOR_MASS_WARN = 0.01
+
+
+def check_priors(network: Network) -> None:
+    """Warn for every parameter whose prior has less than :data:`PRIOR_MASS_WARN` of its
+    mass within the bounds and its median beyond one of them: truncated there, it presses
+    the posterior against that bound."""
+    for model in network.models:
+        for p in model.parameters:
+            below, within, above = p.prior_shares()
+            if within >= PRIOR_MASS_WARN or max(below, above) <= 0.5:
+                continue
+            side, bound, fix = (("above", p.upper, "upper") if above > below
+                                else ("below", p.lower, "lower"))
+            warnings.warn(f"{network.source}: models.{model.name}.parameters.{p.name}: prior "
+                          f"{p.prior_text()} puts {100 * within:.2g} % of its mass within "
+                          f"[{p.lower:g}, {p.upper:g}] and most of it {side} {bound:g}, so "
+                          f"the posterior will press against that bound whatever the data "
+                          f"say; move the prior into the bounds or widen the {fix} bound",
                           SpecWarning, stacklevel=3)

@@ -307,13 +307,14 @@ class Dataset(Frozen):
 
     ``columns`` maps variables to CSV columns: the observed output and every free
     (unlinked) input of the observed model and of its ancestors. Keys are
-    ``model.variable`` or a bare variable name when that name is unambiguous.
+    ``model.variable`` or a bare variable name when that name is unambiguous. Without
+    ``columns`` each of them is read from the column of its own (bare) name.
     """
 
     name: Name
     path: str
     observes: str
-    columns: dict[str, str]
+    columns: dict[str, str] | None = None
     split: Split | None = None
     strict: bool | None = None
     noise: NoiseSettings = Field(default_factory=NoiseSettings)

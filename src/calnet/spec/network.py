@@ -186,11 +186,27 @@ class Network(Frozen):
         if not graph:
             return
         wanted = self.process_input_keys(model.name) + [ds.observes]
+        if ds.columns is None:  # each read from the column of its own name
+            bare = [w.split(".")[1] for w in wanted]
+            twice = sorted({w for w, b in zip(wanted, bare, strict=True) if bare.count(b) > 1})
+            if twice:
+                raise ValueError(f"{where}: {twice} share a name, so each cannot be read from "
+                                 "the column of its own name; add 'columns: {model.variable: "
+                                 "<csv column>, ...}'")
+            return
         resolved = {self.resolve_column_key(ds, key, wanted) for key in ds.columns}
         missing = [w for w in wanted if w not in resolved]
         if missing:
             raise ValueError(f"{where}.columns: no column given for {missing}; add "
                              "'<variable>: <csv column>' entries for them")
+
+    def dataset_columns(self, ds: Dataset) -> dict[str, str]:
+        """``{model.variable: CSV column}`` of ``ds``: each process input of the observed
+        model and the observed output, from ``columns`` or, without it, by bare name."""
+        wanted = self.process_input_keys(ds.observed_model) + [ds.observes]
+        if ds.columns is None:
+            return {w: w.split(".")[1] for w in wanted}
+        return {self.resolve_column_key(ds, k, wanted): col for k, col in ds.columns.items()}
 
     def resolve_column_key(self, ds: Dataset, key: str, wanted: list[str]) -> str:
         """Resolve a ``columns`` key (bare or qualified) to ``model.variable``."""

@@ -232,6 +232,36 @@ class Parameter(Bounded):
                                  "sigma")
         return self
 
+    def prior_shares(self) -> tuple[float, float, float]:
+        """Shares of the untruncated prior's mass below, within and above the bounds.
+
+        ``beta`` and ``uniform`` are defined on the bounds: ``(0, 1, 0)``. The others are
+        truncated to the bounds, so a small middle share means the bounds cut the prior
+        to a tail of itself.
+        """
+        from scipy import stats  # lazily: loading a spec stays fast
+
+        p = self.prior
+        law = {"normal": lambda: stats.norm(p.mu, p.sigma),
+               "truncnormal": lambda: stats.norm(p.mu, p.sigma),
+               "lognormal": lambda: stats.lognorm(p.sigma, scale=math.exp(p.mu)),
+               "gamma": lambda: stats.gamma(p.a, scale=1.0 / p.b),
+               "halfnormal": lambda: stats.halfnorm(scale=p.sigma)}.get(p.dist)
+        if law is None:
+            return 0.0, 1.0, 0.0
+        dist = law()
+        below, above = float(dist.cdf(self.lower)), float(dist.sf(self.upper))
+        # the difference on the side of the smaller tail keeps a tiny share exact
+        within = (float(dist.cdf(self.upper)) - below if below < 0.5
+                  else float(dist.sf(self.lower)) - above)
+        return below, max(within, 0.0), above
+
+    def prior_text(self) -> str:
+        """The prior as written in a spec: ``normal(mu=10, sigma=0.5)``."""
+        fields = ", ".join(f"{k}={v:g}" for k, v in self.prior.model_dump().items()
+                           if k != "dist")
+        return f"{self.prior.dist}({fields})"
+
 
 class Output(Frozen):
     """A model output; ``measurable`` outputs may be observed by a data set.
