@@ -23,7 +23,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 import calnet
+from calnet.campaign.design import design_columns, log_columns, model_box, to_unit
 from calnet.campaign.executors import WorkerDied, executor_kind, make_executor
 from calnet.campaign.importing import ImportedRuns, import_into, read_runs
 from calnet.campaign.lease import holder as lease_holder
@@ -201,7 +204,7 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
                      seed)
         if retry_failed:
             db.reset_failed()
-        todo = _reuse_imported(db, db.unfinished())
+        todo = _link_imported(db, model, db.unfinished())
         _check_versions(db, model.name, shown_path(path, network.root), sim.name, version,
                         bool(todo))
         skipped = total - len(todo)
@@ -233,22 +236,39 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
                            seed, imported, label, n_failed)
 
 
-def _reuse_imported(db: RunStore, todo: list) -> list:
-    """The unfinished design runs ``todo`` less those whose inputs an imported run holds:
-    each of those gets the imported run's result (simulating it again would only repeat
-    a point, and repeated points make cross-validation look better than it is)."""
-    held = {r["input_hash"]: r for r in db.rows()
-            if r.get("origin") == "imported" and r["status"] is not None}
+# two points closer than this fraction of the box in every column are one point: a value
+# written with fewer digits than a float holds (15 significant digits) reads back this close
+SAME_POINT = 1e-9
+
+
+def _link_imported(db: RunStore, model: Model, todo: list) -> list:
+    """The unfinished design runs ``todo`` less those whose point an imported run holds
+    (the same inputs, or within :data:`SAME_POINT` of the box): each of those stands for
+    that run (:meth:`RunStore.link`) instead of simulating the point again, which would
+    only repeat it (and repeated points make cross-validation look better than it is)."""
+    held = [r for r in db.rows() if r.get("origin") == "imported" and r["status"] is not None]
+    if not held or not todo:
+        return todo
+    columns, log = design_columns(model), log_columns(model)
+    lower, upper = model_box(model)
+
+    def unit(rows: list[dict[str, float]]) -> np.ndarray:  # the box as the unit cube
+        x = np.array([[r[c] for c in columns] for r in rows], dtype=float)
+        return to_unit(x.reshape(len(rows), len(columns)), lower, upper, log)
+
+    by_hash = {r["input_hash"]: r["idx"] for r in held}
+    points = unit([r["inputs"] for r in held])
     left = []
     for index, inputs, was in todo:
-        row = held.get(input_hash(inputs))
-        if row is None:
+        same = by_hash.get(input_hash(inputs))
+        if same is None:
+            gap = np.abs(points - unit([inputs]))
+            close = np.flatnonzero((gap <= SAME_POINT).all(axis=1))
+            same = held[close[0]]["idx"] if close.size else None
+        if same is None:
             left.append((index, inputs, was))
-            continue
-        db.record(RunRecord(index, row["status"], row["outputs"] or {},
-                            f"the inputs of imported run {row['idx']} ({row['source']}): its "
-                            "result, not simulated again", {}, 0.0),
-                  simulator=row["simulator"] or "", version=row["simulator_version"] or "")
+        else:
+            db.link(index, int(same))
     return left
 
 

@@ -120,9 +120,10 @@ def import_into(db: RunStore, runs: ImportedRuns, *, seed: int) -> tuple[int, in
 
     A run is identified by its inputs: one the store holds with the same status and
     outputs is skipped (importing a file twice adds nothing), one it holds with other
-    outputs is an error.
+    outputs is an error. A design point not simulated yet is no run: the imported run
+    is added, and the campaign then takes it for that point.
     """
-    held = {r["input_hash"]: r for r in db.rows()}
+    held = {r["input_hash"]: r for r in db.rows() if r["status"] is not None}
     new, same = [], 0
     for row, run in enumerate(runs.runs, start=1):
         old = held.get(input_hash(run["inputs"]))
