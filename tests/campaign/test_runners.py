@@ -103,10 +103,13 @@ def test_command_json_files_and_per_run_folder(tmp_path):
     assert (tmp_path / "work" / "run-00012" / "input.json").is_file()
 
 
-def test_command_args_and_stdout(tmp_path):
-    net = toy_network(tmp_path, _command("args", "{x}", "{a}", "{b}", input_mode="args",
+@pytest.mark.parametrize("mode", ["args", "chatty"])
+def test_command_args_and_stdout(tmp_path, mode):
+    # chatty: the outputs are the last line of standard output that is a JSON object
+    net = toy_network(tmp_path, _command(mode, "{x}", "{a}", "{b}", input_mode="args",
                                          output_mode="stdout"))
-    assert _run(net).outputs == pytest.approx(EXPECTED)
+    rec = _run(net)
+    assert rec.status == "ok" and rec.outputs == pytest.approx(EXPECTED)
 
 
 def test_command_values_are_never_run_through_a_shell(tmp_path):
@@ -125,6 +128,11 @@ def test_command_values_are_never_run_through_a_shell(tmp_path):
     ("hang", 1.0, "timeout", "timeout of 1 s"),
     ("status", None, "failed", "unknown status 'exploded'"),
     ("strnum", None, "failed", "output 'y' in standard output is str '1.5', expected a number"),
+    ("nojson", None, "failed", "no line of standard output is a JSON object (it read "
+     "'iteration 0 residual 1.000e+00\\niteration 1 residual 5.000e-01\\niteration 2 r"),
+    ("nojson", None, "failed", "' ... 'ual 3.356e-03\\niteration 298 residual 3.344e-03\\n"
+     "iteration 299 residual 3.333e-03\\n' (9790 characters)); print the outputs as one "
+     "JSON object on a line of their own"),
 ])
 def test_command_failures(tmp_path, mode, timeout, status, message):
     kw = {"timeout": timeout} if timeout else {}

@@ -123,8 +123,9 @@ class CommandRunner:
     replaced per run. With ``input_mode="json-file"`` the inputs are written to
     ``input.json`` in the run's working directory; with ``"args"`` only the template
     carries them. Outputs are read from ``output.json`` (``output_mode="json-file"``) or
-    from standard output (``"stdout"``), as a JSON object of output values, optionally
-    with ``status`` and ``message``. Each run has its own working directory
+    from standard output (``"stdout"``: its last line that is a JSON object, after any
+    log lines), as a JSON object of output values, optionally with ``status`` and
+    ``message``. Each run has its own working directory
     ``<workdir>/<run>``; the program runs there. A value of one of ``outputs`` (the
     model's) that is not a number fails the run, saying so; other keys that are not
     numbers are ignored.
@@ -482,7 +483,14 @@ def _parse_outputs(text: str, mode: str, expected: tuple[str, ...] = ()) -> SimR
     try:
         doc = json.loads(text)
     except json.JSONDecodeError as err:
-        return SimResult({}, "failed", f"cannot read a JSON object from {where} ({err})")
+        doc = _last_json_line(text) if mode == "stdout" else None
+        if doc is None and mode == "stdout":
+            return SimResult({}, "failed", "no line of standard output is a JSON object "
+                             f"(it read {_excerpt(text)}); print the outputs as one JSON "
+                             "object on a line of their own, such as {\"y\": 1.5}")
+        if doc is None:
+            return SimResult({}, "failed", f"cannot read a JSON object from {where} ({err}; "
+                             f"it holds {_excerpt(text)})")
     if not isinstance(doc, dict):
         return SimResult({}, "failed", f"{where} holds {type(doc).__name__}, expected a "
                          "JSON object of outputs")
@@ -495,6 +503,34 @@ def _parse_outputs(text: str, mode: str, expected: tuple[str, ...] = ()) -> SimR
         return SimResult(outputs, "failed", wrong)
     return SimResult(outputs, status, message)  # type: ignore[arg-type]  (execute_run
     # records an unknown status as failed, naming it)
+
+
+def _last_json_line(text: str) -> dict[str, Any] | None:
+    """The last line of a program's standard output that is a JSON object (the lines
+    before it, a solver's log, are not read); None when no line is one."""
+    for line in reversed(text.splitlines()):
+        line = line.strip()
+        if not line.startswith("{"):
+            continue
+        try:
+            doc = json.loads(line)
+        except json.JSONDecodeError:
+            continue
+        if isinstance(doc, dict):
+            return doc
+    return None
+
+
+EXCERPT = 80  # characters of each end of a text a message quotes
+
+
+def _excerpt(text: str) -> str:
+    """``text`` for a message: empty, whole when short, else its start and its end."""
+    if not text.strip():
+        return "nothing"
+    if len(text) <= 2 * EXCERPT + 5:
+        return repr(text)
+    return f"{text[:EXCERPT]!r} ... {text[-EXCERPT:]!r} ({len(text)} characters)"
 
 
 def _to_float(value: Any) -> float:
