@@ -67,6 +67,7 @@ def test_failures_are_results_not_exceptions(tmp_path, target, inputs, status, m
     ("list", "output 'y' is list [1.0, 2.0], expected a number"),
     ("array", "output 'y' is ndarray of shape (1,), expected a number"),
     ("result", "output 'y' is str '1.5', expected a number"),
+    ("numstr", "output 'y' is str '1.5', expected a number"),  # as in a command's JSON
     ("numpy", ""),
     ("0-d", ""),
 ])
@@ -75,7 +76,15 @@ def test_an_output_of_the_wrong_type_is_named(tmp_path, kind, message):
     rec = _run(toy_network(tmp_path, spec))
     assert (rec.status, rec.message) == ("failed" if message else "ok", message)
     y = rec.outputs["y"]  # stored as before: the number, or NaN
-    assert (y == 1.5) if kind in ("result", "numpy", "0-d") else math.isnan(y)
+    assert (y == 1.5) if kind in ("result", "numstr", "numpy", "0-d") else math.isnan(y)
+
+
+def test_an_output_under_another_name_names_what_was_returned(tmp_path):
+    spec = {"kind": "python", "target": "toy_sims:misnamed", "options": {"shape": "renamed"}}
+    rec = _run(toy_network(tmp_path, spec))
+    assert rec.status == "failed"
+    assert rec.message == ("missing outputs ['y'] (it returned ['yy', 'z']); return each "
+                           "declared output by its name")
 
 
 def test_a_hung_call_is_killed_at_its_timeout(tmp_path):

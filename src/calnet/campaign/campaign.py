@@ -42,6 +42,7 @@ from calnet.campaign.planning import (
 )
 from calnet.campaign.progress_bar import campaign_progress
 from calnet.campaign.runners import (
+    BuiltinRunner,
     CallableRunner,
     RunRecord,
     execute_run,
@@ -213,6 +214,7 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
         tasks = ((sim, i, inputs, timeout, model.output_names) for i, inputs, _ in todo)
         failures: dict[int, str] = {}
         n_failed = 0
+        undeclared: set[str] = set()  # outputs not in the spec, warned about once
         # a user's Python function without a timeout runs in a worker process, so that
         # one ending the interpreter is recorded as failed instead of ending the campaign
         isolate = isinstance(sim, CallableRunner) and timeout is None
@@ -226,6 +228,8 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
             for task, result in ex.run(execute_run, tasks, on_submit=submitted):
                 rec = result if isinstance(result, RunRecord) else _worker_died(task[1], result)
                 db.record(rec, simulator=sim.name, version=version)
+                if rec.status == "ok" and not isinstance(sim, BuiltinRunner):
+                    undeclared = _warn_undeclared(model, rec, undeclared)
                 n_failed += rec.status != "ok"
                 if rec.status != "ok" and len(failures) < FAILURES_KEPT:
                     failures[rec.index] = f"{rec.status}: {rec.message}"
@@ -234,6 +238,21 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
     return CampaignSummary(model_name, path, total, skipped, len(todo), in_flight,
                            counts, failures, time.perf_counter() - start, ex.name, ex.workers,
                            seed, imported, label, n_failed)
+
+
+def _warn_undeclared(model: Model, rec: RunRecord, said: set[str]) -> set[str]:
+    """Warn (once per campaign and name) about the outputs a run of the user's simulator
+    returned that ``model`` does not declare (a built-in one returns all it computes);
+    return the names warned about so far."""
+    new = sorted(set(rec.outputs) - set(model.output_names) - said)
+    if new:
+        names, it = ", ".join(f"'{k}'" for k in new), "it" if len(new) == 1 else "them"
+        warnings.warn(f"{model.name}: the simulator returned {names} (run {rec.index} "
+                      f"first), not declared in models.{model.name}.outputs; the store "
+                      f"keeps {it}, calnet uses only the declared outputs "
+                      f"({', '.join(model.output_names)}): declare {it} to use {it}, or "
+                      f"stop returning {it}", CampaignWarning, stacklevel=3)
+    return said | set(new)
 
 
 # two points closer than this fraction of the box in every column are one point: a value

@@ -109,9 +109,9 @@ class CallableRunner:
         if not isinstance(out, Mapping):
             return SimResult({}, "failed", f"{self.target} returned {type(out).__name__}; "
                              "return a dict of outputs or a SimResult")
-        outputs = {str(k): _to_float(v) for k, v in out.items()}
-        wrong = not_numbers({str(k): v for k, v in out.items() if math.isnan(outputs[str(k)])})
-        return SimResult(outputs, "failed", wrong) if wrong else SimResult(outputs)
+        # a 0-d array is its one number; execute_run checks the values
+        return SimResult({str(k): v.item() if getattr(v, "shape", None) == () else v
+                          for k, v in out.items()})
 
 
 @dataclass(frozen=True)
