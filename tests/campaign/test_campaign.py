@@ -258,7 +258,7 @@ def test_progress_lines_through_a_callable(tmp_path):
     run_campaign(toy_network(tmp_path, runs=20), "toy", progress=out.append,
                  executor="in-process")
     assert out[0].startswith("toy: 20 runs to go of 20")
-    assert out[-1].startswith("toy: 20/20 runs, 0 failed")
+    assert out[-1].startswith("toy: 20/20 runs, 0 not ok")
     assert 3 <= len(out) <= 12 and not any("\r" in line for line in out)
 
 
@@ -275,14 +275,14 @@ def test_progress_lines_go_on_while_runs_are_in_flight(tmp_path, monkeypatch):
     assert waiting, out
     assert all(line.startswith("toy: ") and ", 1 in flight (the oldest for " in line
                for line in waiting)
-    assert waiting[0].startswith("toy: 0/2 runs, 0 failed, 1 in flight")
-    assert out[-1].startswith("toy: 2/2 runs, 0 failed (")
+    assert waiting[0].startswith("toy: 0/2 runs, 0 not ok, 1 in flight")
+    assert out[-1].startswith("toy: 2/2 runs, 0 not ok (")
 
 
 def test_progress_without_a_terminal_is_lines_on_stderr(tmp_path, capfd):
     run_campaign(toy_network(tmp_path, runs=10), "toy", progress=True, executor="in-process")
     err = capfd.readouterr().err
-    assert "toy: 10/10 runs, 0 failed" in err and "\r" not in err
+    assert "toy: 10/10 runs, 0 not ok" in err and "\r" not in err
 
 
 def test_an_undeclared_output_is_warned_about_once_per_campaign(tmp_path):

@@ -235,3 +235,26 @@ def test_calnet_run_stops_at_a_model_without_an_ok_run(tmp_path):
     assert "--retry-failed" in said
     assert "the models after it were not simulated" in said and "Traceback" not in said
     assert not (tmp_path / "campaigns" / "down.sqlite").exists()
+
+
+def test_a_worker_killed_from_outside_is_said_and_its_runs_run_again(tmp_path):
+    marker = tmp_path / "killed"
+    spec = toy_spec(tmp_path, {"kind": "python", "target": "toy_sims:killed_once",
+                               "options": {"marker": str(marker)}}, runs=4)
+    result = CliRunner().invoke(app, ["campaign", str(spec), "--workers", "1"])
+    assert result.exit_code == 0, result.output
+    text = " ".join(result.output.split())
+    assert marker.is_file() and "toy.sqlite:ok4" in "".join(result.output.split())
+    said = ("a worker process died (killed by signal 9) with runs 0, 1 in flight; they are "
+            "run again, one at a time (a run that ends its process again is recorded "
+            "failed)")
+    assert f"toy: {said}" in text  # the progress line, as it happens
+    assert f"note: {said}" in text  # and the summary
+
+
+def test_progress_lines_count_the_runs_not_ok_by_status(tmp_path):
+    spec = toy_spec(tmp_path, "python:toy_sims:crashy", runs=10)
+    result = CliRunner().invoke(app, ["campaign", str(spec), "--executor", "in-process"])
+    text = "".join(result.output.split())  # the store's path may wrap, even mid-word
+    n = int(re.search(r"toy\.sqlite:failed(\d+),ok", text).group(1))
+    assert n > 0 and f"toy: 10/10 runs, {n} not ok (failed {n}) (" in result.output

@@ -75,6 +75,18 @@ def misnamed(inputs, *, shape="extra"):
     return {**out, "residual": 1e-6, **({"iterations": 3} if inputs["x"] > 0.6 else {})}
 
 
+def killed_once(inputs, *, marker):
+    """``quadratic``, except that the first call (the file ``marker`` does not exist
+    yet: it creates it) kills its own process with SIGKILL, as ``kill -9`` would."""
+    import signal
+
+    if not os.path.exists(marker):
+        open(marker, "w").close()
+        time.sleep(0.5)  # the next run is handed out meanwhile: two runs are in flight
+        os.kill(os.getpid(), signal.SIGKILL)
+    return quadratic(inputs)
+
+
 def dies(inputs):
     """Kills its own process for ``x > 0.9`` (a hard crash, not an exception)."""
     if inputs["x"] > 0.9:

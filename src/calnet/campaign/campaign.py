@@ -100,6 +100,9 @@ class CampaignSummary:
     n_failed : int
         Runs of this call that did not finish ``ok`` (all of them, not only those in
         ``failures``).
+    notes : tuple of str
+        What else happened, one line each: a worker process that died, and the runs in
+        flight with it that were run again.
     """
 
     model: str
@@ -117,6 +120,7 @@ class CampaignSummary:
     imported: int = 0
     design: str = ""
     n_failed: int = 0
+    notes: tuple[str, ...] = ()
 
     @property
     def n_ok(self) -> int:
@@ -215,6 +219,7 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
         failures: dict[int, str] = {}
         n_failed = 0
         undeclared: set[str] = set()  # outputs not in the spec, warned about once
+        notes: list[str] = []
         # a user's Python function without a timeout runs in a worker process, so that
         # one ending the interpreter is recorded as failed instead of ending the campaign
         isolate = isinstance(sim, CallableRunner) and timeout is None
@@ -225,7 +230,12 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
                 db.mark_started([task[1]])
                 shown.started(task[1])
 
-            for task, result in ex.run(execute_run, tasks, on_submit=submitted):
+            def died(tasks: list[tuple], code: str) -> None:
+                notes.append(_died_note(sorted(t[1] for t in tasks), code))
+                shown.note(notes[-1])
+
+            for task, result in ex.run(execute_run, tasks, on_submit=submitted,
+                                       on_died=died):
                 rec = result if isinstance(result, RunRecord) else _worker_died(task[1], result)
                 db.record(rec, simulator=sim.name, version=version)
                 if rec.status == "ok" and not isinstance(sim, BuiltinRunner):
@@ -237,7 +247,16 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
         counts, label = db.status_counts(), db.meta().get("design_kind", "")
     return CampaignSummary(model_name, path, total, skipped, len(todo), in_flight,
                            counts, failures, time.perf_counter() - start, ex.name, ex.workers,
-                           seed, imported, label, n_failed)
+                           seed, imported, label, n_failed, tuple(notes))
+
+
+def _died_note(indices: list[int], code: str) -> str:
+    """The line saying that a worker process died with the runs ``indices`` in flight."""
+    runs = (f"run {indices[0]}" if len(indices) == 1
+            else f"runs {', '.join(map(str, indices))}")
+    return (f"a worker process died{code} with {runs} in flight; "
+            f"{'it is' if len(indices) == 1 else 'they are'} run again, one at a time (a run "
+            "that ends its process again is recorded failed)")
 
 
 def _warn_undeclared(model: Model, rec: RunRecord, said: set[str]) -> set[str]:
