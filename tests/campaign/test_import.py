@@ -239,3 +239,25 @@ def test_cli_import(tmp_path):
     both = CliRunner().invoke(app, ["campaign", str(spec), "--import", str(table),
                                     "--runs", "20"])
     assert both.exit_code == 1 and "--import only adds runs" in both.output
+
+
+def test_retry_failed_keeps_imported_runs_and_says_so(tmp_path):
+    spec = toy_spec(tmp_path, runs=3)
+    frame = toy_runs(4)
+    frame["status"] = ["ok", "failed", "ok", "timeout"]
+    table = write(frame, tmp_path / "runs.csv")
+    app = campaign_app()
+    assert CliRunner().invoke(app, ["campaign", str(spec), "--model", "toy", "--import",
+                                    str(table)]).exit_code == 0
+    out = CliRunner().invoke(app, ["campaign", str(spec), "--retry-failed", "--no-progress"])
+    assert out.exit_code == 0, out.output
+    assert ("note: --retry-failed runs again the simulated runs only: 2 imported runs not ok "
+            "(failed 1, timeout 1) are kept as imported; to simulate those points, give "
+            "them as a design file (campaign.design) to a new --store"
+            ) in " ".join(out.output.split())
+    counts = runs_frame(tmp_path / "campaigns" / "toy.sqlite").status.value_counts()
+    assert counts.to_dict() == {"ok": 5, "failed": 1, "timeout": 1}
+    summary = run_campaign(load_spec(spec), "toy", progress=False, retry_failed=True,
+                           executor="in-process")
+    assert summary.ran == 0 and len(summary.notes) == 1
+    assert run_campaign(load_spec(spec), "toy", progress=False).notes == ()

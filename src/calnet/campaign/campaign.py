@@ -101,8 +101,9 @@ class CampaignSummary:
         Runs of this call that did not finish ``ok`` (all of them, not only those in
         ``failures``).
     notes : tuple of str
-        What else happened, one line each: a worker process that died, and the runs in
-        flight with it that were run again.
+        What else happened, one line each: imported runs not ``ok`` that
+        ``retry_failed`` keeps as they are, a worker process that died (and the runs in
+        flight with it, run again).
     """
 
     model: str
@@ -164,7 +165,8 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
     fresh : bool
         Delete the store first and simulate everything again.
     retry_failed : bool
-        Run again the runs that finished with a status other than ``ok``.
+        Run again the simulated runs that finished with a status other than ``ok``;
+        imported runs keep theirs, which ``notes`` of the summary says.
 
     Returns
     -------
@@ -207,8 +209,10 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
         total = plan(db, network, model, choice,
                      target_runs(runs, network, model, choice, db.planned(), db.imported()),
                      seed)
+        notes: list[str] = []
         if retry_failed:
             db.reset_failed()
+            notes += _kept_imported(db)
         todo = _link_imported(db, model, db.unfinished())
         _check_versions(db, model.name, shown_path(path, network.root), sim.name, version,
                         bool(todo))
@@ -219,7 +223,6 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
         failures: dict[int, str] = {}
         n_failed = 0
         undeclared: set[str] = set()  # outputs not in the spec, warned about once
-        notes: list[str] = []
         # a user's Python function without a timeout runs in a worker process, so that
         # one ending the interpreter is recorded as failed instead of ending the campaign
         isolate = isinstance(sim, CallableRunner) and timeout is None
@@ -248,6 +251,22 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
     return CampaignSummary(model_name, path, total, skipped, len(todo), in_flight,
                            counts, failures, time.perf_counter() - start, ex.name, ex.workers,
                            seed, imported, label, n_failed, tuple(notes))
+
+
+def _kept_imported(db: RunStore) -> list[str]:
+    """The line saying that ``--retry-failed`` keeps the imported runs that are not
+    ``ok`` as they are (none without such runs)."""
+    counts = db.imported_not_ok()
+    if not counts:
+        return []
+    n = sum(counts.values())
+    by = ", ".join(f"{k} {v}" for k, v in sorted(counts.items()))
+    runs = "run" if n == 1 else "runs"
+    return [f"--retry-failed runs again the simulated runs only: {n} imported {runs} not ok "
+            f"({by}) {'is' if n == 1 else 'are'} kept as imported; to simulate "
+            f"{'its point' if n == 1 else 'those points'}, give "
+            f"{'it' if n == 1 else 'them'} as a design file (campaign.design) to a new "
+            "--store"]
 
 
 def _died_note(indices: list[int], code: str) -> str:

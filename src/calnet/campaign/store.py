@@ -320,6 +320,13 @@ class RunStore:
             self._db.execute("UPDATE runs SET same_as = ?, started_at = NULL WHERE idx = ? "
                              "AND status IS NULL", (imported, index))
 
+    def imported_not_ok(self) -> dict[str, int]:
+        """Imported runs per status other than ``ok`` (which :meth:`reset_failed`
+        keeps)."""
+        rows = self._db.execute("SELECT status, COUNT(*) FROM runs WHERE status IS NOT NULL "
+                                f"AND status != 'ok' AND NOT {self._simulated} GROUP BY 1")
+        return {k: int(n) for k, n in rows}
+
     def mark_started(self, indices: Iterable[int]) -> None:
         now = time.time()
         with self._db:
