@@ -6,7 +6,7 @@ import re
 import sys
 
 import pytest
-from campaign_helpers import campaign_app, toy_spec
+from campaign_helpers import HERE, campaign_app, toy_spec
 from typer.testing import CliRunner
 
 app = campaign_app()
@@ -68,6 +68,16 @@ def test_a_campaign_without_one_ok_run_exits_1(tmp_path):
     assert "no run of toy finished ok" in " ".join(result.output.split())
     again = CliRunner().invoke(app, ["campaign", str(spec), "--no-progress"])
     assert again.exit_code == 1 and "complete" in again.output  # a finished, useless store
+
+
+def test_runs_of_a_command_that_fail_alike_are_counted_as_one_cause(tmp_path):
+    # each message names its run's logs; the closing line counts the runs by cause
+    spec = toy_spec(tmp_path, {"kind": "command", "argv": [sys.executable, str(
+        HERE / "cmd_sim.py"), "fail"]}, runs=3)
+    result = CliRunner().invoke(app, ["campaign", str(spec), "--no-progress"])
+    assert result.exit_code == 1, result.output
+    assert ("no run of toy finished ok (toy: 3 runs: failed: command exited with code 3: mesh "
+            "generation failed);") in " ".join(result.output.split())
 
 
 def test_an_unknown_executor_is_a_usage_error(tmp_path):

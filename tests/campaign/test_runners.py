@@ -267,3 +267,38 @@ def test_numpy_scalars_in_a_sim_result_are_numbers():
     assert all(type(v) is float for v in res.outputs.values())
     bad = SimResult({"y": np.float32("nan"), "z": 1.0}).checked(("y", "z"))
     assert bad.status == "failed" and "non-finite outputs ['y']" in bad.message
+
+
+@pytest.mark.parametrize(("workers", "timeout"), [(1, None), (None, 30.0)])
+def test_what_a_python_simulator_prints_goes_to_its_runs_logs(tmp_path, capfd, workers,
+                                                               timeout):
+    # a worker process (no timeout), or a timeout's child process
+    from calnet.campaign import run_campaign
+
+    net = toy_network(tmp_path, "python:toy_sims:chatty", runs=3, timeout=timeout)
+    summary = run_campaign(net, "toy", workers=workers, progress=False)
+    assert summary.status_counts == {"ok": 3}, summary.failures
+    out, err = capfd.readouterr()
+    assert "iteration" not in out + err and "from C" not in out + err
+    work = tmp_path / "campaigns" / "toy.work"
+    for run in range(3):
+        logged = (work / f"run-{run:05d}" / "stdout.log").read_text().splitlines()
+        assert logged[0] == "iteration 0 residual 1.0" and "from C" in logged
+        assert (work / f"run-{run:05d}" / "stderr.log").read_text() == (
+            "warning: mesh is coarse\n")
+    assert summary.notes == (f"what the simulator printed is in {work}/run-NNNNN/stdout.log "
+                             "and stderr.log (3 runs of this call, the first run 0)",)
+
+
+def test_what_a_command_prints_goes_to_its_runs_logs(tmp_path):
+    net = toy_network(tmp_path, _command("fail"))
+    rec = _run(net, index=3)
+    folder = tmp_path / "work" / "run-00003"
+    assert rec.message == ("command exited with code 3: mesh generation failed (logs in "
+                           f"{folder}: stderr.log)")
+    assert (folder / "stderr.log").read_text() == "mesh generation failed\n"
+    assert not (folder / "stdout.log").exists()  # an empty log is removed
+    net = toy_network(tmp_path, _command("chatty", "{x}", "{a}", "{b}", input_mode="args",
+                                         output_mode="stdout"))
+    assert _run(net, index=4).status == "ok"
+    assert "solver 2.1 starting" in (tmp_path / "work" / "run-00004" / "stdout.log").read_text()

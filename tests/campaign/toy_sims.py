@@ -75,6 +75,20 @@ def misnamed(inputs, *, shape="extra"):
     return {**out, "residual": 1e-6, **({"iterations": 3} if inputs["x"] > 0.6 else {})}
 
 
+def chatty(inputs):
+    """``quadratic``, printing 500 lines of a solver's log on standard output and a
+    warning on standard error, from Python and from the C library (as compiled code
+    would)."""
+    import ctypes
+
+    for i in range(500):
+        print("iteration", i, "residual", 1.0 / (i + 1))
+    print("warning: mesh is coarse", file=sys.stderr)
+    sys.stdout.flush()
+    ctypes.CDLL(None).puts(b"from C")
+    return quadratic(inputs)
+
+
 def killed_once(inputs, *, marker):
     """``quadratic``, except that the first call (the file ``marker`` does not exist
     yet: it creates it) kills its own process with SIGKILL, as ``kill -9`` would."""

@@ -30,6 +30,7 @@ from calnet.campaign.design import design_columns, log_columns, model_box, to_un
 from calnet.campaign.executors import WorkerDied, executor_kind, make_executor
 from calnet.campaign.importing import ImportedRuns, import_into, read_runs
 from calnet.campaign.lease import holder as lease_holder
+from calnet.campaign.logs import logs_note
 from calnet.campaign.planning import (
     DesignChoice,
     choose_design,
@@ -219,7 +220,6 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
         skipped = total - len(todo)
         in_flight = sum(was for _, _, was in todo)
         timeout = run_timeout(network, model)
-        tasks = ((sim, i, inputs, timeout, model.output_names) for i, inputs, _ in todo)
         failures: dict[int, str] = {}
         n_failed = 0
         undeclared: set[str] = set()  # outputs not in the spec, warned about once
@@ -229,12 +229,20 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
         with make_executor(executor, workers=workers, scheduler=scheduler,
                            isolate=isolate) as ex, \
                 campaign_progress(progress, model_name, total, skipped, db) as shown:
+            work = path.with_suffix(".work").absolute()
+            # what a simulator prints goes to its run's logs, unless the run shares this
+            # process (the console's) or runs on Dask workers (threads of their process)
+            capture = timeout is not None or ex.name == "processes"
+            tasks = ((sim, i, inputs, timeout, model.output_names,
+                      str(work / f"run-{i:05d}") if capture else None)
+                     for i, inputs, _ in todo)
+
             def submitted(task: tuple) -> None:
                 db.mark_started([task[1]])
                 shown.started(task[1])
 
-            def died(tasks: list[tuple], code: str) -> None:
-                notes.append(_died_note(sorted(t[1] for t in tasks), code))
+            def died(lost: list[tuple], code: str) -> None:
+                notes.append(_died_note(sorted(t[1] for t in lost), code))
                 shown.note(notes[-1])
 
             for task, result in ex.run(execute_run, tasks, on_submit=submitted,
@@ -247,6 +255,8 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
                 if rec.status != "ok" and len(failures) < FAILURES_KEPT:
                     failures[rec.index] = f"{rec.status}: {rec.message}"
                 shown.finished(rec.index, rec.status)
+        note = logs_note(work, [i for i, _, _ in todo])
+        notes += [note] if note else []
         counts, label = db.status_counts(), db.meta().get("design_kind", "")
     return CampaignSummary(model_name, path, total, skipped, len(todo), in_flight,
                            counts, failures, time.perf_counter() - start, ex.name, ex.workers,

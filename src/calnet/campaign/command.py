@@ -131,10 +131,10 @@ def print_summary(summary: Any, console: Any) -> None:
                       f"{summary.workers} worker(s), seed {summary.seed}"
                       + (f", {summary.design} design)" if summary.design else ")"))
     console.print(f"  store {summary.store_path}: {counts}")
-    for note in summary.notes:
-        console.print(f"  [yellow]note[/]: {note}", soft_wrap=True)
     for index, message in list(summary.failures.items())[:5]:
         console.print(f"  [yellow]run {index}[/]: {message}", soft_wrap=True)
     more = max(summary.n_failed, len(summary.failures)) - min(len(summary.failures), 5)
     if more > 0:
         console.print(f"  ... {more} more not ok (see the store)")
+    for note in summary.notes:
+        console.print(f"  [yellow]note[/]: {note}", soft_wrap=True)
