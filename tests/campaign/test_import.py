@@ -261,3 +261,18 @@ def test_retry_failed_keeps_imported_runs_and_says_so(tmp_path):
                            executor="in-process")
     assert summary.ran == 0 and len(summary.notes) == 1
     assert run_campaign(load_spec(spec), "toy", progress=False).notes == ()
+
+
+def test_importing_runs_the_store_holds_within_round_off_adds_nothing(tmp_path):
+    net = toy_network(tmp_path, runs=6)
+    made = run_campaign(net, "toy", executor="in-process", progress=False)
+    frame = runs_frame(made.store_path)
+    frame.to_csv(tmp_path / "short.csv", index=False, float_format="%.15g")
+    assert not (pd.read_csv(tmp_path / "short.csv").x == frame.x).all()  # not bit for bit
+    again = import_runs(net, "toy", tmp_path / "short.csv")
+    assert again.imported == 0 and again.status_counts == {"ok": 6}
+    frame.loc[2, "y"] += 1e-6  # another result at the same point
+    frame.to_csv(tmp_path / "other.csv", index=False, float_format="%.15g")
+    with pytest.raises(CampaignError, match=r"other.csv: row 3 has the inputs of run 2 .* "
+                                            "another result"):
+        import_runs(net, "toy", tmp_path / "other.csv")

@@ -23,12 +23,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 import calnet
-from calnet.campaign.design import design_columns, log_columns, model_box, to_unit
 from calnet.campaign.executors import WorkerDied, executor_kind, make_executor
-from calnet.campaign.importing import ImportedRuns, import_into, read_runs
+from calnet.campaign.importing import ImportedRuns, import_into, point_finder, read_runs
 from calnet.campaign.lease import holder as lease_holder
 from calnet.campaign.logs import logs_note
 from calnet.campaign.planning import (
@@ -56,7 +53,6 @@ from calnet.campaign.store import (
     default_store,
     describe_change,
     fingerprint_hash,
-    input_hash,
     model_fingerprint,
     store_errors,
 )
@@ -201,7 +197,7 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
     with store_errors(path), RunStore(path) as db:
         db.take_lease()
         _claim(db, network, model, seed, sim.name, version)
-        imported = import_into(db, table, seed=seed)[0] if table is not None else 0
+        imported = import_into(db, table, seed=seed, model=model)[0] if table is not None else 0
         choice = choose_design(network, model, db.meta(), asked)
         problem = design_conflict(choice, db.meta(), path)
         if problem:
@@ -303,39 +299,23 @@ def _warn_undeclared(model: Model, rec: RunRecord, said: set[str]) -> set[str]:
     return said | set(new)
 
 
-# two points closer than this fraction of the box in every column are one point: a value
-# written with fewer digits than a float holds (15 significant digits) reads back this close
-SAME_POINT = 1e-9
-
-
 def _link_imported(db: RunStore, model: Model, todo: list) -> list:
     """The unfinished design runs ``todo`` less those whose point an imported run holds
-    (the same inputs, or within :data:`SAME_POINT` of the box): each of those stands for
-    that run (:meth:`RunStore.link`) instead of simulating the point again, which would
-    only repeat it (and repeated points make cross-validation look better than it is)."""
+    (the same inputs, or within round-off: :func:`~calnet.campaign.importing.point_finder`):
+    each of those stands for that run (:meth:`RunStore.link`) instead of simulating the
+    point again, which would only repeat it (and repeated points make cross-validation
+    look better than it is)."""
     held = [r for r in db.rows() if r.get("origin") == "imported" and r["status"] is not None]
     if not held or not todo:
         return todo
-    columns, log = design_columns(model), log_columns(model)
-    lower, upper = model_box(model)
-
-    def unit(rows: list[dict[str, float]]) -> np.ndarray:  # the box as the unit cube
-        x = np.array([[r[c] for c in columns] for r in rows], dtype=float)
-        return to_unit(x.reshape(len(rows), len(columns)), lower, upper, log)
-
-    by_hash = {r["input_hash"]: r["idx"] for r in held}
-    points = unit([r["inputs"] for r in held])
+    find = point_finder(model, held)
     left = []
     for index, inputs, was in todo:
-        same = by_hash.get(input_hash(inputs))
-        if same is None:
-            gap = np.abs(points - unit([inputs]))
-            close = np.flatnonzero((gap <= SAME_POINT).all(axis=1))
-            same = held[close[0]]["idx"] if close.size else None
-        if same is None:
+        row, _ = find(inputs)
+        if row is None:
             left.append((index, inputs, was))
         else:
-            db.link(index, int(same))
+            db.link(index, int(row["idx"]))
     return left
 
 
@@ -376,7 +356,7 @@ def import_runs(network: Network, model_name: str, table: str | Path, *,
     with store_errors(path), RunStore(path) as db:
         db.take_lease()
         _claim(db, network, model, seed, sim.name, simulator_version(sim))
-        added, _ = import_into(db, runs, seed=seed)
+        added, _ = import_into(db, runs, seed=seed, model=model)
         planned, counts = db.planned(), db.status_counts()
         label = db.meta().get("design_kind", "")
     return CampaignSummary(model_name, path, planned, planned, 0, 0, counts, {},
