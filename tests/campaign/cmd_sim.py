@@ -8,6 +8,8 @@ Modes (first argument):
   hang                sleep for a minute
   status              print outputs on stdout with a status calnet does not know
   strnum              print outputs on stdout with y a string ("1.5") and a text note
+  chatty X A B        like args, between lines of a solver's log (one a JSON object too)
+  nojson              print 300 lines of a solver's log and no JSON object
 """
 
 import json
@@ -39,6 +41,12 @@ def main(argv: list[str]) -> None:
         print(json.dumps({"y": 1.0, "z": 0.0, "status": "exploded", "message": "mesh tangled"}))
     elif mode == "strnum":
         print(json.dumps({"y": "1.5", "z": 0.0, "note": "converged in 3 steps"}))
+    elif mode == "chatty":
+        print("solver 2.1 starting\n{ not json }")
+        print(json.dumps({"y": -1.0, "z": -1.0}))  # an earlier object: not the outputs
+        print("[1, 2]\n" + json.dumps(outputs(*map(float, argv[1:4]))) + "\ndone.")
+    elif mode == "nojson":
+        print("\n".join(f"iteration {i} residual {1 / (i + 1):.3e}" for i in range(300)))
     elif mode == "hang":
         time.sleep(60)
 

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 from campaign_helpers import store_rows, toy_network
 
-from calnet.campaign import default_store, export_runs, load_runs, run_campaign
+from calnet.campaign import default_store, export_runs, load_runs, run_campaign, runs_frame
 from calnet.campaign.store import RunStore
-from calnet.errors import CampaignError
+from calnet.errors import CampaignError, CampaignWarning
 
 
 def test_campaign_stores_every_run_and_reads_back(tmp_path):
@@ -258,7 +258,7 @@ def test_progress_lines_through_a_callable(tmp_path):
     run_campaign(toy_network(tmp_path, runs=20), "toy", progress=out.append,
                  executor="in-process")
     assert out[0].startswith("toy: 20 runs to go of 20")
-    assert out[-1].startswith("toy: 20/20 runs, 0 failed")
+    assert out[-1].startswith("toy: 20/20 runs, 0 not ok")
     assert 3 <= len(out) <= 12 and not any("\r" in line for line in out)
 
 
@@ -275,11 +275,31 @@ def test_progress_lines_go_on_while_runs_are_in_flight(tmp_path, monkeypatch):
     assert waiting, out
     assert all(line.startswith("toy: ") and ", 1 in flight (the oldest for " in line
                for line in waiting)
-    assert waiting[0].startswith("toy: 0/2 runs, 0 failed, 1 in flight")
-    assert out[-1].startswith("toy: 2/2 runs, 0 failed (")
+    assert waiting[0].startswith("toy: 0/2 runs, 0 not ok, 1 in flight")
+    assert out[-1].startswith("toy: 2/2 runs, 0 not ok (")
 
 
 def test_progress_without_a_terminal_is_lines_on_stderr(tmp_path, capfd):
     run_campaign(toy_network(tmp_path, runs=10), "toy", progress=True, executor="in-process")
     err = capfd.readouterr().err
-    assert "toy: 10/10 runs, 0 failed" in err and "\r" not in err
+    assert "toy: 10/10 runs, 0 not ok" in err and "\r" not in err
+
+
+def test_an_undeclared_output_is_warned_about_once_per_campaign(tmp_path):
+    spec = {"kind": "python", "target": "toy_sims:misnamed", "options": {"shape": "extra"}}
+    net = toy_network(tmp_path, spec, runs=8)
+    with pytest.warns(CampaignWarning) as caught:
+        summary = run_campaign(net, "toy", executor="in-process", progress=False)
+    assert summary.status_counts == {"ok": 8}
+    messages = [str(w.message) for w in caught]
+    assert len(messages) == 2  # one per name: 'residual' from run 0, 'iterations' later
+    x = runs_frame(summary.store_path).x.to_numpy()
+    first = int(np.flatnonzero(x > 0.6)[0])
+    assert messages == [
+        "toy: the simulator returned 'residual' (run 0 first), not declared in "
+        "models.toy.outputs; the store keeps it, calnet uses only the declared outputs "
+        "(y, z): declare it to use it, or stop returning it",
+        f"toy: the simulator returned 'iterations' (run {first} first), not declared in "
+        "models.toy.outputs; the store keeps it, calnet uses only the declared outputs "
+        "(y, z): declare it to use it, or stop returning it"]
+    assert all(w.filename == __file__ for w in caught)  # stacklevel: the caller

@@ -6,7 +6,7 @@ import re
 import sys
 
 import pytest
-from campaign_helpers import campaign_app, toy_spec
+from campaign_helpers import HERE, campaign_app, toy_spec
 from typer.testing import CliRunner
 
 app = campaign_app()
@@ -68,6 +68,16 @@ def test_a_campaign_without_one_ok_run_exits_1(tmp_path):
     assert "no run of toy finished ok" in " ".join(result.output.split())
     again = CliRunner().invoke(app, ["campaign", str(spec), "--no-progress"])
     assert again.exit_code == 1 and "complete" in again.output  # a finished, useless store
+
+
+def test_runs_of_a_command_that_fail_alike_are_counted_as_one_cause(tmp_path):
+    # each message names its run's logs; the closing line counts the runs by cause
+    spec = toy_spec(tmp_path, {"kind": "command", "argv": [sys.executable, str(
+        HERE / "cmd_sim.py"), "fail"]}, runs=3)
+    result = CliRunner().invoke(app, ["campaign", str(spec), "--no-progress"])
+    assert result.exit_code == 1, result.output
+    assert ("no run of toy finished ok (toy: 3 runs: failed: command exited with code 3: mesh "
+            "generation failed);") in " ".join(result.output.split())
 
 
 def test_an_unknown_executor_is_a_usage_error(tmp_path):
@@ -235,3 +245,26 @@ def test_calnet_run_stops_at_a_model_without_an_ok_run(tmp_path):
     assert "--retry-failed" in said
     assert "the models after it were not simulated" in said and "Traceback" not in said
     assert not (tmp_path / "campaigns" / "down.sqlite").exists()
+
+
+def test_a_worker_killed_from_outside_is_said_and_its_runs_run_again(tmp_path):
+    marker = tmp_path / "killed"
+    spec = toy_spec(tmp_path, {"kind": "python", "target": "toy_sims:killed_once",
+                               "options": {"marker": str(marker)}}, runs=4)
+    result = CliRunner().invoke(app, ["campaign", str(spec), "--workers", "1"])
+    assert result.exit_code == 0, result.output
+    text = " ".join(result.output.split())
+    assert marker.is_file() and "toy.sqlite:ok4" in "".join(result.output.split())
+    said = ("a worker process died (killed by signal 9) with runs 0, 1 in flight; they are "
+            "run again, one at a time (a run that ends its process again is recorded "
+            "failed)")
+    assert f"toy: {said}" in text  # the progress line, as it happens
+    assert f"note: {said}" in text  # and the summary
+
+
+def test_progress_lines_count_the_runs_not_ok_by_status(tmp_path):
+    spec = toy_spec(tmp_path, "python:toy_sims:crashy", runs=10)
+    result = CliRunner().invoke(app, ["campaign", str(spec), "--executor", "in-process"])
+    text = "".join(result.output.split())  # the store's path may wrap, even mid-word
+    n = int(re.search(r"toy\.sqlite:failed(\d+),ok", text).group(1))
+    assert n > 0 and f"toy: 10/10 runs, {n} not ok (failed {n}) (" in result.output

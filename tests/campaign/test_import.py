@@ -77,9 +77,9 @@ def test_spec_import_key_simulates_nothing_without_runs(tmp_path):
         run_campaign(net, "toy", executor="in-process", progress=False)
 
 
-def test_a_planned_point_an_imported_run_holds_is_not_simulated_again(tmp_path):
+def test_a_planned_point_an_imported_run_holds_is_that_run(tmp_path):
     # the export of a campaign, imported into a new store of the same spec and seed:
-    # the design then plans the very same points
+    # the design then plans the very same points, which are the imported runs
     net = toy_network(tmp_path, "python:toy_sims:counted", runs=5)
     count = tmp_path / "count.txt"  # one line per simulator call
     with pytest.MonkeyPatch.context() as mp:
@@ -90,13 +90,38 @@ def test_a_planned_point_an_imported_run_holds_is_not_simulated_again(tmp_path):
         store = tmp_path / "second.sqlite"
         assert import_runs(net, "toy", exported, store=store).imported == 5
         again = run_campaign(net, "toy", executor="in-process", progress=False, store=store)
+        once_more = run_campaign(net, "toy", executor="in-process", progress=False,
+                                 store=store)
     assert len(count.read_text().splitlines()) == 5  # the first campaign's, no more
-    assert again.planned == 5 and again.n_ok == 10  # the design's rows, with copied results
+    assert (again.planned, again.ran, again.status_counts) == (5, 0, {"ok": 5})
+    assert once_more.complete and once_more.status_counts == {"ok": 5}
     runs = load_runs(net, "toy", store=store)
-    assert runs.X.shape == (5, 3) and runs.n_excluded == 5  # each point once
+    assert (runs.n_total, runs.n_ok, runs.n_excluded) == (5, 5, 0)
     np.testing.assert_array_equal(runs.X, load_runs(net, "toy", store=made.store_path).X)
-    messages = runs_frame(store).message.tolist()[5:]
-    assert all("the inputs of imported run" in m for m in messages)
+    # export -> import round-trips: each run once
+    frame = runs_frame(store)
+    assert len(frame) == 5 and frame.input_hash.is_unique
+    assert frame.origin.tolist() == ["imported"] * 5
+    back = export_runs(store, tmp_path / "again.csv")
+    third = import_runs(net, "toy", back, store=tmp_path / "third.sqlite")
+    assert third.imported == 5 and third.status_counts == {"ok": 5}
+
+
+def test_a_planned_point_within_round_off_of_an_imported_run_is_that_run(tmp_path):
+    net = toy_network(tmp_path, "python:toy_sims:counted", runs=6)
+    count = tmp_path / "count.txt"
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("TOY_COUNT_FILE", str(count))
+        made = run_campaign(net, "toy", executor="in-process", progress=False,
+                            store=tmp_path / "first.sqlite")
+        frame = runs_frame(made.store_path)
+        frame.iloc[:4].to_csv(tmp_path / "short.csv", index=False, float_format="%.15g")
+        store = tmp_path / "second.sqlite"
+        import_runs(net, "toy", tmp_path / "short.csv", store=store)
+        again = run_campaign(net, "toy", executor="in-process", progress=False, store=store)
+    assert len(count.read_text().splitlines()) == 6 + 2  # only the 2 points not imported
+    assert again.status_counts == {"ok": 6} and again.ran == 2
+    assert runs_frame(store).origin.tolist() == ["imported"] * 4 + ["simulated"] * 2
 
 
 @pytest.mark.parametrize("suffix", [".csv", ".parquet"])
@@ -214,3 +239,40 @@ def test_cli_import(tmp_path):
     both = CliRunner().invoke(app, ["campaign", str(spec), "--import", str(table),
                                     "--runs", "20"])
     assert both.exit_code == 1 and "--import only adds runs" in both.output
+
+
+def test_retry_failed_keeps_imported_runs_and_says_so(tmp_path):
+    spec = toy_spec(tmp_path, runs=3)
+    frame = toy_runs(4)
+    frame["status"] = ["ok", "failed", "ok", "timeout"]
+    table = write(frame, tmp_path / "runs.csv")
+    app = campaign_app()
+    assert CliRunner().invoke(app, ["campaign", str(spec), "--model", "toy", "--import",
+                                    str(table)]).exit_code == 0
+    out = CliRunner().invoke(app, ["campaign", str(spec), "--retry-failed", "--no-progress"])
+    assert out.exit_code == 0, out.output
+    assert ("note: --retry-failed runs again the simulated runs only: 2 imported runs not ok "
+            "(failed 1, timeout 1) are kept as imported; to simulate those points, give "
+            "them as a design file (campaign.design) to a new --store"
+            ) in " ".join(out.output.split())
+    counts = runs_frame(tmp_path / "campaigns" / "toy.sqlite").status.value_counts()
+    assert counts.to_dict() == {"ok": 5, "failed": 1, "timeout": 1}
+    summary = run_campaign(load_spec(spec), "toy", progress=False, retry_failed=True,
+                           executor="in-process")
+    assert summary.ran == 0 and len(summary.notes) == 1
+    assert run_campaign(load_spec(spec), "toy", progress=False).notes == ()
+
+
+def test_importing_runs_the_store_holds_within_round_off_adds_nothing(tmp_path):
+    net = toy_network(tmp_path, runs=6)
+    made = run_campaign(net, "toy", executor="in-process", progress=False)
+    frame = runs_frame(made.store_path)
+    frame.to_csv(tmp_path / "short.csv", index=False, float_format="%.15g")
+    assert not (pd.read_csv(tmp_path / "short.csv").x == frame.x).all()  # not bit for bit
+    again = import_runs(net, "toy", tmp_path / "short.csv")
+    assert again.imported == 0 and again.status_counts == {"ok": 6}
+    frame.loc[2, "y"] += 1e-6  # another result at the same point
+    frame.to_csv(tmp_path / "other.csv", index=False, float_format="%.15g")
+    with pytest.raises(CampaignError, match=r"other.csv: row 3 has the inputs of run 2 .* "
+                                            "another result"):
+        import_runs(net, "toy", tmp_path / "other.csv")

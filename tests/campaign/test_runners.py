@@ -67,6 +67,7 @@ def test_failures_are_results_not_exceptions(tmp_path, target, inputs, status, m
     ("list", "output 'y' is list [1.0, 2.0], expected a number"),
     ("array", "output 'y' is ndarray of shape (1,), expected a number"),
     ("result", "output 'y' is str '1.5', expected a number"),
+    ("numstr", "output 'y' is str '1.5', expected a number"),  # as in a command's JSON
     ("numpy", ""),
     ("0-d", ""),
 ])
@@ -75,7 +76,15 @@ def test_an_output_of_the_wrong_type_is_named(tmp_path, kind, message):
     rec = _run(toy_network(tmp_path, spec))
     assert (rec.status, rec.message) == ("failed" if message else "ok", message)
     y = rec.outputs["y"]  # stored as before: the number, or NaN
-    assert (y == 1.5) if kind in ("result", "numpy", "0-d") else math.isnan(y)
+    assert (y == 1.5) if kind in ("result", "numstr", "numpy", "0-d") else math.isnan(y)
+
+
+def test_an_output_under_another_name_names_what_was_returned(tmp_path):
+    spec = {"kind": "python", "target": "toy_sims:misnamed", "options": {"shape": "renamed"}}
+    rec = _run(toy_network(tmp_path, spec))
+    assert rec.status == "failed"
+    assert rec.message == ("missing outputs ['y'] (it returned ['yy', 'z']); return each "
+                           "declared output by its name")
 
 
 def test_a_hung_call_is_killed_at_its_timeout(tmp_path):
@@ -103,10 +112,13 @@ def test_command_json_files_and_per_run_folder(tmp_path):
     assert (tmp_path / "work" / "run-00012" / "input.json").is_file()
 
 
-def test_command_args_and_stdout(tmp_path):
-    net = toy_network(tmp_path, _command("args", "{x}", "{a}", "{b}", input_mode="args",
+@pytest.mark.parametrize("mode", ["args", "chatty"])
+def test_command_args_and_stdout(tmp_path, mode):
+    # chatty: the outputs are the last line of standard output that is a JSON object
+    net = toy_network(tmp_path, _command(mode, "{x}", "{a}", "{b}", input_mode="args",
                                          output_mode="stdout"))
-    assert _run(net).outputs == pytest.approx(EXPECTED)
+    rec = _run(net)
+    assert rec.status == "ok" and rec.outputs == pytest.approx(EXPECTED)
 
 
 def test_command_values_are_never_run_through_a_shell(tmp_path):
@@ -125,6 +137,11 @@ def test_command_values_are_never_run_through_a_shell(tmp_path):
     ("hang", 1.0, "timeout", "timeout of 1 s"),
     ("status", None, "failed", "unknown status 'exploded'"),
     ("strnum", None, "failed", "output 'y' in standard output is str '1.5', expected a number"),
+    ("nojson", None, "failed", "no line of standard output is a JSON object (it read "
+     "'iteration 0 residual 1.000e+00\\niteration 1 residual 5.000e-01\\niteration 2 r"),
+    ("nojson", None, "failed", "' ... 'ual 3.356e-03\\niteration 298 residual 3.344e-03\\n"
+     "iteration 299 residual 3.333e-03\\n' (9790 characters)); print the outputs as one "
+     "JSON object on a line of their own"),
 ])
 def test_command_failures(tmp_path, mode, timeout, status, message):
     kw = {"timeout": timeout} if timeout else {}
@@ -250,3 +267,38 @@ def test_numpy_scalars_in_a_sim_result_are_numbers():
     assert all(type(v) is float for v in res.outputs.values())
     bad = SimResult({"y": np.float32("nan"), "z": 1.0}).checked(("y", "z"))
     assert bad.status == "failed" and "non-finite outputs ['y']" in bad.message
+
+
+@pytest.mark.parametrize(("workers", "timeout"), [(1, None), (None, 30.0)])
+def test_what_a_python_simulator_prints_goes_to_its_runs_logs(tmp_path, capfd, workers,
+                                                               timeout):
+    # a worker process (no timeout), or a timeout's child process
+    from calnet.campaign import run_campaign
+
+    net = toy_network(tmp_path, "python:toy_sims:chatty", runs=3, timeout=timeout)
+    summary = run_campaign(net, "toy", workers=workers, progress=False)
+    assert summary.status_counts == {"ok": 3}, summary.failures
+    out, err = capfd.readouterr()
+    assert "iteration" not in out + err and "from C" not in out + err
+    work = tmp_path / "campaigns" / "toy.work"
+    for run in range(3):
+        logged = (work / f"run-{run:05d}" / "stdout.log").read_text().splitlines()
+        assert logged[0] == "iteration 0 residual 1.0" and "from C" in logged
+        assert (work / f"run-{run:05d}" / "stderr.log").read_text() == (
+            "warning: mesh is coarse\n")
+    assert summary.notes == (f"what the simulator printed is in {work}/run-NNNNN/stdout.log "
+                             "and stderr.log (3 runs of this call, the first run 0)",)
+
+
+def test_what_a_command_prints_goes_to_its_runs_logs(tmp_path):
+    net = toy_network(tmp_path, _command("fail"))
+    rec = _run(net, index=3)
+    folder = tmp_path / "work" / "run-00003"
+    assert rec.message == ("command exited with code 3: mesh generation failed (logs in "
+                           f"{folder}: stderr.log)")
+    assert (folder / "stderr.log").read_text() == "mesh generation failed\n"
+    assert not (folder / "stdout.log").exists()  # an empty log is removed
+    net = toy_network(tmp_path, _command("chatty", "{x}", "{a}", "{b}", input_mode="args",
+                                         output_mode="stdout"))
+    assert _run(net, index=4).status == "ok"
+    assert "solver 2.1 starting" in (tmp_path / "work" / "run-00004" / "stdout.log").read_text()

@@ -55,13 +55,50 @@ def nonconverged(inputs):
 
 def wrong_type(inputs, *, kind="str"):
     """``quadratic`` with ``y`` of another type (``kind``): a string, a list, a 1-element
-    array, a SimResult holding a string, or (numbers, accepted) NumPy scalars."""
+    array, a string that reads as a number (``numstr``), a SimResult holding one, or
+    (numbers, accepted) NumPy scalars."""
     import numpy as np
 
     out = quadratic(inputs)
     y = {"str": "abc", "list": [1.0, 2.0], "array": np.array([1.5]), "result": "1.5",
-         "numpy": np.float32(1.5), "0-d": np.array(1.5)}[kind]
+         "numstr": "1.5", "numpy": np.float32(1.5), "0-d": np.array(1.5)}[kind]
     return SimResult({**out, "y": y}) if kind == "result" else {**out, "y": y}
+
+
+def misnamed(inputs, *, shape="extra"):
+    """``quadratic`` with an output the spec does not declare beside ``y`` and ``z``
+    (``extra``: ``residual``, and ``iterations`` for ``x > 0.6``), or with ``y`` under
+    another name (``renamed``: ``yy``)."""
+    out = quadratic(inputs)
+    if shape == "renamed":
+        return {"yy": out.pop("y"), **out}
+    return {**out, "residual": 1e-6, **({"iterations": 3} if inputs["x"] > 0.6 else {})}
+
+
+def chatty(inputs):
+    """``quadratic``, printing 500 lines of a solver's log on standard output and a
+    warning on standard error, from Python and from the C library (as compiled code
+    would)."""
+    import ctypes
+
+    for i in range(500):
+        print("iteration", i, "residual", 1.0 / (i + 1))
+    print("warning: mesh is coarse", file=sys.stderr)
+    sys.stdout.flush()
+    ctypes.CDLL(None).puts(b"from C")
+    return quadratic(inputs)
+
+
+def killed_once(inputs, *, marker):
+    """``quadratic``, except that the first call (the file ``marker`` does not exist
+    yet: it creates it) kills its own process with SIGKILL, as ``kill -9`` would."""
+    import signal
+
+    if not os.path.exists(marker):
+        open(marker, "w").close()
+        time.sleep(0.5)  # the next run is handed out meanwhile: two runs are in flight
+        os.kill(os.getpid(), signal.SIGKILL)
+    return quadratic(inputs)
 
 
 def dies(inputs):

@@ -25,8 +25,9 @@ from typing import Any
 
 import calnet
 from calnet.campaign.executors import WorkerDied, executor_kind, make_executor
-from calnet.campaign.importing import ImportedRuns, import_into, read_runs
+from calnet.campaign.importing import ImportedRuns, import_into, point_finder, read_runs
 from calnet.campaign.lease import holder as lease_holder
+from calnet.campaign.logs import logs_note
 from calnet.campaign.planning import (
     DesignChoice,
     choose_design,
@@ -39,6 +40,7 @@ from calnet.campaign.planning import (
 )
 from calnet.campaign.progress_bar import campaign_progress
 from calnet.campaign.runners import (
+    BuiltinRunner,
     CallableRunner,
     RunRecord,
     execute_run,
@@ -51,7 +53,6 @@ from calnet.campaign.store import (
     default_store,
     describe_change,
     fingerprint_hash,
-    input_hash,
     model_fingerprint,
     store_errors,
 )
@@ -96,6 +97,10 @@ class CampaignSummary:
     n_failed : int
         Runs of this call that did not finish ``ok`` (all of them, not only those in
         ``failures``).
+    notes : tuple of str
+        What else happened, one line each: imported runs not ``ok`` that
+        ``retry_failed`` keeps as they are, a worker process that died (and the runs in
+        flight with it, run again).
     """
 
     model: str
@@ -113,6 +118,7 @@ class CampaignSummary:
     imported: int = 0
     design: str = ""
     n_failed: int = 0
+    notes: tuple[str, ...] = ()
 
     @property
     def n_ok(self) -> int:
@@ -156,7 +162,8 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
     fresh : bool
         Delete the store first and simulate everything again.
     retry_failed : bool
-        Run again the runs that finished with a status other than ``ok``.
+        Run again the simulated runs that finished with a status other than ``ok``;
+        imported runs keep theirs, which ``notes`` of the summary says.
 
     Returns
     -------
@@ -190,7 +197,7 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
     with store_errors(path), RunStore(path) as db:
         db.take_lease()
         _claim(db, network, model, seed, sim.name, version)
-        imported = import_into(db, table, seed=seed)[0] if table is not None else 0
+        imported = import_into(db, table, seed=seed, model=model)[0] if table is not None else 0
         choice = choose_design(network, model, db.meta(), asked)
         problem = design_conflict(choice, db.meta(), path)
         if problem:
@@ -199,56 +206,116 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
         total = plan(db, network, model, choice,
                      target_runs(runs, network, model, choice, db.planned(), db.imported()),
                      seed)
+        notes: list[str] = []
         if retry_failed:
             db.reset_failed()
-        todo = _reuse_imported(db, db.unfinished())
+            notes += _kept_imported(db)
+        todo = _link_imported(db, model, db.unfinished())
         _check_versions(db, model.name, shown_path(path, network.root), sim.name, version,
                         bool(todo))
         skipped = total - len(todo)
         in_flight = sum(was for _, _, was in todo)
         timeout = run_timeout(network, model)
-        tasks = ((sim, i, inputs, timeout, model.output_names) for i, inputs, _ in todo)
         failures: dict[int, str] = {}
         n_failed = 0
+        undeclared: set[str] = set()  # outputs not in the spec, warned about once
         # a user's Python function without a timeout runs in a worker process, so that
         # one ending the interpreter is recorded as failed instead of ending the campaign
         isolate = isinstance(sim, CallableRunner) and timeout is None
         with make_executor(executor, workers=workers, scheduler=scheduler,
                            isolate=isolate) as ex, \
                 campaign_progress(progress, model_name, total, skipped, db) as shown:
+            work = path.with_suffix(".work").absolute()
+            # what a simulator prints goes to its run's logs, unless the run shares this
+            # process (the console's) or runs on Dask workers (threads of their process)
+            capture = timeout is not None or ex.name == "processes"
+            tasks = ((sim, i, inputs, timeout, model.output_names,
+                      str(work / f"run-{i:05d}") if capture else None)
+                     for i, inputs, _ in todo)
+
             def submitted(task: tuple) -> None:
                 db.mark_started([task[1]])
                 shown.started(task[1])
 
-            for task, result in ex.run(execute_run, tasks, on_submit=submitted):
+            def died(lost: list[tuple], code: str) -> None:
+                notes.append(_died_note(sorted(t[1] for t in lost), code))
+                shown.note(notes[-1])
+
+            for task, result in ex.run(execute_run, tasks, on_submit=submitted,
+                                       on_died=died):
                 rec = result if isinstance(result, RunRecord) else _worker_died(task[1], result)
                 db.record(rec, simulator=sim.name, version=version)
+                if rec.status == "ok" and not isinstance(sim, BuiltinRunner):
+                    undeclared = _warn_undeclared(model, rec, undeclared)
                 n_failed += rec.status != "ok"
                 if rec.status != "ok" and len(failures) < FAILURES_KEPT:
                     failures[rec.index] = f"{rec.status}: {rec.message}"
                 shown.finished(rec.index, rec.status)
+        note = logs_note(work, [i for i, _, _ in todo])
+        notes += [note] if note else []
         counts, label = db.status_counts(), db.meta().get("design_kind", "")
     return CampaignSummary(model_name, path, total, skipped, len(todo), in_flight,
                            counts, failures, time.perf_counter() - start, ex.name, ex.workers,
-                           seed, imported, label, n_failed)
+                           seed, imported, label, n_failed, tuple(notes))
 
 
-def _reuse_imported(db: RunStore, todo: list) -> list:
-    """The unfinished design runs ``todo`` less those whose inputs an imported run holds:
-    each of those gets the imported run's result (simulating it again would only repeat
-    a point, and repeated points make cross-validation look better than it is)."""
-    held = {r["input_hash"]: r for r in db.rows()
-            if r.get("origin") == "imported" and r["status"] is not None}
+def _kept_imported(db: RunStore) -> list[str]:
+    """The line saying that ``--retry-failed`` keeps the imported runs that are not
+    ``ok`` as they are (none without such runs)."""
+    counts = db.imported_not_ok()
+    if not counts:
+        return []
+    n = sum(counts.values())
+    by = ", ".join(f"{k} {v}" for k, v in sorted(counts.items()))
+    runs = "run" if n == 1 else "runs"
+    return [f"--retry-failed runs again the simulated runs only: {n} imported {runs} not ok "
+            f"({by}) {'is' if n == 1 else 'are'} kept as imported; to simulate "
+            f"{'its point' if n == 1 else 'those points'}, give "
+            f"{'it' if n == 1 else 'them'} as a design file (campaign.design) to a new "
+            "--store"]
+
+
+def _died_note(indices: list[int], code: str) -> str:
+    """The line saying that a worker process died with the runs ``indices`` in flight."""
+    runs = (f"run {indices[0]}" if len(indices) == 1
+            else f"runs {', '.join(map(str, indices))}")
+    return (f"a worker process died{code} with {runs} in flight; "
+            f"{'it is' if len(indices) == 1 else 'they are'} run again, one at a time (a run "
+            "that ends its process again is recorded failed)")
+
+
+def _warn_undeclared(model: Model, rec: RunRecord, said: set[str]) -> set[str]:
+    """Warn (once per campaign and name) about the outputs a run of the user's simulator
+    returned that ``model`` does not declare (a built-in one returns all it computes);
+    return the names warned about so far."""
+    new = sorted(set(rec.outputs) - set(model.output_names) - said)
+    if new:
+        names, it = ", ".join(f"'{k}'" for k in new), "it" if len(new) == 1 else "them"
+        warnings.warn(f"{model.name}: the simulator returned {names} (run {rec.index} "
+                      f"first), not declared in models.{model.name}.outputs; the store "
+                      f"keeps {it}, calnet uses only the declared outputs "
+                      f"({', '.join(model.output_names)}): declare {it} to use {it}, or "
+                      f"stop returning {it}", CampaignWarning, stacklevel=3)
+    return said | set(new)
+
+
+def _link_imported(db: RunStore, model: Model, todo: list) -> list:
+    """The unfinished design runs ``todo`` less those whose point an imported run holds
+    (the same inputs, or within round-off: :func:`~calnet.campaign.importing.point_finder`):
+    each of those stands for that run (:meth:`RunStore.link`) instead of simulating the
+    point again, which would only repeat it (and repeated points make cross-validation
+    look better than it is)."""
+    held = [r for r in db.rows() if r.get("origin") == "imported" and r["status"] is not None]
+    if not held or not todo:
+        return todo
+    find = point_finder(model, held)
     left = []
     for index, inputs, was in todo:
-        row = held.get(input_hash(inputs))
+        row, _ = find(inputs)
         if row is None:
             left.append((index, inputs, was))
-            continue
-        db.record(RunRecord(index, row["status"], row["outputs"] or {},
-                            f"the inputs of imported run {row['idx']} ({row['source']}): its "
-                            "result, not simulated again", {}, 0.0),
-                  simulator=row["simulator"] or "", version=row["simulator_version"] or "")
+        else:
+            db.link(index, int(row["idx"]))
     return left
 
 
@@ -289,7 +356,7 @@ def import_runs(network: Network, model_name: str, table: str | Path, *,
     with store_errors(path), RunStore(path) as db:
         db.take_lease()
         _claim(db, network, model, seed, sim.name, simulator_version(sim))
-        added, _ = import_into(db, runs, seed=seed)
+        added, _ = import_into(db, runs, seed=seed, model=model)
         planned, counts = db.planned(), db.status_counts()
         label = db.meta().get("design_kind", "")
     return CampaignSummary(model_name, path, planned, planned, 0, 0, counts, {},

@@ -41,7 +41,8 @@ def campaign(
     fresh: Annotated[bool, typer.Option(
         "--fresh", help="delete the store and simulate everything again")] = False,
     retry_failed: Annotated[bool, typer.Option(
-        "--retry-failed", help="run again the runs that did not finish ok")] = False,
+        "--retry-failed", help="run again the simulated runs that did not finish ok "
+                               "(imported runs keep their status)")] = False,
     import_: Annotated[Path | None, typer.Option(
         "--import", metavar="FILE", help="import finished runs from a .csv or .parquet "
         "table into the store (no simulation); needs --model")] = None,
@@ -135,3 +136,5 @@ def print_summary(summary: Any, console: Any) -> None:
     more = max(summary.n_failed, len(summary.failures)) - min(len(summary.failures), 5)
     if more > 0:
         console.print(f"  ... {more} more not ok (see the store)")
+    for note in summary.notes:
+        console.print(f"  [yellow]note[/]: {note}", soft_wrap=True)

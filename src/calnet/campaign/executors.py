@@ -45,7 +45,9 @@ class Executor(Protocol):
     workers: int
 
     def run(self, fn: Callable[..., Any], tasks: Iterable[Task],
-            on_submit: Callable[[Task], None] | None = None) -> Iterator[tuple[Task, Any]]: ...
+            on_submit: Callable[[Task], None] | None = None,
+            on_died: Callable[[list[Task], str], None] | None = None,
+            ) -> Iterator[tuple[Task, Any]]: ...
 
     def close(self) -> None: ...
 
@@ -56,7 +58,7 @@ class InProcessExecutor:
     name = "in-process"
     workers = 1
 
-    def run(self, fn, tasks, on_submit=None):
+    def run(self, fn, tasks, on_submit=None, on_died=None):
         for task in tasks:
             if on_submit:
                 on_submit(task)
@@ -82,7 +84,9 @@ class ProcessExecutor:
     A worker that dies (a simulator crashing the interpreter or calling ``os._exit``)
     breaks the pool: the runs then in flight are run again one at a time in a new pool,
     so that the run that kills its worker is found and its result is a
-    :class:`WorkerDied`, while the others finish normally.
+    :class:`WorkerDied`, while the others finish normally. ``run``'s ``on_died`` is
+    told of each such death (the runs in flight, and `` (exit code N)`` or
+    `` (killed by signal N)``), as the runs are run again.
     """
 
     name = "processes"
@@ -98,7 +102,7 @@ class ProcessExecutor:
         return ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"),
                                    initializer=_die_with_parent)
 
-    def run(self, fn, tasks, on_submit=None):
+    def run(self, fn, tasks, on_submit=None, on_died=None):
         pending: dict[Future, Task] = {}
         stream = iter(tasks)
         suspects: list[Task] = []  # in flight when a worker died: run again one at a time
@@ -131,6 +135,8 @@ class ProcessExecutor:
                                                      "or ended it (os._exit)")
                     else:
                         suspects.extend(crashed)
+                        if on_died:
+                            on_died(crashed, code)
         finally:
             for fut in pending:
                 fut.cancel()
@@ -165,7 +171,8 @@ class ProcessExecutor:
         return bool(pending)
 
     def _restart(self) -> str:
-        """A new pool for a broken one; returns `` (exit code N)`` of the dead worker.
+        """A new pool for a broken one; returns `` (exit code N)`` of the dead worker
+        (`` (killed by signal N)`` for a signal), or "" when it is not known.
 
         The broken pool's management thread sends SIGTERM to the other workers and waits
         for them. A worker that does not end on SIGTERM (a simulator that ignores it, or
@@ -200,7 +207,9 @@ class ProcessExecutor:
         self._pool = self._new_pool()
         self._processes = []
         code = next((c for c in codes if c not in (None, 0, -15)), None)
-        return f" (exit code {code})" if code is not None else ""
+        if code is None:
+            return ""
+        return f" (killed by signal {-code})" if code < 0 else f" (exit code {code})"
 
     def _nudge(self) -> None:
         """Wake the pool's management thread, so that it looks at every worker again.
@@ -276,7 +285,7 @@ class DaskExecutor:
             self._client = Client(self._cluster)
         self.workers = max(1, sum(self._client.nthreads().values()))
 
-    def run(self, fn, tasks, on_submit=None):
+    def run(self, fn, tasks, on_submit=None, on_died=None):
         from distributed import KilledWorker, as_completed
 
         stream = iter(tasks)

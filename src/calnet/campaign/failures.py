@@ -92,12 +92,14 @@ def common_failures(store: str | Path, most: int = 2) -> list[str]:
     each as ``"N runs: status: message"``, commonest first."""
     from collections import Counter
 
+    from calnet.campaign.logs import without_where
     from calnet.campaign.store import RunStore
 
     with RunStore(Path(store), readonly=True) as db:
         rows = db.rows()
-    counts = Counter(f"{r['status']}: {r.get('message') or 'no message'}" for r in rows
-                     if r["status"] not in ("ok", "pending", None))
+    # each run's message names its own logs: runs that failed alike differ only there
+    counts = Counter(f"{r['status']}: {without_where(r.get('message') or 'no message')}"
+                     for r in rows if r["status"] not in ("ok", "pending", None))
     return [f"{n} run{'s' if n > 1 else ''}: {text}" for text, n in counts.most_common(most)]
 
 

@@ -14,13 +14,14 @@ from __future__ import annotations
 import json
 import math
 import warnings
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from calnet.campaign.design import design_columns
+from calnet.campaign.design import design_columns, log_columns, model_box, to_unit
 from calnet.campaign.store import RunStore, input_hash
 from calnet.errors import CampaignError, CampaignWarning
 from calnet.spec.models import Model
@@ -115,20 +116,24 @@ def read_runs(path: Path, model: Model, *, strict: bool,
     return ImportedRuns(path, runs, int((~done).sum()))
 
 
-def import_into(db: RunStore, runs: ImportedRuns, *, seed: int) -> tuple[int, int]:
+def import_into(db: RunStore, runs: ImportedRuns, *, seed: int,
+                model: Model) -> tuple[int, int]:
     """Add the runs the store does not hold yet; ``(added, already held)``.
 
-    A run is identified by its inputs: one the store holds with the same status and
-    outputs is skipped (importing a file twice adds nothing), one it holds with other
-    outputs is an error.
+    A run is identified by its inputs (the same values, or within round-off:
+    :data:`SAME_POINT`): one the store holds with the same status and outputs (within
+    round-off too) is skipped (importing a file twice, or its copy written with fewer
+    digits, adds nothing), one it holds with other outputs is an error. A design point
+    not simulated yet is no run: the imported run is added, and the campaign then takes
+    it for that point.
     """
-    held = {r["input_hash"]: r for r in db.rows()}
+    find = point_finder(model, [r for r in db.rows() if r["status"] is not None])
     new, same = [], 0
     for row, run in enumerate(runs.runs, start=1):
-        old = held.get(input_hash(run["inputs"]))
+        old, exact = find(run["inputs"])
         if old is None:
             new.append(run)
-        elif _same_result(old, run):
+        elif _same_result(old, run, exact=exact):
             same += 1
         else:
             raise CampaignError(f"{runs.path}: row {row} has the inputs of run {old['idx']} "
@@ -137,6 +142,40 @@ def import_into(db: RunStore, runs: ImportedRuns, *, seed: int) -> tuple[int, in
                                 "the row, or import into a new --store")
     db.add_imported(new, seed=seed, source=runs.path.name)
     return len(new), same
+
+
+# two points closer than this fraction of the box in every column are one point, and two
+# results this close relative to their size are one: a value written with fewer digits
+# than a float holds (15 significant digits) reads back this close
+SAME_POINT = 1e-9
+
+
+def point_finder(model: Model, rows: list[dict[str, Any]]
+                 ) -> Callable[[Mapping[str, float]], tuple[dict[str, Any] | None, bool]]:
+    """A function of a point (inputs then parameters) that gives the first of the store
+    ``rows`` at that point, and whether its inputs are the same bit for bit (else within
+    :data:`SAME_POINT` of the box in every column, in the unit cube, logs where
+    declared); ``(None, False)`` when none is."""
+    columns, log = design_columns(model), log_columns(model)
+    lower, upper = model_box(model)
+
+    def unit(points: list[Mapping[str, float]]) -> np.ndarray:
+        x = np.array([[p[c] for c in columns] for p in points], dtype=float)
+        return to_unit(x.reshape(len(points), len(columns)), lower, upper, log)
+
+    by_hash: dict[str, dict[str, Any]] = {}
+    for r in rows:
+        by_hash.setdefault(r["input_hash"], r)
+    held = unit([r["inputs"] for r in rows])
+
+    def find(inputs: Mapping[str, float]) -> tuple[dict[str, Any] | None, bool]:
+        row = by_hash.get(input_hash(inputs))
+        if row is not None or not rows:
+            return row, row is not None
+        close = np.flatnonzero((np.abs(held - unit([inputs])) <= SAME_POINT).all(axis=1))
+        return (rows[close[0]] if close.size else None), False
+
+    return find
 
 
 # ------------------------------------------------------------------ checks
@@ -250,12 +289,15 @@ def _extras(frame: Any, i: int) -> dict[str, Any]:
     return out
 
 
-def _same_result(old: dict[str, Any], run: dict[str, Any]) -> bool:
+def _same_result(old: dict[str, Any], run: dict[str, Any], *, exact: bool = True) -> bool:
+    """Whether a stored run and an imported one hold one result (bit for bit, or with
+    ``exact`` False within :data:`SAME_POINT` relative)."""
     if old["status"] != run["status"]:
         return False
     stored = old["outputs"] or {}
-    return all(_same(stored.get(k, math.nan), v) for k, v in run["outputs"].items())
+    return all(_same(stored.get(k, math.nan), v, exact) for k, v in run["outputs"].items())
 
 
-def _same(a: float, b: float) -> bool:
-    return a == b or (math.isnan(a) and math.isnan(b))
+def _same(a: float, b: float, exact: bool = True) -> bool:
+    return (a == b or (math.isnan(a) and math.isnan(b))
+            or (not exact and math.isclose(a, b, rel_tol=SAME_POINT)))

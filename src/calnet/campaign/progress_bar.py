@@ -24,13 +24,16 @@ class Tracker:
     def finished(self, index: int, status: str) -> None:
         """Run ``index`` ended with ``status``."""
 
+    def note(self, text: str) -> None:
+        """Something the user should know now (a worker process died)."""
+
 
 @contextmanager
 def campaign_progress(progress: bool | Callable[[str], None], name: str, total: int,
                       done: int, db: RunStore) -> Iterator[Tracker]:
-    """Yields a :class:`Tracker`: a Rich bar (done / failed / rate / ETA) on a terminal,
+    """Yields a :class:`Tracker`: a Rich bar (done / not ok / rate / ETA) on a terminal,
     plain lines elsewhere or through ``progress`` when it is a callable."""
-    failed = sum(n for k, n in db.status_counts().items() if k not in ("ok", "unfinished"))
+    failed = {k: n for k, n in db.status_counts().items() if k not in ("ok", "unfinished")}
     if not progress:
         yield Tracker()
         return
@@ -51,8 +54,8 @@ class _LineTracker(Tracker):
     without one, naming the runs in flight and how long the oldest has been in flight
     (so that a log tells a hung simulator from a slow one)."""
 
-    def __init__(self, lines: Lines, total: int, done: int, failed: int):
-        self.lines, self.total, self.done, self.failed = lines, total, done, failed
+    def __init__(self, lines: Lines, total: int, done: int, failed: dict[str, int]):
+        self.lines, self.total, self.done, self.failed = lines, total, done, dict(failed)
         self.running: dict[int, float] = {}  # run index -> when it was handed out
         self.lock = threading.Lock()
         lines.note(f"{total - done} runs to go of {total}")
@@ -65,9 +68,13 @@ class _LineTracker(Tracker):
         with self.lock:
             self.running.pop(index, None)
             self.done += 1
-            self.failed += status != "ok"
+            if status != "ok":
+                self.failed[status] = self.failed.get(status, 0) + 1
             fraction, text = self.done / self.total, self._counts()
         self.lines.update(fraction, text)
+
+    def note(self, text: str) -> None:
+        self.lines.note(text)
 
     def text(self) -> str:
         """The counts and the runs in flight, for a line written while none finishes."""
@@ -79,11 +86,19 @@ class _LineTracker(Tracker):
             return text
 
     def _counts(self) -> str:
-        return f"{self.done}/{self.total} runs, {self.failed} failed"
+        return f"{self.done}/{self.total} runs, {not_ok(self.failed)}"
+
+
+def not_ok(counts: dict[str, int]) -> str:
+    """``"3 not ok (failed 1, timeout 2)"``, or ``"0 not ok"``, from runs per status
+    other than ``ok``."""
+    total = sum(counts.values())
+    by = ", ".join(f"{k} {n}" for k, n in sorted(counts.items()) if n)
+    return f"{total} not ok" + (f" ({by})" if by else "")
 
 
 @contextmanager
-def _bar(name: str, total: int, done: int, failed: int) -> Iterator[Tracker]:
+def _bar(name: str, total: int, done: int, failed: dict[str, int]) -> Iterator[Tracker]:
     from rich.progress import (
         BarColumn,
         MofNCompleteColumn,
@@ -94,24 +109,28 @@ def _bar(name: str, total: int, done: int, failed: int) -> Iterator[Tracker]:
     )
 
     columns = (TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
-               TextColumn("[red]{task.fields[failed]} failed"),
+               TextColumn("[red]{task.fields[failed]}"),
                TextColumn("{task.fields[rate]}"), TimeElapsedColumn(), TextColumn("ETA"),
                TimeRemainingColumn())
     with Progress(*columns, transient=False) as bar:
-        yield _BarTracker(bar, bar.add_task(name, total=total, completed=done, failed=failed,
-                                            rate=""), failed)
+        yield _BarTracker(bar, bar.add_task(name, total=total, completed=done,
+                                            failed=not_ok(failed), rate=""), failed)
 
 
 class _BarTracker(Tracker):
     """Advances a Rich bar (the bar's elapsed time shows that the campaign lives)."""
 
-    def __init__(self, bar: Any, task: Any, failed: int):
-        self.bar, self.task, self.failed, self.run = bar, task, failed, 0
+    def __init__(self, bar: Any, task: Any, failed: dict[str, int]):
+        self.bar, self.task, self.failed, self.run = bar, task, dict(failed), 0
         self.start = time.perf_counter()
 
     def finished(self, index: int, status: str) -> None:
         self.run += 1
-        self.failed += status != "ok"
+        if status != "ok":
+            self.failed[status] = self.failed.get(status, 0) + 1
         rate = self.run / max(time.perf_counter() - self.start, 1e-9)
-        self.bar.update(self.task, advance=1, failed=self.failed,
+        self.bar.update(self.task, advance=1, failed=not_ok(self.failed),
                         rate=f"{rate * 60:.1f} runs/min" if rate < 1 else f"{rate:.1f} runs/s")
+
+    def note(self, text: str) -> None:
+        self.bar.console.print(text, soft_wrap=True)

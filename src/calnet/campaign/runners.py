@@ -14,7 +14,8 @@ Adapters are small frozen dataclasses, so they pickle to process-pool and Dask w
 NaN, missing outputs and outputs that are no number into a recorded status, and enforces
 the timeout. A timeout on a Python call (built-in, callable, UM-Bridge) is enforced by
 running the call in a child Python process that is killed when the time is up; without a
-timeout the call runs in the worker itself.
+timeout the call runs in the worker itself. What a run prints outside the campaign's
+process goes to its logs (:mod:`calnet.campaign.logs`).
 """
 
 from __future__ import annotations
@@ -37,7 +38,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from calnet.campaign import reaper
+from calnet.campaign import logs, reaper
 from calnet.errors import CampaignError
 from calnet.simulators.base import STATUSES, SimResult, Simulator, not_numbers
 from calnet.simulators.registry import builtin_info
@@ -109,9 +110,9 @@ class CallableRunner:
         if not isinstance(out, Mapping):
             return SimResult({}, "failed", f"{self.target} returned {type(out).__name__}; "
                              "return a dict of outputs or a SimResult")
-        outputs = {str(k): _to_float(v) for k, v in out.items()}
-        wrong = not_numbers({str(k): v for k, v in out.items() if math.isnan(outputs[str(k)])})
-        return SimResult(outputs, "failed", wrong) if wrong else SimResult(outputs)
+        # a 0-d array is its one number; execute_run checks the values
+        return SimResult({str(k): v.item() if getattr(v, "shape", None) == () else v
+                          for k, v in out.items()})
 
 
 @dataclass(frozen=True)
@@ -123,8 +124,9 @@ class CommandRunner:
     replaced per run. With ``input_mode="json-file"`` the inputs are written to
     ``input.json`` in the run's working directory; with ``"args"`` only the template
     carries them. Outputs are read from ``output.json`` (``output_mode="json-file"``) or
-    from standard output (``"stdout"``), as a JSON object of output values, optionally
-    with ``status`` and ``message``. Each run has its own working directory
+    from standard output (``"stdout"``: its last line that is a JSON object, after any
+    log lines), as a JSON object of output values, optionally with ``status`` and
+    ``message``. Each run has its own working directory
     ``<workdir>/<run>``; the program runs there. A value of one of ``outputs`` (the
     model's) that is not a number fails the run, saying so; other keys that are not
     numbers are ignored.
@@ -155,19 +157,33 @@ class CommandRunner:
                   "input_json": str(in_path), "output_json": str(out_path),
                   "workdir": str(folder), "run": run}
         argv = [_substitute(arg, values) for arg in self.argv]
+        fds = logs.open_logs(folder)  # what the program prints goes to the run's logs
         try:
-            proc = _run_killable(argv, folder, self.timeout)
+            proc = _run_killable(argv, folder, self.timeout, *(fds or ()))
         except FileNotFoundError:
             return SimResult({}, "failed", f"command '{argv[0]}' not found; give its full "
                              "path or put it on PATH")
+        finally:
+            for fd in fds or ():
+                os.close(fd)
+            logs.tidy(folder)
         if proc is None:
-            return SimResult({}, "timeout", f"command exceeded its timeout of {self.timeout:g} s")
+            return SimResult({}, "timeout", f"command exceeded its timeout of {self.timeout:g} s"
+                             + logs.where(folder))
         if proc.returncode != 0:
-            tail = proc.stderr.strip().splitlines()[-3:]
+            tail = (proc.stderr.strip().splitlines()[-logs.TAIL_LINES:] if fds is None
+                    else logs.tail(folder))
             return SimResult({}, "failed", f"command exited with code {proc.returncode}"
-                             + (f": {' | '.join(tail)}" if tail else ""))
-        text = proc.stdout if self.output_mode == "stdout" else _read(out_path)
-        return _parse_outputs(text, self.output_mode, self.outputs)
+                             + (f": {' | '.join(tail)}" if tail else "") + logs.where(folder))
+        if self.output_mode == "stdout":
+            text = proc.stdout if fds is None else _read(folder / logs.LOGS[0])
+        else:
+            text = _read(out_path)
+        result = _parse_outputs(text, self.output_mode, self.outputs)
+        if result.status != "ok" and result.message:
+            return SimResult(result.outputs, result.status,
+                             result.message + logs.where(folder), result.diagnostics)
+        return result
 
 
 @dataclass(frozen=True)
@@ -285,7 +301,8 @@ def _import(module_name: str, search_path: tuple[str, ...]) -> Any:
 
 # --------------------------------------------------------------------------- one run
 def execute_run(sim: Simulator, index: int, inputs: Mapping[str, float],
-                timeout: float | None, expected: tuple[str, ...]) -> RunRecord:
+                timeout: float | None, expected: tuple[str, ...],
+                log_folder: str | None = None) -> RunRecord:
     """Run ``sim`` once and return what the store records; never raises for a sim failure.
 
     Parameters
@@ -298,12 +315,20 @@ def execute_run(sim: Simulator, index: int, inputs: Mapping[str, float],
         Seconds; a Python call is then made in a child process that is killed on expiry.
     expected : tuple of str
         Outputs that must be present and finite for status ``ok``.
+    log_folder : str, optional
+        Where a Python call's standard output and error go (:mod:`calnet.campaign.logs`),
+        for a call that does not share the campaign's process (a worker process's, or a
+        timeout's child); None leaves them where they are (a timeout's child then sends
+        them to its standard error). A command always writes logs in its run folder.
     """
     start = time.perf_counter()
     if isinstance(sim, CommandRunner):
         result = _guarded(lambda: sim(inputs, run=f"run-{index:05d}"))
     elif timeout is not None:
-        result = call_in_child(sim, inputs, timeout)
+        result = call_in_child(sim, inputs, timeout, log_folder=log_folder)
+    elif log_folder is not None:
+        with logs.captured(Path(log_folder)):
+            result = _guarded(lambda: sim(inputs))
     else:
         result = _guarded(lambda: sim(inputs))
     result = result.checked(expected)
@@ -333,15 +358,16 @@ def _describe(err: BaseException) -> str:
 
 
 def call_in_child(sim: Simulator, inputs: Mapping[str, float], timeout: float, *,
-                  startup_timeout: float = 300.0) -> SimResult:
+                  startup_timeout: float = 300.0, log_folder: str | None = None) -> SimResult:
     """Call ``sim(inputs)`` in a fresh Python process, killed after ``timeout`` seconds.
 
     The clock starts once the child has imported the simulator (it says so on stdout), so
     a slow interpreter start on a busy machine does not count against the run. The child
     inherits this process's ``sys.path``; a crash of the child (segfault, ``os._exit``)
-    is recorded as ``failed``.
+    is recorded as ``failed``. What the simulator prints goes to ``log_folder``'s logs,
+    or without one to the child's standard error (never into the answer on stdout).
     """
-    payload = pickle.dumps((list(sys.path), sim, dict(inputs)))
+    payload = pickle.dumps((list(sys.path), sim, dict(inputs), log_folder))
     argv = [sys.executable, "-c", "from calnet.campaign.runners import child_main; child_main()"]
     with _process_group(argv, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                         stderr=subprocess.PIPE) as proc:
@@ -355,13 +381,21 @@ def call_in_child(sim: Simulator, inputs: Mapping[str, float], timeout: float, *
             _kill_group(proc)
             out, err = proc.communicate()
             if ready:
+                folder = Path(log_folder) if log_folder else None
+                if folder is not None:
+                    logs.tidy(folder)  # the child had no time to
                 return SimResult({}, "timeout", f"run exceeded its timeout of {timeout:g} s "
-                                 "and was killed")
+                                 "and was killed"
+                                 + (logs.where(folder) if folder is not None else ""))
     if proc.returncode != 0 or not out:
         tail = err.decode(errors="replace").strip().splitlines()[-2:]
+        folder = Path(log_folder) if log_folder else None
+        if folder is not None and ready:  # the child's stderr went to its log
+            tail = logs.tail(folder, lines=2) or tail
         what = "died" if ready else "did not start"
         return SimResult({}, "failed", f"simulator process {what} (exit code "
-                         f"{proc.returncode})" + (f": {' | '.join(tail)}" if tail else ""))
+                         f"{proc.returncode})" + (f": {' | '.join(tail)}" if tail else "")
+                         + (logs.where(folder) if folder is not None else ""))
     return pickle.loads(out)  # noqa: S301 (our own child's answer)
 
 
@@ -377,21 +411,32 @@ _READY = b"\x00"
 
 def child_main() -> None:
     """Entry point of :func:`call_in_child`'s process: pickle in on stdin, out on stdout."""
-    path, sim, inputs = pickle.loads(sys.stdin.buffer.read())  # noqa: S301
+    path, sim, inputs, log_folder = pickle.loads(sys.stdin.buffer.read())  # noqa: S301
     sys.path[:] = path
-    sys.stdout.buffer.write(_READY)
-    sys.stdout.buffer.flush()
+    answer = os.fdopen(os.dup(1), "wb")  # the simulator's prints go elsewhere
+    fds = logs.open_logs(Path(log_folder)) if log_folder else None
+    os.dup2(fds[0] if fds else 2, 1)
+    if fds:
+        os.dup2(fds[1], 2)
+    answer.write(_READY)
+    answer.flush()
     result = _guarded(lambda: sim(inputs))
-    sys.stdout.buffer.write(pickle.dumps(result))
-    sys.stdout.flush()
+    for stream in (sys.stdout, sys.stderr):
+        stream.flush()
+    if log_folder:
+        logs.tidy(Path(log_folder))
+    answer.write(pickle.dumps(result))
+    answer.flush()
 
 
-def _run_killable(argv: list[str], cwd: Path | None, timeout: float | None, *,
+def _run_killable(argv: list[str], cwd: Path | None, timeout: float | None,
+                  stdout: int = subprocess.PIPE, stderr: int = subprocess.PIPE, *,
                   stdin: bytes | None = None, text: bool = True):
-    """``subprocess.run`` in its own session; on timeout kill the whole process group and
-    return None."""
+    """``subprocess.run`` in its own session (its output to ``stdout`` and ``stderr``:
+    pipes, read into the result, or open files); on timeout kill the whole process group
+    and return None."""
     with _process_group(argv, cwd=cwd, stdin=subprocess.PIPE if stdin else subprocess.DEVNULL,
-                        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=text) as proc:
+                        stdout=stdout, stderr=stderr, text=text) as proc:
         try:
             out, err = proc.communicate(stdin, timeout=timeout)
         except subprocess.TimeoutExpired:
@@ -482,7 +527,14 @@ def _parse_outputs(text: str, mode: str, expected: tuple[str, ...] = ()) -> SimR
     try:
         doc = json.loads(text)
     except json.JSONDecodeError as err:
-        return SimResult({}, "failed", f"cannot read a JSON object from {where} ({err})")
+        doc = _last_json_line(text) if mode == "stdout" else None
+        if doc is None and mode == "stdout":
+            return SimResult({}, "failed", "no line of standard output is a JSON object "
+                             f"(it read {_excerpt(text)}); print the outputs as one JSON "
+                             "object on a line of their own, such as {\"y\": 1.5}")
+        if doc is None:
+            return SimResult({}, "failed", f"cannot read a JSON object from {where} ({err}; "
+                             f"it holds {_excerpt(text)})")
     if not isinstance(doc, dict):
         return SimResult({}, "failed", f"{where} holds {type(doc).__name__}, expected a "
                          "JSON object of outputs")
@@ -495,6 +547,34 @@ def _parse_outputs(text: str, mode: str, expected: tuple[str, ...] = ()) -> SimR
         return SimResult(outputs, "failed", wrong)
     return SimResult(outputs, status, message)  # type: ignore[arg-type]  (execute_run
     # records an unknown status as failed, naming it)
+
+
+def _last_json_line(text: str) -> dict[str, Any] | None:
+    """The last line of a program's standard output that is a JSON object (the lines
+    before it, a solver's log, are not read); None when no line is one."""
+    for line in reversed(text.splitlines()):
+        line = line.strip()
+        if not line.startswith("{"):
+            continue
+        try:
+            doc = json.loads(line)
+        except json.JSONDecodeError:
+            continue
+        if isinstance(doc, dict):
+            return doc
+    return None
+
+
+EXCERPT = 80  # characters of each end of a text a message quotes
+
+
+def _excerpt(text: str) -> str:
+    """``text`` for a message: empty, whole when short, else its start and its end."""
+    if not text.strip():
+        return "nothing"
+    if len(text) <= 2 * EXCERPT + 5:
+        return repr(text)
+    return f"{text[:EXCERPT]!r} ... {text[-EXCERPT:]!r} ({len(text)} characters)"
 
 
 def _to_float(value: Any) -> float:

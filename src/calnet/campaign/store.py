@@ -22,6 +22,10 @@ origin             ``simulated`` (a design point run by the campaign; NULL in st
                    from a table)
 source             the design that placed a simulated run (``lhs``, ``sobol``, ``halton``,
                    ``chain``, ``file:<name>``), or the file an imported run came from
+same_as            on a design run whose point an imported run holds (the same inputs, or
+                   within round-off): that run's index. Such a row holds no result of its
+                   own: it keeps the design's place, the imported run is the run (counted,
+                   read and exported once)
 =================  =======================================================================
 
 The database runs in WAL mode while a campaign writes; every finished run is committed on
@@ -70,7 +74,8 @@ CREATE TABLE IF NOT EXISTS runs (
     simulator_version TEXT,
     finished_at REAL,
     origin TEXT,
-    source TEXT
+    source TEXT,
+    same_as INTEGER
 );
 """
 
@@ -188,6 +193,9 @@ class RunStore:
             raise store_error(self.path, err) from None
         # a store read before runs could be imported has no origin column: all simulated
         self._simulated = _SIMULATED if "origin" in columns else "1"
+        # the rows that are runs of their own (not a design point an imported run holds)
+        self._own = ("same_as IS NULL" if "same_as" in columns
+                     else _OWN_UNLINKED if "origin" in columns else "1")
 
     def take_lease(self) -> None:
         """Hold the store for this process until :meth:`close` (see
@@ -250,8 +258,9 @@ class RunStore:
         return self._db.execute("SELECT COALESCE(MAX(idx) + 1, 0) FROM runs").fetchone()[0]
 
     def design_rows(self) -> list[dict[str, Any]]:
-        """The design runs (not the imported ones) as :meth:`rows` gives them, by index."""
-        return [r for r in self.rows() if r.get("origin") in (None, "simulated")]
+        """The design runs (not the imported ones) as :meth:`rows` gives them, by index,
+        those whose point an imported run holds included."""
+        return [r for r in self.rows(linked=True) if r.get("origin") in (None, "simulated")]
 
     def plan(self, rows: Iterable[tuple[int, Mapping[str, float]]], *, seed: int,
              source: str = "lhs") -> None:
@@ -291,7 +300,7 @@ class RunStore:
     def unfinished(self) -> list[tuple[int, dict[str, float], bool]]:
         """``(index, inputs, was_in_flight)`` of every run without a status, by index."""
         rows = self._db.execute("SELECT idx, inputs, started_at FROM runs WHERE status IS NULL "
-                                "ORDER BY idx")
+                                f"AND {self._own} ORDER BY idx")
         return [(i, json.loads(s), started is not None) for i, s, started in rows]
 
     def reset_failed(self) -> int:
@@ -302,6 +311,21 @@ class RunStore:
                                    "WHERE status IS NOT NULL AND status != 'ok' AND "
                                    f"{self._simulated}")
         return cur.rowcount
+
+    def link(self, index: int, imported: int) -> None:
+        """Make the unfinished design run ``index`` stand for the imported run
+        ``imported``, which holds its point: it is not simulated, and is neither counted
+        nor read apart from that run."""
+        with self._db:
+            self._db.execute("UPDATE runs SET same_as = ?, started_at = NULL WHERE idx = ? "
+                             "AND status IS NULL", (imported, index))
+
+    def imported_not_ok(self) -> dict[str, int]:
+        """Imported runs per status other than ``ok`` (which :meth:`reset_failed`
+        keeps)."""
+        rows = self._db.execute("SELECT status, COUNT(*) FROM runs WHERE status IS NOT NULL "
+                                f"AND status != 'ok' AND NOT {self._simulated} GROUP BY 1")
+        return {k: int(n) for k, n in rows}
 
     def mark_started(self, indices: Iterable[int]) -> None:
         now = time.time()
@@ -329,12 +353,14 @@ class RunStore:
 
     def status_counts(self) -> dict[str, int]:
         rows = self._db.execute("SELECT COALESCE(status, 'unfinished'), COUNT(*) FROM runs "
-                                "GROUP BY 1")
+                                f"WHERE {self._own} GROUP BY 1")
         return {k: int(n) for k, n in rows}
 
-    def rows(self) -> list[dict[str, Any]]:
-        """Every run as a dict (JSON columns decoded), by index."""
-        cur = self._db.execute("SELECT * FROM runs ORDER BY idx")
+    def rows(self, *, linked: bool = False) -> list[dict[str, Any]]:
+        """Every run as a dict (JSON columns decoded), by index; with ``linked``, also
+        the design rows whose point an imported run holds (``same_as``)."""
+        where = "" if linked else f"WHERE {self._own} "
+        cur = self._db.execute(f"SELECT * FROM runs {where}ORDER BY idx")
         names = [d[0] for d in cur.description]
         out = []
         for values in cur:
@@ -347,15 +373,32 @@ class RunStore:
 
 _SIMULATED = "COALESCE(origin, 'simulated') = 'simulated'"
 
+# a store without the same_as column gave a design run at an imported run's point a copy
+# of that run's result, with this message; such a row is the imported run again
+_COPIED = "the inputs of imported run %"
+_OWN_UNLINKED = (f"NOT (COALESCE(origin, 'simulated') = 'simulated' AND status IS NOT NULL "
+                 f"AND message LIKE '{_COPIED}')")
+
 
 def _add_provenance_columns(db: sqlite3.Connection) -> None:
     """Give a store made before runs could be imported its ``origin`` and ``source``
-    columns (NULL in its rows: simulated by the Latin hypercube)."""
+    columns (NULL in its rows: simulated by the Latin hypercube), and one made before
+    design runs could stand for imported runs its ``same_as`` column (its copies of
+    imported results become links to those runs)."""
     have = {row[1] for row in db.execute("PRAGMA table_info(runs)")}
     with db:
         for column in ("origin", "source"):
             if column not in have:
                 db.execute(f"ALTER TABLE runs ADD COLUMN {column} TEXT")
+        if "same_as" not in have:
+            db.execute("ALTER TABLE runs ADD COLUMN same_as INTEGER")
+            db.execute(
+                "UPDATE runs SET same_as = (SELECT i.idx FROM runs AS i WHERE "
+                "i.input_hash = runs.input_hash AND i.origin = 'imported' ORDER BY i.idx "
+                "LIMIT 1), status = NULL, outputs = NULL, message = NULL, diagnostics = NULL, "
+                f"wall_time = NULL, finished_at = NULL WHERE {_SIMULATED} AND status IS NOT "
+                f"NULL AND message LIKE '{_COPIED}' AND EXISTS (SELECT 1 FROM runs AS i "
+                "WHERE i.input_hash = runs.input_hash AND i.origin = 'imported')")
 
 
 # primary SQLite result codes (https://sqlite.org/rescode.html)

@@ -31,14 +31,14 @@ class RunTable:
     columns : tuple of str
         Model input names then parameter names, in declaration order.
     X : ndarray, shape (n_ok, n_columns)
-        Inputs of the ``ok`` runs, in run-index order, declared units; a point the store
-        holds twice (imported, and planned by a design) appears once.
+        Inputs of the ``ok`` runs, in run-index order, declared units (a design point
+        that an imported run holds is that run, read once).
     Y : dict of str to ndarray, each shape (n_ok,)
         Every declared output of those runs.
     n_total : int
         Finished runs in the store, whatever their status.
     n_excluded : int
-        Finished runs left out: status not ``ok``, or a repeat of a point.
+        Finished runs left out: status not ``ok``.
     status_counts : dict of str to int
         Runs per status (``unfinished`` for planned runs not yet finished, if any).
     store_path : Path
@@ -96,11 +96,7 @@ def load_runs(network: Network, model_name: str, store: str | Path | None = None
                             f"spec ({change}); re-simulate with `calnet campaign {spec} "
                             f"--model {model_name} --fresh` or pass a new store")
     columns = design_columns(model)
-    ok, seen = [], set()
-    for r in rows:  # by index: a point held twice (imported and planned) counts once
-        if r["status"] == "ok" and r["input_hash"] not in seen:
-            seen.add(r["input_hash"])
-            ok.append(r)
+    ok = [r for r in rows if r["status"] == "ok"]
     X = np.array([[r["inputs"][c] for c in columns] for r in ok], dtype=float)
     Y = {o: np.array([r["outputs"][o] for r in ok], dtype=float) for o in model.output_names}
     n_total = sum(r["status"] is not None for r in rows)

@@ -48,8 +48,9 @@ class SimResult:
             return SimResult(self.outputs, "failed", wrong, self.diagnostics)
         missing = [k for k in expected if k not in self.outputs]
         if missing:
-            return SimResult(self.outputs, "failed", f"missing outputs {missing}",
-                             self.diagnostics)
+            got = f"it returned {sorted(self.outputs)}" if self.outputs else "it returned none"
+            return SimResult(self.outputs, "failed", f"missing outputs {missing} ({got}); "
+                             "return each declared output by its name", self.diagnostics)
         bad = [k for k, v in self.outputs.items()
                if not isinstance(v, numbers.Real) or not math.isfinite(float(v))]
         if bad:

@@ -38,7 +38,8 @@ class SimulatorRef(Frozen):
         substituted per run.
     input_mode, output_mode
         How a command receives its inputs (``json-file`` or ``args``) and returns outputs
-        (``json-file`` or ``stdout``, a JSON object).
+        (``json-file`` or ``stdout``: the last line of standard output that is a JSON
+        object).
     url, model
         UM-Bridge server address and model name.
     timeout : float, optional
