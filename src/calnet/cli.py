@@ -227,7 +227,7 @@ def _show_warnings(caught: list[warnings.WarningMessage]) -> None:
 @app.command()
 @user_errors
 def check(spec: SpecArg) -> None:
-    """Load and validate a spec and its campaign.import tables, then print the network."""
+    """Validate a spec and its import tables; print the network."""
     from calnet.describe import describe_network, import_problems
     from calnet.spec import load_spec
 
