@@ -28,7 +28,8 @@ residual never rises by ``RISE``, so ``dt`` grows to ``DT_MAX``), and is broken 
 halving the update at a 2-cycle of the whole field, and the update of each cell that
 cycles with period 2-4 (a powder column at the beam's edge); and a cell that the kink
 rule left 1 K outside the mushy zone stops at the kink again instead of jumping across
-it.
+it. ``GUARD_MONOTONE`` applies both to the monotone form too; off, since they moved its
+``G0`` by 2.5 % at 152 W / 0.32 m/s (benchmarks/README.md).
 """
 
 from __future__ import annotations
@@ -65,6 +66,7 @@ CALM_FIXED_FRONT = False  # lift it only if the consolidation front did not move
 CYCLE_STEP = 0.5  # update factor in a short Newton cycle (exposure form; benchmarks/README.md)
 CYCLE_PERIODS = 4  # longest cycle period that _cycle_factor looks for
 CYCLE_CELL = 0.1  # smallest update, relative to the largest, that a cell's cycle test sees
+GUARD_MONOTONE = False  # the exposure form's cycle test and kink rule for "monotone" too (README)
 
 
 @dataclass(frozen=True)
@@ -252,7 +254,7 @@ def newton_solve(disc: Discretization, laws: MaterialLaws, T0: np.ndarray, *,
     A, Ts = np.nan, np.nan
     linear_solve = LinearSolver()
     ceiling = DT_MAX
-    memoryless = consolidation == "exposure"
+    guarded = consolidation == "exposure" or GUARD_MONOTONE
     history: tuple[np.ndarray, ...] = ()  # the last CYCLE_PERIODS updates, latest first
     damp = 1.0
     for it in range(1, max_iter + 1):
@@ -311,11 +313,11 @@ def newton_solve(disc: Discretization, laws: MaterialLaws, T0: np.ndarray, *,
             break
         if big > max_update:
             dT *= max_update / big
-        if memoryless:
+        if guarded:
             damp = _cycle_factor(dT, history)
             dT *= damp
             history = (dT, *history[:CYCLE_PERIODS - 1])
-        T = np.maximum(_stop_at_kinks(T, dT, disc.mat, from_edge=memoryless),
+        T = np.maximum(_stop_at_kinks(T, dT, disc.mat, from_edge=guarded),
                        0.5 * disc.mat.T_ambient)
         upd = min(big, max_update)
         if _DEBUG:
