@@ -424,6 +424,16 @@ def test_cycle_factor_halves_the_cells_of_a_short_cycle():
     assert _cycle_factor(np.array([10.0, 5.0]), four[:3]) == 1.0  # not a period back yet
 
 
+def test_cycle_factor_halves_only_eligible_cells():
+    """The cell test halves a cycling cell only among the ``eligible`` cells (the
+    powder layer in the solver)."""
+    history = (np.array([-11.0, -11.0]), np.array([-4.0, -4.0]), np.array([15.0, 15.0]))
+    dT = np.array([15.0, 15.0])
+    assert _cycle_factor(dT, history).tolist() == [CYCLE_STEP, CYCLE_STEP]
+    assert _cycle_factor(dT, history, np.array([True, False])).tolist() == [CYCLE_STEP, 1]
+    assert _cycle_factor(dT, history, np.array([False, False])) == 1.0
+
+
 def test_field_consolidation_option_lands_near_the_default():
     """consolidation="field" (frac = frac(T), no memory) converges at a small pool and
     lands near the default (monotone) state; unknown values are refused."""

@@ -25,8 +25,8 @@ Two safeguards apply to the exposure form, whose converged state does not depend
 the path (:func:`_cycle_factor`, ``_stop_at_kinks(..., from_edge=True)``): a short
 Newton cycle whose residual stays flat is not seen by the pseudo-time rule above (the
 residual never rises by ``RISE``, so ``dt`` grows to ``DT_MAX``), and is broken by
-halving the update at a 2-cycle of the whole field, and the update of each cell that
-cycles with period 2-4 (a powder column at the beam's edge); and a cell that the kink
+halving the update at a 2-cycle of the whole field, and the update of each powder
+cell that cycles with period 2-4 (a column at the beam's edge); and a cell that the kink
 rule left 1 K outside the mushy zone stops at the kink again instead of jumping across
 it. ``GUARD_MONOTONE`` applies both to the monotone form too; off, since they moved its
 ``G0`` by 2.5 % at 152 W / 0.32 m/s (benchmarks/README.md).
@@ -66,6 +66,7 @@ CALM_FIXED_FRONT = False  # lift it only if the consolidation front did not move
 CYCLE_STEP = 0.5  # update factor in a short Newton cycle (exposure form; benchmarks/README.md)
 CYCLE_PERIODS = 4  # longest cycle period that _cycle_factor looks for
 CYCLE_CELL = 0.1  # smallest update, relative to the largest, that a cell's cycle test sees
+CYCLE_POWDER = True  # the cell cycle test sees only the cells of the powder layer
 GUARD_MONOTONE = False  # the exposure form's cycle test and kink rule for "monotone" too (README)
 
 
@@ -171,7 +172,8 @@ class LinearSolver:
         return x, len(res)
 
 
-def _cycle_factor(dT: np.ndarray, history: tuple[np.ndarray, ...]) -> np.ndarray | float:
+def _cycle_factor(dT: np.ndarray, history: tuple[np.ndarray, ...],
+                  eligible: np.ndarray | None = None) -> np.ndarray | float:
     """Factor on the Newton update ``dT``, scalar or per cell (n_cells,): ``CYCLE_STEP``
     in a short cycle, else 1.
 
@@ -183,10 +185,15 @@ def _cycle_factor(dT: np.ndarray, history: tuple[np.ndarray, ...]) -> np.ndarray
     out of ``max_iter``. A cell whose update mostly undoes the sum of its last
     ``p - 1`` updates and repeats its update ``p`` steps back (both within half its
     size; ``p`` 2 to ``CYCLE_PERIODS``) is halved alone, when its update is at least
-    ``CYCLE_CELL`` of the largest: the period-3 cycle of a beam-edge powder column at
-    209 W / 0.402 m/s. The same test on the whole field (cosines) halved
-    pseudo-transient updates until 152 W / 0.32 m/s ran out of ``max_iter``
-    (benchmarks/README.md).
+    ``CYCLE_CELL`` of the largest and the cell is ``eligible`` ((n_cells,) bool; the
+    powder layer in :func:`newton_solve`, ``CYCLE_POWDER``): the period-3 cycle of a
+    beam-edge powder column at 209 W / 0.402 m/s. The same test on the whole field
+    (cosines) halved pseudo-transient updates until 152 W / 0.32 m/s ran out of
+    ``max_iter``. The cell test on every cell halved some 340 cells per step, a third
+    of them in the substrate, while the fine solve at 131 W / 0.774 m/s crossed from
+    the conduction to the keyhole branch, and that solve wandered until the run ran
+    out of ``max_iter``; requiring also that the cell's update reverse its last one
+    left a period-5 cycle at 236 W / 0.23 m/s unbroken (benchmarks/README.md).
     """
     if len(history) < 2:
         return 1.0
@@ -205,6 +212,8 @@ def _cycle_factor(dT: np.ndarray, history: tuple[np.ndarray, ...]) -> np.ndarray
         cycling |= ((np.abs(dT + undone) <= 0.5 * size)
                     & (np.abs(dT - history[p - 1]) <= 0.5 * size))
     cycling &= size >= CYCLE_CELL * size.max()
+    if eligible is not None:
+        cycling &= eligible
     return np.where(cycling, CYCLE_STEP, 1.0) if cycling.any() else 1.0
 
 
@@ -257,6 +266,7 @@ def newton_solve(disc: Discretization, laws: MaterialLaws, T0: np.ndarray, *,
     guarded = consolidation == "exposure" or GUARD_MONOTONE
     history: tuple[np.ndarray, ...] = ()  # the last CYCLE_PERIODS updates, latest first
     damp = 1.0
+    powder = disc.powder_cells.ravel()
     for it in range(1, max_iter + 1):
         if deadline is not None and time.monotonic() > deadline:
             reason = "time limit reached"
@@ -314,7 +324,7 @@ def newton_solve(disc: Discretization, laws: MaterialLaws, T0: np.ndarray, *,
         if big > max_update:
             dT *= max_update / big
         if guarded:
-            damp = _cycle_factor(dT, history)
+            damp = _cycle_factor(dT, history, powder if CYCLE_POWDER else None)
             dT *= damp
             history = (dT, *history[:CYCLE_PERIODS - 1])
         T = np.maximum(_stop_at_kinks(T, dT, disc.mat, from_edge=guarded),
