@@ -63,6 +63,7 @@ CEILING_GROWTH = 1.2  # per step, of the cap on dt (half the step that failed la
 LIN_FLOOR = 1e-10  # smallest relative GMRES tolerance (the forcing is 0.1 x scaled residual)
 CALM_UPDATE = 0.0  # K; after an update below this, the cap on dt is lifted (0: never)
 CALM_FIXED_FRONT = False  # lift it only if the consolidation front did not move either
+CLIP_CELLS = False  # cap each cell's update at max_update, not the whole update (README)
 CYCLE_STEP = 0.5  # update factor in a short Newton cycle (exposure form; benchmarks/README.md)
 CYCLE_PERIODS = 4  # longest cycle period that _cycle_factor looks for
 CYCLE_CELL = 0.1  # smallest update, relative to the largest, that a cell's cycle test sees
@@ -321,7 +322,9 @@ def newton_solve(disc: Discretization, laws: MaterialLaws, T0: np.ndarray, *,
         if not np.isfinite(big):
             reason = "non-finite Newton update"
             break
-        if big > max_update:
+        if big > max_update and CLIP_CELLS:  # each cell's update capped alone
+            dT = np.clip(dT, -max_update, max_update)
+        elif big > max_update:
             dT *= max_update / big
         if guarded:
             damp = _cycle_factor(dT, history, powder if CYCLE_POWDER else None)
