@@ -1,11 +1,12 @@
 """Newton iterations and CPU per continuation stage of the M1 melt-pool simulator.
 
 Runs the 5 benchmark settings (``run_benchmarks.SETTINGS``, mid-range parameters,
-default options), each in a fresh process, one at a time, and prints per run one row
-per Newton solve (the continuation stages on the sizing mesh, then the fine solve):
-mesh, power, cells, Newton iterations, CPU seconds; then the run's outputs. With
-``--starts`` it also runs RUN_104 and both first-stage fields (``start="rosenthal"``
-and ``"ambient"``) and prints their largest relative difference in W, D and G0.
+default options; ``--case P v`` names other settings), each in a fresh process, one at
+a time, and prints per run one row per Newton solve (the continuation stages on the
+sizing mesh, then the fine solve): mesh, power, cells, Newton iterations, CPU seconds;
+then the run's outputs. With ``--starts`` it also runs RUN_104 and both first-stage
+fields (``start="rosenthal"`` and ``"ambient"``) and prints their largest relative
+difference in W, D and G0.
 
 Experiments without editing the package: ``--options`` passes simulator options,
 ``--patch module.NAME=value`` sets a module (or class) constant of the melt_pool package in the
@@ -91,11 +92,14 @@ def main() -> None:
     ap.add_argument("--patch", action="append", default=[], help="module.NAME=json")
     ap.add_argument("--starts", action="store_true", help="RUN_104, both starts too")
     ap.add_argument("--only", type=int, nargs="*", help="indices into SETTINGS")
+    ap.add_argument("--case", type=float, nargs=2, action="append", metavar=("P", "V"),
+                    help="a setting (W, m/s) at mid parameters instead of SETTINGS")
     ap.add_argument("--save", type=Path)
     ap.add_argument("--compare", type=Path)
     args = ap.parse_args()
     base = json.loads(args.options)
     picked = [SETTINGS[i] for i in (args.only if args.only else range(len(SETTINGS)))]
+    picked = [tuple(c) for c in args.case] if args.case else picked
     cases = [{"P": P, "v": v} for P, v in picked] + ([RUN_104] if args.starts else [])
     starts = ("rosenthal", "ambient") if args.starts else ("rosenthal",)
     records = []

@@ -403,13 +403,35 @@ def test_kink_rule_from_the_edge_stops_in_the_mushy_zone():
     assert _stop_at_kinks(T, dT, NI5NB, from_edge=True).tolist() == [T_S + 1.0, T_L - 1.0]
 
 
-def test_cycle_factor_halves_only_a_two_cycle():
+def test_cycle_factor_halves_a_two_cycle():
     d = np.array([20.0, -17.0, 1.0])
-    assert _cycle_factor(-d, d, -d) == CYCLE_STEP  # reverses the last, repeats the one before
-    assert _cycle_factor(-d, d, None) == 1.0  # a single reversal
-    assert _cycle_factor(-d, d, np.array([0.0, 0.0, 5.0])) == 1.0
-    assert _cycle_factor(d, d, d) == 1.0  # same direction
-    assert _cycle_factor(-d, None, None) == 1.0  # first step of a solve
+    assert _cycle_factor(-d, (d, -d)) == CYCLE_STEP  # reverses the last, repeats the one before
+    assert _cycle_factor(-d, (d,)) == 1.0  # a single reversal
+    assert _cycle_factor(-d, (d, np.array([0.0, 0.0, 5.0]))) == 1.0
+    assert _cycle_factor(d, (d, d)) == 1.0  # same direction
+    assert _cycle_factor(-d, ()) == 1.0  # first step of a solve
+
+
+def test_cycle_factor_halves_the_cells_of_a_short_cycle():
+    """A cell cycling with period 3 (+15, -4, -11 K, as at 209 W / 0.402 m/s) or 4 is
+    halved alone; a steadily heating cell and a small cycling one are not."""
+    cells = np.array([[-11.0, -4.0, 15.0], [5.0, 4.0, 3.0], [-0.2, -0.1, 0.3]])
+    history = tuple(cells.T)  # latest first: the cycle's +15, -4, -11 K backwards
+    assert _cycle_factor(np.array([15.0, 6.0, 0.3]), history).tolist() == [CYCLE_STEP, 1, 1]
+    four = (np.array([-3.0, 5.0]), np.array([-8.0, 5.0]), np.array([1.0, 5.0]),
+            np.array([10.0, 5.0]))  # period 4: +10, +1, -8, -3 K, then +10 again
+    assert _cycle_factor(np.array([10.0, 5.0]), four).tolist() == [CYCLE_STEP, 1]
+    assert _cycle_factor(np.array([10.0, 5.0]), four[:3]) == 1.0  # not a period back yet
+
+
+def test_cycle_factor_halves_only_eligible_cells():
+    """The cell test halves a cycling cell only among the ``eligible`` cells (the
+    powder layer in the solver)."""
+    history = (np.array([-11.0, -11.0]), np.array([-4.0, -4.0]), np.array([15.0, 15.0]))
+    dT = np.array([15.0, 15.0])
+    assert _cycle_factor(dT, history).tolist() == [CYCLE_STEP, CYCLE_STEP]
+    assert _cycle_factor(dT, history, np.array([True, False])).tolist() == [CYCLE_STEP, 1]
+    assert _cycle_factor(dT, history, np.array([False, False])) == 1.0
 
 
 def test_field_consolidation_option_lands_near_the_default():

@@ -66,7 +66,8 @@ class MeltPoolOptions:
         the material path, a smooth function of the current iterate without maximum or
         memory, its exact coupling in the Newton operator, and faces between cells of
         different fractions with secant conductivities; its Newton iteration halves
-        updates that 2-cycle (:func:`~.solver._cycle_factor`; benchmarks/README.md).
+        updates that 2-cycle and the updates of cells that cycle with period 2-4
+        (:func:`~.solver._cycle_factor`; benchmarks/README.md).
         ``"field"``: ``frac(T)`` of the current iterate, its
         coupling in the Newton matrix, so the converged state solves
         ``R(T, frac(T)) = 0`` whatever the path; at most powder settings of the

@@ -22,12 +22,14 @@ advances, which converges where the field form cycles, at the price of a state t
 keep powder consolidated that the final field would not consolidate.
 
 Two safeguards apply to the exposure form, whose converged state does not depend on
-the path (:func:`_cycle_factor`, ``_stop_at_kinks(..., from_edge=True)``): a Newton
-2-cycle whose residual stays flat is not seen by the pseudo-time rule above (the
+the path (:func:`_cycle_factor`, ``_stop_at_kinks(..., from_edge=True)``): a short
+Newton cycle whose residual stays flat is not seen by the pseudo-time rule above (the
 residual never rises by ``RISE``, so ``dt`` grows to ``DT_MAX``), and is broken by
-halving an update that reverses the last one and repeats the one before; and a cell
-that the kink rule left 1 K outside the mushy zone stops at the kink again instead of
-jumping across it.
+halving the update at a 2-cycle of the whole field, and the update of each powder
+cell that cycles with period 2-4 (a column at the beam's edge); and a cell that the kink
+rule left 1 K outside the mushy zone stops at the kink again instead of jumping across
+it. ``GUARD_MONOTONE`` applies both to the monotone form too; off, since they moved its
+``G0`` by 2.5 % at 152 W / 0.32 m/s (benchmarks/README.md).
 """
 
 from __future__ import annotations
@@ -61,7 +63,12 @@ CEILING_GROWTH = 1.2  # per step, of the cap on dt (half the step that failed la
 LIN_FLOOR = 1e-10  # smallest relative GMRES tolerance (the forcing is 0.1 x scaled residual)
 CALM_UPDATE = 0.0  # K; after an update below this, the cap on dt is lifted (0: never)
 CALM_FIXED_FRONT = False  # lift it only if the consolidation front did not move either
-CYCLE_STEP = 0.5  # update factor at a 2-cycle (exposure form; benchmarks/README.md)
+CLIP_CELLS = False  # cap each cell's update at max_update, not the whole update (README)
+CYCLE_STEP = 0.5  # update factor in a short Newton cycle (exposure form; benchmarks/README.md)
+CYCLE_PERIODS = 4  # longest cycle period that _cycle_factor looks for
+CYCLE_CELL = 0.1  # smallest update, relative to the largest, that a cell's cycle test sees
+CYCLE_POWDER = True  # the cell cycle test sees only the cells of the powder layer
+GUARD_MONOTONE = False  # the exposure form's cycle test and kink rule for "monotone" too (README)
 
 
 @dataclass(frozen=True)
@@ -166,24 +173,49 @@ class LinearSolver:
         return x, len(res)
 
 
-def _cycle_factor(dT: np.ndarray, last: np.ndarray | None, before: np.ndarray | None
-                  ) -> float:
-    """Factor on the Newton update ``dT``: ``CYCLE_STEP`` at a 2-cycle, else 1.
+def _cycle_factor(dT: np.ndarray, history: tuple[np.ndarray, ...],
+                  eligible: np.ndarray | None = None) -> np.ndarray | float:
+    """Factor on the Newton update ``dT``, scalar or per cell (n_cells,): ``CYCLE_STEP``
+    in a short cycle, else 1.
 
-    A 2-cycle: ``dT`` reverses the last update ``last`` (cosine below -0.5) and repeats
-    the one ``before`` it (cosine above 0.5). Halving the update lands on the cycle's
-    midpoint. A single reversal is left alone: halving every update that reverses the
-    last one (cosine below -0.5) slowed the pseudo-transients of the continuation
-    stages enough that 152 W / 0.32 m/s ran out of ``max_iter``.
+    ``history`` holds the last updates, the latest first. The whole update is halved at
+    a 2-cycle: it reverses the last update (cosine below -0.5) and repeats the one
+    before (cosine above 0.5); halving lands on the cycle's midpoint. A single
+    reversal is left alone: halving every update that reverses the last one slowed
+    the pseudo-transients of the continuation stages enough that 152 W / 0.32 m/s ran
+    out of ``max_iter``. A cell whose update mostly undoes the sum of its last
+    ``p - 1`` updates and repeats its update ``p`` steps back (both within half its
+    size; ``p`` 2 to ``CYCLE_PERIODS``) is halved alone, when its update is at least
+    ``CYCLE_CELL`` of the largest and the cell is ``eligible`` ((n_cells,) bool; the
+    powder layer in :func:`newton_solve`, ``CYCLE_POWDER``): the period-3 cycle of a
+    beam-edge powder column at 209 W / 0.402 m/s. The same test on the whole field
+    (cosines) halved pseudo-transient updates until 152 W / 0.32 m/s ran out of
+    ``max_iter``. The cell test on every cell halved some 340 cells per step, a third
+    of them in the substrate, while the fine solve at 131 W / 0.774 m/s crossed from
+    the conduction to the keyhole branch, and that solve wandered until the run ran
+    out of ``max_iter``; requiring also that the cell's update reverse its last one
+    left a period-5 cycle at 236 W / 0.23 m/s unbroken (benchmarks/README.md).
     """
-    if last is None or before is None:
+    if len(history) < 2:
         return 1.0
     norm = float(np.linalg.norm(dT))
 
     def cosine(a: np.ndarray) -> float:
         return float(dT @ a) / max(norm * float(np.linalg.norm(a)), 1e-300)
 
-    return CYCLE_STEP if cosine(last) < -0.5 and cosine(before) > 0.5 else 1.0
+    if cosine(history[0]) < -0.5 and cosine(history[1]) > 0.5:
+        return CYCLE_STEP
+    size = np.abs(dT)
+    cycling = np.zeros(dT.shape, dtype=bool)
+    undone = np.zeros(dT.shape)
+    for p in range(2, min(CYCLE_PERIODS, len(history)) + 1):
+        undone = undone + history[p - 2]
+        cycling |= ((np.abs(dT + undone) <= 0.5 * size)
+                    & (np.abs(dT - history[p - 1]) <= 0.5 * size))
+    cycling &= size >= CYCLE_CELL * size.max()
+    if eligible is not None:
+        cycling &= eligible
+    return np.where(cycling, CYCLE_STEP, 1.0) if cycling.any() else 1.0
 
 
 def _with_exposure(M: sp.csr_matrix, disc: Discretization, T: np.ndarray,
@@ -232,8 +264,10 @@ def newton_solve(disc: Discretization, laws: MaterialLaws, T0: np.ndarray, *,
     A, Ts = np.nan, np.nan
     linear_solve = LinearSolver()
     ceiling = DT_MAX
-    memoryless = consolidation == "exposure"
-    last_step, step_before = None, None
+    guarded = consolidation == "exposure" or GUARD_MONOTONE
+    history: tuple[np.ndarray, ...] = ()  # the last CYCLE_PERIODS updates, latest first
+    damp = 1.0
+    powder = disc.powder_cells.ravel()
     for it in range(1, max_iter + 1):
         if deadline is not None and time.monotonic() > deadline:
             reason = "time limit reached"
@@ -288,17 +322,21 @@ def newton_solve(disc: Discretization, laws: MaterialLaws, T0: np.ndarray, *,
         if not np.isfinite(big):
             reason = "non-finite Newton update"
             break
-        if big > max_update:
+        if big > max_update and CLIP_CELLS:  # each cell's update capped alone
+            dT = np.clip(dT, -max_update, max_update)
+        elif big > max_update:
             dT *= max_update / big
-        if memoryless:
-            dT *= _cycle_factor(dT, last_step, step_before)
-            last_step, step_before = dT, last_step
-        T = np.maximum(_stop_at_kinks(T, dT, disc.mat, from_edge=memoryless),
+        if guarded:
+            damp = _cycle_factor(dT, history, powder if CYCLE_POWDER else None)
+            dT *= damp
+            history = (dT, *history[:CYCLE_PERIODS - 1])
+        T = np.maximum(_stop_at_kinks(T, dT, disc.mat, from_edge=guarded),
                        0.5 * disc.mat.T_ambient)
         upd = min(big, max_update)
         if _DEBUG:
             print(f"it {it} r {rnorm:.3e} dt {dt:.2e} dT {big:.1f} lin {n_lin} A {A:.3f} "
                   f"Ts {Ts:.0f} Tmax {T.max():.0f} front moved {front_moved} "
                   f"at {np.unravel_index(np.argmax(np.abs(dT)), disc.mesh.shape)} "
-                  f"T {T[np.argmax(np.abs(dT))]:.0f}", flush=True)
+                  f"T {T[np.argmax(np.abs(dT))]:.0f} factor {np.min(damp)} "
+                  f"on {np.sum(np.asarray(damp) < 1.0)}", flush=True)
     return SolveReport(T, False, reason, it, rnorm, upd, lin_total, A, Ts, frac)
