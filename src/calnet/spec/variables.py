@@ -239,9 +239,13 @@ class Parameter(Bounded):
         truncated to the bounds, so a small middle share means the bounds cut the prior
         to a tail of itself.
         """
-        from scipy import stats  # lazily: loading a spec stays fast
-
         p = self.prior
+        if p.dist in ("beta", "uniform"):
+            return 0.0, 1.0, 0.0
+        # only here, lazily: scipy.stats takes most of a second to import, and a spec of
+        # beta and uniform priors (the default) loads without it
+        from scipy import stats
+
         law = {"normal": lambda: stats.norm(p.mu, p.sigma),
                "truncnormal": lambda: stats.norm(p.mu, p.sigma),
                "lognormal": lambda: stats.lognorm(p.sigma, scale=math.exp(p.mu)),
