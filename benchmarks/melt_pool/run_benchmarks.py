@@ -14,11 +14,15 @@ Phases ``convergence-res1`` and ``convergence-res2`` run one half of ``convergen
 ``exposure`` (``consolidation="exposure"`` from both starts), ``sanity-exposure`` (and
 ``sanity-exposure-reverse``, from the last row, to share the work) and
 ``convergence-exposure`` (its mesh convergence at two settings) are further phases.
+``sanity-clip`` and ``sanity-clip-reverse`` run ``sanity-exposure`` with each cell's
+update capped alone (``solver.CLIP_CELLS``), and ``exposure-clip`` the starts of
+``exposure`` with it. ``--help`` lists the phases.
 """
 
 from __future__ import annotations
 
 import csv
+import importlib
 import itertools
 import json
 import subprocess
@@ -42,6 +46,11 @@ def _worker(spec: str) -> None:
     from calnet.simulators import melt_pool
 
     job = json.loads(spec)
+    for item in job.get("patch", []):  # "module.NAME=json": a solver constant
+        name, value = item.split("=", 1)
+        module, attr = name.split(".")
+        obj = importlib.import_module(f"calnet.simulators.melt_pool.{module}")
+        setattr(obj, attr, type(getattr(obj, attr))(json.loads(value)))
     t0 = time.perf_counter()
     res = melt_pool.simulate(job["inputs"], **job.get("options", {}))
     wall = time.perf_counter() - t0
@@ -57,8 +66,10 @@ def _worker(spec: str) -> None:
                       "absorptivity": d.get("absorptivity")}))
 
 
-def run_one(inputs: dict, options: dict | None = None, tag: str = "") -> dict:
-    spec = json.dumps({"inputs": inputs, "options": options or {}, "tag": tag})
+def run_one(inputs: dict, options: dict | None = None, tag: str = "",
+            patch: list[str] | None = None) -> dict:
+    spec = json.dumps({"inputs": inputs, "options": options or {}, "tag": tag}
+                      | ({"patch": patch} if patch else {}))
     out = subprocess.run([sys.executable, __file__, "--worker", spec], capture_output=True,
                          text=True, check=False)
     if out.returncode != 0:
@@ -107,8 +118,8 @@ def convergence(resolutions: tuple[float, ...] = (1.0, 2.0)) -> None:
         _save("convergence", kept + recs)
 
 
-def sanity(reverse: bool = False, options: dict | None = None, name: str | None = None
-           ) -> None:
+def sanity(reverse: bool = False, options: dict | None = None, name: str | None = None,
+           patch: list[str] | None = None) -> None:
     """Mid-range parameters at the 40 experimental settings, default resolution.
 
     ``reverse`` (phase ``sanity-reverse``): from the last row backwards, into
@@ -116,14 +127,22 @@ def sanity(reverse: bool = False, options: dict | None = None, name: str | None 
     ``report.py`` merges the two files (one record per sample). ``options`` and
     ``name`` (phase ``sanity-exposure``: ``consolidation="exposure"`` into
     ``results/sanity_exposure.json``; ``sanity-exposure-reverse`` from the last row) run
-    a variant.
+    a variant; ``patch`` sets solver constants (``"solver.CLIP_CELLS=true"``). A stopped
+    phase resumes: records of this version with the same options are reused.
     """
+    from calnet.simulators.melt_pool import VERSION
+
+    path = RESULTS / f"{name or ('sanity_reverse' if reverse else 'sanity')}.json"
+    old = {r["tag"]: r for r in (json.loads(path.read_text()) if path.exists() else [])
+           if r.get("version") == VERSION and r.get("options") == (options or {})
+           and r.get("patch", []) == (patch or [])}
     recs = []
     with DATA.open() as fh:
         rows = list(csv.DictReader(fh))
     for r in rows[::-1] if reverse else rows:
-        rec = run_one({"P": float(r["power_W"]), "v": float(r["speed_m_per_s"])}, options,
-                      tag=f"sample{r['sample']}")
+        rec = old.get(f"sample{r['sample']}") or run_one(
+            {"P": float(r["power_W"]), "v": float(r["speed_m_per_s"])}, options,
+            tag=f"sample{r['sample']}", patch=patch)
         rec["measured_W"] = float(r["width_um"])
         rec["split"] = r["split"]
         recs.append(rec)
@@ -173,15 +192,16 @@ def powder() -> None:
         _save("powder", recs)
 
 
-def exposure() -> None:
+def exposure(patch: list[str] | None = None, name: str = "exposure") -> None:
     """``consolidation="exposure"`` from both starts at run 104 and the five settings,
-    default resolution, into ``results/exposure.json``."""
+    default resolution, into ``results/exposure.json`` (``patch``: solver constants, as
+    :func:`sanity`, into ``results/<name>.json``)."""
     cases = [RUN_104] + [{"P": P, "v": v} for P, v in SETTINGS]
     recs = []
     for inputs, first in itertools.product(cases, ("rosenthal", "ambient")):
         recs.append(run_one(inputs, {"start": first, "consolidation": "exposure"},
-                            tag=first))
-        _save("exposure", recs)
+                            tag=first, patch=patch))
+        _save(name, recs)
 
 
 def convergence_exposure() -> None:
@@ -195,12 +215,11 @@ def convergence_exposure() -> None:
         _save("convergence_exposure", recs)
 
 
+CLIP = ["solver.CLIP_CELLS=true"]
+EXPOSURE = {"consolidation": "exposure"}
+
 if __name__ == "__main__":
-    if sys.argv[1] == "--worker":
-        _worker(sys.argv[2])
-    else:
-        for phase in sys.argv[1:]:
-            {"convergence": convergence, "sanity": sanity, "corners": corners,
+    PHASES = {"convergence": convergence, "sanity": sanity, "corners": corners,
              "start": start, "powder": powder, "exposure": exposure,
              "convergence-exposure": convergence_exposure,
              "sanity-reverse": lambda: sanity(True),
@@ -209,5 +228,19 @@ if __name__ == "__main__":
              "sanity-exposure-reverse": lambda: sanity(
                  True, options={"consolidation": "exposure"},
                  name="sanity_exposure_reverse"),
+             "sanity-clip": lambda: sanity(options=EXPOSURE, name="sanity_clip", patch=CLIP),
+             "sanity-clip-reverse": lambda: sanity(True, options=EXPOSURE,
+                                                   name="sanity_clip_reverse", patch=CLIP),
+             "exposure-clip": lambda: exposure(CLIP, "exposure_clip"),
              "convergence-res1": lambda: convergence((1.0,)),
-             "convergence-res2": lambda: convergence((2.0,))}[phase]()
+             "convergence-res2": lambda: convergence((2.0,))}
+    if len(sys.argv) > 2 and sys.argv[1] == "--worker":
+        _worker(sys.argv[2])
+    elif len(sys.argv) < 2 or not set(sys.argv[1:]) <= set(PHASES):
+        bad = sorted(set(sys.argv[1:]) - set(PHASES) - {"-h", "--help"})
+        print((f"unknown phase: {', '.join(bad)}\n" if bad else "")
+              + "usage: run_benchmarks.py PHASE [PHASE ...]; phases: " + ", ".join(PHASES))
+        sys.exit(2 if bad else 0)
+    else:
+        for phase in sys.argv[1:]:
+            PHASES[phase]()

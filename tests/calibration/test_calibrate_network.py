@@ -302,3 +302,21 @@ def test_the_summary_reads_the_diagnostics_the_calibration_computed(both, indep)
     for post in (seg, joint):
         fresh = replace(post, stages=tuple(replace(s, diagnostics=None) for s in post.stages))
         assert posterior_summary(indep[0], fresh) == posterior_summary(indep[0], post)
+
+
+def test_the_prior_panels_show_each_parameters_prior_density(both, indep):
+    """The prior curve of the prior-vs-posterior figure is the parameter's prior density:
+    the default Beta(1.1, 1.1) on its range, against SciPy's."""
+    from scipy import stats
+
+    from calnet.calibration.summary import calibration_result
+
+    network = indep[0]
+    result = calibration_result(network, both[1])
+    for model in ("up", "down"):
+        (panel,) = result.panels[model]
+        p = network.model(model).parameters[0]
+        want = stats.beta(1.1, 1.1, loc=p.lower, scale=p.upper - p.lower).pdf(panel.prior_x)
+        assert panel.prior_x[0] == p.lower and panel.prior_x[-1] == p.upper
+        np.testing.assert_allclose(panel.prior_y, want, rtol=1e-10, atol=1e-12)
+        assert panel.posterior_samples.shape == (both[1].n_draws,)

@@ -3,8 +3,13 @@ the calibration stage's result (:func:`calibration_result`) that the report rend
 
 from __future__ import annotations
 
+from functools import partial
+
+import jax
+import jax.numpy as jnp
 import numpy as np
 
+from calnet._jax import FEW_CALLS, device_array
 from calnet.calibration.calibrate_network import NetworkPosterior
 from calnet.calibration.diagnostics import ESS_MIN, RHAT_MAX, import_arviz, kde_mode, summarize
 from calnet.calibration.priors import parameter_prior
@@ -103,17 +108,25 @@ def posterior_summary(network: Network, post: NetworkPosterior) -> dict:
     return out
 
 
+@partial(jax.jit, static_argnums=0, compiler_options=FEW_CALLS)
+def _densities(priors: tuple, xs):
+    """Density of each prior on its row of ``xs`` (k, m): one small program for a model's
+    panels, where evaluating the priors op by op would compile every operation apart."""
+    return jnp.stack([jnp.exp(p.log_prob(x)) for p, x in zip(priors, xs, strict=True)])
+
+
 def prior_panels(network: Network, post: NetworkPosterior, model: str,
                  summary: dict) -> tuple[PriorPanel, ...]:
     """Prior density (on 200 points over the range) and posterior draws of each parameter
     of ``model``; ``summary`` is the model's entry of :func:`posterior_summary`."""
-    panels = []
-    for j, p in enumerate(network.model(model).parameters):
-        xs = np.linspace(p.lower, p.upper, 200)
-        ys = np.exp(np.asarray(parameter_prior(p).log_prob(xs)))
-        panels.append(PriorPanel(p.name, p.unit, p.lower, p.upper, xs, ys,
-                                 post.theta[model][:, j], summary["parameters"][p.name]["mode"]))
-    return tuple(panels)
+    params = network.model(model).parameters
+    if not params:
+        return ()
+    xs = np.stack([np.linspace(p.lower, p.upper, 200) for p in params])
+    ys = np.asarray(_densities(tuple(parameter_prior(p) for p in params), device_array(xs)))
+    return tuple(PriorPanel(p.name, p.unit, p.lower, p.upper, xs[j], ys[j],
+                            post.theta[model][:, j], summary["parameters"][p.name]["mode"])
+                 for j, p in enumerate(params))
 
 
 def calibration_result(network: Network, post: NetworkPosterior, *,
