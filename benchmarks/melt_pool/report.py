@@ -114,14 +114,22 @@ def _sanity() -> list[dict]:
     return sorted(by.values(), key=lambda r: int(r["tag"].removeprefix("sample")))
 
 
-def variant_sanity_table(name: str = "sanity_exposure") -> str:
+def _halves(name: str) -> list[dict]:
+    """A sanity phase's records from both halves (forward and ``_reverse``), one per
+    sample, in sample order."""
+    by = {r["tag"]: r for r in _load(f"{name}_reverse") + _load(name)}
+    return sorted(by.values(), key=lambda r: int(r["tag"].removeprefix("sample")))
+
+
+def variant_sanity_table(name: str = "sanity_exposure", base: str | None = None) -> str:
     """A variant's sanity runs (phases ``sanity-exposure`` and, from the last row,
-    ``sanity-exposure-reverse``, one record per sample) against the default ones."""
-    default = {r["tag"]: r for r in _sanity()}
-    by = {r["tag"]: r for r in _load(f"{name}_reverse") + _load(name)}  # both halves
-    recs = sorted(by.values(), key=lambda r: int(r["tag"].removeprefix("sample")))
-    lines = ["| sample | P (W) | v (m/s) | status | W (um) default / variant | rel. diff "
-             "| Newton its default / variant | CPU (s) default / variant |",
+    ``sanity-exposure-reverse``, one record per sample) against the default ones, or
+    against those of the variant ``base`` (e.g. ``sanity_exposure``)."""
+    default = {r["tag"]: r for r in (_halves(base) if base else _sanity())}
+    recs = _halves(name)
+    ref = base or "default"
+    lines = [f"| sample | P (W) | v (m/s) | status {ref} / variant | W (um) {ref} / variant "
+             f"| rel. diff | Newton its {ref} / variant | CPU (s) {ref} / variant |",
              "|---|---|---|---|---|---|---|---|"]
     diffs = []
     for r in recs:
@@ -132,12 +140,13 @@ def variant_sanity_table(name: str = "sanity_exposure") -> str:
             rel = r["outputs"]["W"] / d["outputs"]["W"] - 1
             diffs.append(abs(rel))
         lines.append(f"| {r['tag'].removeprefix('sample')} | {r['inputs']['P']:g} "
-                     f"| {r['inputs']['v']:g} | {r['status']} | {wd} / {wv} | {rel:+.1%} "
+                     f"| {r['inputs']['v']:g} | {d.get('status')} / {r['status']} "
+                     f"| {wd} / {wv} | {rel:+.1%} "
                      f"| {d.get('iterations')} / {r.get('iterations')} "
                      f"| {d.get('cpu_s', float('nan')):.1f} / {r.get('cpu_s', float('nan')):.1f} |")
     ok = sum(r["status"] == "ok" for r in recs)
     cpu = [r["cpu_s"] for r in recs if "cpu_s" in r]
-    lines.append(f"\n{len(recs)} settings run, {ok} converged; |W/W_default - 1| median "
+    lines.append(f"\n{len(recs)} settings run, {ok} converged; |W/W_{ref} - 1| median "
                  f"{statistics.median(diffs) if diffs else float('nan'):.1%}, max "
                  f"{max(diffs) if diffs else float('nan'):.1%}; CPU median "
                  f"{statistics.median(cpu) if cpu else float('nan'):.1f} s.")
@@ -218,6 +227,11 @@ if __name__ == "__main__":
                       ("consolidation=\"exposure\"", lambda: start_table("exposure")),
                       ("consolidation=\"exposure\" at the sanity settings",
                        variant_sanity_table),
+                      ("consolidation=\"exposure\", each cell's update capped alone",
+                       lambda: start_table("exposure_clip")),
+                      ("consolidation=\"exposure\", each cell's update capped alone, at the "
+                       "sanity settings, against consolidation=\"exposure\"",
+                       lambda: variant_sanity_table("sanity_clip", "sanity_exposure")),
                       ("consolidation=\"exposure\": mesh convergence",
                        lambda: convergence_table("convergence_exposure")),
                       ("Physical sanity", sanity_table), ("Robustness corners", corners_table)):

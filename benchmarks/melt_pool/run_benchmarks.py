@@ -16,7 +16,9 @@ Phases ``convergence-res1`` and ``convergence-res2`` run one half of ``convergen
 ``convergence-exposure`` (its mesh convergence at two settings) are further phases.
 ``sanity-clip`` and ``sanity-clip-reverse`` run ``sanity-exposure`` with each cell's
 update capped alone (``solver.CLIP_CELLS``), and ``exposure-clip`` the starts of
-``exposure`` with it. ``--help`` lists the phases.
+``exposure`` with it; ``sanity-clip6``, ``sanity-clip6-reverse`` and ``exposure-clip6``
+the same with the cell cycle test looking for periods up to 6 (``solver.CYCLE_PERIODS``).
+``--help`` lists the phases.
 """
 
 from __future__ import annotations
@@ -216,6 +218,7 @@ def convergence_exposure() -> None:
 
 
 CLIP = ["solver.CLIP_CELLS=true"]
+CLIP6 = [*CLIP, "solver.CYCLE_PERIODS=6"]
 EXPOSURE = {"consolidation": "exposure"}
 
 if __name__ == "__main__":
@@ -232,6 +235,10 @@ if __name__ == "__main__":
              "sanity-clip-reverse": lambda: sanity(True, options=EXPOSURE,
                                                    name="sanity_clip_reverse", patch=CLIP),
              "exposure-clip": lambda: exposure(CLIP, "exposure_clip"),
+             "sanity-clip6": lambda: sanity(options=EXPOSURE, name="sanity_clip6", patch=CLIP6),
+             "sanity-clip6-reverse": lambda: sanity(True, options=EXPOSURE,
+                                                    name="sanity_clip6_reverse", patch=CLIP6),
+             "exposure-clip6": lambda: exposure(CLIP6, "exposure_clip6"),
              "convergence-res1": lambda: convergence((1.0,)),
              "convergence-res2": lambda: convergence((2.0,))}
     if len(sys.argv) > 2 and sys.argv[1] == "--worker":
