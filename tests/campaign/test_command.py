@@ -268,3 +268,41 @@ def test_progress_lines_count_the_runs_not_ok_by_status(tmp_path):
     text = "".join(result.output.split())  # the store's path may wrap, even mid-word
     n = int(re.search(r"toy\.sqlite:failed(\d+),ok", text).group(1))
     assert n > 0 and f"toy: 10/10 runs, {n} not ok (failed {n}) (" in result.output
+
+
+def test_export_only_writes_the_store_as_it_is(tmp_path):
+    """--export-only writes a partly finished store's runs and simulates nothing: the
+    spec asks for 8 runs, the store holds 4."""
+    import csv
+
+    spec = toy_spec(tmp_path, runs=8)
+    first = CliRunner().invoke(app, ["campaign", str(spec), "--runs", "4", "--no-progress"])
+    assert first.exit_code == 0, first.output
+    store = tmp_path / "campaigns" / "toy.sqlite"
+    before = store.read_bytes()
+    out = tmp_path / "runs.csv"
+    result = CliRunner().invoke(app, ["campaign", str(spec), "--model", "toy", "--export",
+                                      str(out), "--export-only"])
+    assert result.exit_code == 0, result.output
+    assert "toy: 4 runs in" in " ".join(result.output.split())
+    assert "planned" not in result.output
+    with out.open() as fh:
+        assert len(list(csv.DictReader(fh))) == 4
+    assert (tmp_path / "runs.meta.json").is_file()
+    assert store.read_bytes() == before
+
+
+@pytest.mark.parametrize(("args", "message"), [
+    (["--export-only"], "--export-only writes a store to a file: give --export FILE"),
+    (["--export-only", "--export", "x.csv", "--runs", "3"],
+     "--export-only simulates and imports nothing"),
+    (["--export-only", "--export", "x.csv"], "no campaign store for 'toy' at"),
+])
+def test_export_only_errors_are_one_line(tmp_path, args, message):
+    spec = toy_spec(tmp_path, runs=4)
+    args = [a if a != "x.csv" else str(tmp_path / a) for a in args]
+    result = CliRunner().invoke(app, ["campaign", str(spec), "--model", "toy", *args])
+    assert result.exit_code == 1, result.output
+    assert message in " ".join(result.output.split())
+    assert "Traceback" not in result.output
+    assert not (tmp_path / "campaigns").exists()

@@ -48,6 +48,9 @@ def campaign(
         "table into the store (no simulation); needs --model")] = None,
     export: Annotated[Path | None, typer.Option(
         metavar="FILE", help="also write the runs to a .csv or .parquet file")] = None,
+    export_only: Annotated[bool, typer.Option(
+        "--export-only", help="write the store's runs to --export FILE as they are, "
+                              "simulating nothing")] = False,
     no_progress: Annotated[bool, typer.Option(
         "--no-progress", help="no progress bar (or lines, when not a terminal)")] = False,
 ) -> None:
@@ -56,7 +59,8 @@ def campaign(
     Finished runs are kept, runs that were in flight when a campaign stopped are run again,
     so an interrupted campaign (Ctrl-C, a killed job) resumes where it stopped. With
     --workers K, K local processes (or a Dask LocalCluster with --executor dask) share
-    the runs. With --import FILE, the finished runs of a table go into the store instead.
+    the runs. With --import FILE, the finished runs of a table go into the store instead;
+    with --export-only, the store's runs go to the --export file, finished or not.
     Ctrl-C exits with 130, SIGTERM with 143, the finished runs kept.
     """
     from rich.console import Console
@@ -79,6 +83,10 @@ def campaign(
     if export:
         check_export(export)
     console = Console(highlight=False)
+    if export_only:
+        _export_only(network, names, store, export, console,
+                     other=import_ or fresh or retry_failed or runs or workers or scheduler)
+        return
     useless, skipped, why = [], [], {}
     for name in names:
         if any(a in useless for a in network.ancestors(name)):
@@ -109,6 +117,34 @@ def campaign(
                             "fix the simulator, then run again "
                             "with --retry-failed (a store that holds no ok run starts afresh "
                             "by itself when the model's spec has changed)")
+
+
+def _export_only(network: Any, names: list[str], store: Path | None, export: Path | None,
+                 console: Any, *, other: Any) -> None:
+    """``--export-only``: one model's store, as it is, to ``export``."""
+    from calnet.campaign.campaign import _model
+    from calnet.campaign.store import RunStore, default_store
+    from calnet.campaign.table import export_runs
+
+    if not export:
+        raise CampaignError("--export-only writes a store to a file: give --export FILE")
+    if other:
+        raise CampaignError("--export-only simulates and imports nothing: drop --runs, "
+                            "--workers, --scheduler, --fresh, --retry-failed and --import")
+    if len(names) > 1:
+        raise CampaignError("--export-only exports one model's store; give --model too")
+    _model(network, names[0])
+    path = store or default_store(network, names[0])
+    if not path.is_file():
+        raise CampaignError(f"no campaign store for '{names[0]}' at '{path}'; run `calnet "
+                            f"campaign {network.source or network.root} --model {names[0]}` "
+                            "first")
+    with RunStore(path, readonly=True) as db:
+        counts = db.status_counts()
+    total = sum(counts.values())
+    console.print(f"[bold]{names[0]}[/]: {total} runs in {path} ("
+                  + ", ".join(f"{k} {n}" for k, n in sorted(counts.items()))
+                  + f"), exported to {export_runs(path, export)}")
 
 
 def print_summary(summary: Any, console: Any) -> None:
