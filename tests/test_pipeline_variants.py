@@ -162,3 +162,37 @@ def test_a_variant_that_changes_nothing_is_not_calibrated(context, monkeypatch):
         context.calibration(lambda text: None)
         assert set(context.collect_variants()) == {"no_discrepancy"}
     assert asked == ["no_discrepancy"]
+
+
+def test_the_campaign_stage_passes_on_the_campaigns_notes(tmp_path):
+    """What `calnet campaign` prints as notes (here: where the simulator's output went)
+    reaches the end of `calnet run` as a warning."""
+    import sys
+    import warnings
+
+    import yaml
+
+    sys.path.insert(0, str(Path(__file__).parent / "campaign"))
+    try:
+        from campaign_helpers import toy_spec
+    finally:
+        sys.path.pop(0)
+    spec = toy_spec(tmp_path, "python:toy_sims:chatty", runs=3, timeout=30.0)
+    doc = yaml.safe_load(spec.read_text())
+    doc["models"]["toy"]["outputs"]["y"] = {"measurable": True}
+    doc["data"] = {"d": {"path": "d.csv", "observes": "toy.y"}}
+    spec.write_text(yaml.safe_dump(doc, sort_keys=False))
+    (tmp_path / "d.csv").write_text("x,y\n0.2,0.5\n0.6,0.9\n")
+    (tmp_path / "toy_sims.py").write_text(
+        (Path(__file__).parent / "campaign" / "toy_sims.py").read_text())
+    sys.path.insert(0, str(tmp_path))
+    try:
+        ctx = pipeline._Context(load_spec(spec), tmp_path / "out", quick=True, fresh=False,
+                                loo_max=0)
+        with warnings.catch_warnings(record=True) as seen:
+            warnings.simplefilter("always")
+            ctx.campaign(lambda text: None)
+    finally:
+        sys.path.remove(str(tmp_path))
+    said = [str(w.message) for w in seen]
+    assert any(m.startswith("toy: what the simulator printed is in ") for m in said), said

@@ -258,7 +258,10 @@ class _Context:
             note(name)
             store.parent.mkdir(parents=True, exist_ok=True)
             # resumes: finished runs are skipped, so a complete shipped store costs nothing
-            run_campaign(self.network, name, store=store, progress=note, fresh=self.fresh)
+            summary = run_campaign(self.network, name, store=store, progress=note,
+                                   fresh=self.fresh)
+            for text in summary.notes:  # where the runs' logs are, a worker that died
+                warnings.warn(f"{name}: {text}", CampaignWarning, stacklevel=2)
             runs = load_runs(self.network, name, store=store)
             failed = store_failure_note(store, self.network.model(name))
             if not runs.status_counts.get("ok"):  # nothing to fit; the models after it
