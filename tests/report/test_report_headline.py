@@ -95,6 +95,8 @@ def test_emulation_only_and_parameterless_runs_say_what_was_calibrated():
                          "predict M3.y through the chain.",)
     (table,) = box.tables
     assert table.rows == (("M3.y", "x", "[1, 4]", "1.133", "2", "mm"),)  # widths 1, .4, 2
+    (plain,) = headline(emulated, predicted_units={"M3.y": "1"}).tables
+    assert plain.rows[0][-1] == ""  # a dimensionless output: no unit "1"
     with_data = replace(emulated, calibration=calibration({}, checks={}))
     assert "no calibration parameters" in headline(with_data).lines[0]
 

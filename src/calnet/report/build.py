@@ -11,7 +11,7 @@ import numpy as np
 from calnet.report import figures
 from calnet.report.emulation import caption as emulation_caption
 from calnet.report.emulation import emulation_section, slices_figure
-from calnet.report.figures import with_unit
+from calnet.report.figures import unit_text, with_unit
 from calnet.report.headline import BASELINES, headline
 from calnet.report.html import Section, Table, fmt, write_report
 from calnet.report.metrics import write_metrics
@@ -219,8 +219,8 @@ def _sections(ctx, results: RunResults) -> list[Section]:
             continue
         for p, r in s["parameters"].items():
             rows.append([model, p, f"[{fmt(r['lower'])}, {fmt(r['upper'])}]", fmt(r["mode"]),
-                         fmt(r["mean"]), f"[{fmt(r['q2.5'])}, {fmt(r['q97.5'])}]", r["unit"],
-                         fmt(r.get("rhat")), fmt(r.get("ess_bulk"))])
+                         fmt(r["mean"]), f"[{fmt(r['q2.5'])}, {fmt(r['q97.5'])}]",
+                         unit_text(r["unit"]), fmt(r.get("rhat")), fmt(r.get("ess_bulk"))])
     diag = [[k, s.get("divergences", ""), fmt(s.get("max_rhat")), fmt(s.get("min_ess_bulk"))]
             for k, s in summary.items()]
     ref = reference_rows(results, _units(ctx))  # only with a reference.json

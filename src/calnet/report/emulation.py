@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from calnet.report.figures import TRAIN_COLOR, _figure, _save, with_unit
+from calnet.report.figures import TRAIN_COLOR, _figure, _save, unit_text, with_unit
 from calnet.report.html import Section, Table, fmt
 
 if TYPE_CHECKING:
@@ -71,7 +71,7 @@ def _rows(predicted: Mapping[str, OutputSlices],
             width = np.asarray(s.upper[j], float) - np.asarray(s.lower[j], float)
             rows.append([key, inp.split(".", 1)[1], f"[{fmt(mean.min())}, {fmt(mean.max())}]",
                          fmt(float(width.mean())), fmt(float(width.max())),
-                         units.get(key, "")])
+                         unit_text(units.get(key))])
     return rows
 
 

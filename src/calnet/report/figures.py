@@ -37,9 +37,14 @@ TRAIN_COLOR, TEST_COLOR = "#1f77b4", "#d62728"
 DATASET_MARKERS = ("o", "s", "^", "D", "v", "P", "X", "<", ">")
 
 
+def unit_text(unit: str | None) -> str:
+    """A unit as a table shows it: empty for no unit and for the dimensionless ``"1"``."""
+    return "" if unit in (None, "", "1") else str(unit)
+
+
 def with_unit(label: str, unit: str | None) -> str:
     """``"P (W)"``; the bare label for no unit or the dimensionless ``"1"`` (no ``"(1)"``)."""
-    return f"{label} ({unit})" if unit and unit != "1" else str(label)
+    return f"{label} ({unit_text(unit)})" if unit_text(unit) else str(label)
 
 
 def _figure(width: float, height: float) -> Any:

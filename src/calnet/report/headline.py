@@ -25,6 +25,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from calnet.report.emulation import headline_table
+from calnet.report.figures import unit_text
 from calnet.report.html import Headline, Table, fmt
 from calnet.results import CalibrationResult, DatasetValidation, RunResults
 
@@ -75,10 +76,6 @@ def headline(results: RunResults, *, units: Mapping[str, str] | None = None,
                     lines=_lines(results), warnings=shown, more=more)
 
 
-def _unit(unit: str | None) -> str:
-    return "" if unit in (None, "", "1") else str(unit)
-
-
 def _parameter_table(summary: Mapping[str, Any]) -> Table:
     """One row per calibrated parameter: posterior mean and central 95 % interval."""
     rows, seen = [], set()
@@ -93,7 +90,7 @@ def _parameter_table(summary: Mapping[str, Any]) -> Table:
             if r.get("plugged"):
                 label += " (plugged in)"
             rows.append([label, r["mean"], f"[{fmt(r['q2.5'])}, {fmt(r['q97.5'])}]",
-                         _unit(r.get("unit"))])
+                         unit_text(r.get("unit"))])
     return Table("Calibrated parameters", ["parameter", "posterior mean", "95 % interval",
                                            "unit"], rows)
 
@@ -126,7 +123,7 @@ def _error_table(validation: Mapping[str, DatasetValidation],
             base = {b: loo[b] for b in used if b in loo}
         else:
             where, calnet, base = f"{v.train['n']} training points (no test)", v.train, {}
-        rows.append([name, where, _unit(units.get(name)), _cell(calnet)]
+        rows.append([name, where, unit_text(units.get(name)), _cell(calnet)]
                     + [_cell(base.get(b)) for b in used])
     return Table("Prediction error: RMSE (MAPE)",
                  ["data set", "evaluated on", "unit", "calnet"] + [BASELINES[b] for b in used],
