@@ -378,6 +378,19 @@ def test_registered_and_runs_from_the_cli():
     assert len(lines) >= 2 and f"{steps}/{steps} steps" in lines[-1], result.stderr
 
 
+def test_progress_counts_toward_the_earliest_steady_end():
+    """The progress fraction follows the simulated time before the earliest steady end
+    (min_travel) when that comes before the step budget: here at most 0.95 after the
+    first chunk, not the budget's small share; it never falls."""
+    p = phase_field.parameters(WORKED)
+    seen = []
+    opts = PhaseFieldOptions(**{**TINY, "max_steps": 100000}, min_travel=1e-6)
+    solver.run(p, opts, progress=lambda done, text: seen.append((done, text)))
+    fractions = [f for f, _ in seen]
+    assert fractions[0] == pytest.approx(0.95) and fractions == sorted(fractions)
+    assert "steady from" in seen[0][1] and all(0 < f <= 1 for f in fractions)
+
+
 @pytest.mark.slow
 def test_cells_at_0_3_m_s_from_the_cli():
     # the issue's "done when": the default run at 0.3 m/s, 1e7 K/m is a steady cell array

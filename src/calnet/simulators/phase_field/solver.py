@@ -172,8 +172,12 @@ def run(p: PhysicalParameters, opts: PhaseFieldOptions,
     grid (:func:`~calnet.simulators.phase_field.model.stable_time_step`), and the step
     budget ``opts.max_steps / dt_scale`` (the same simulated time). The run stops early
     with status ``"diverged"`` when :func:`diverged` says so. ``progress``, when given,
-    is called after every chunk with the fraction of the step budget spent and a line
-    saying where the run is (:meth:`calnet.progress.Lines.update` takes both).
+    is called after every chunk with the fraction done and a line saying where the run
+    is (:meth:`calnet.progress.Lines.update` takes both). The fraction is that of the
+    simulated time before the earliest steady end (``min_travel``; up to 0.95 of the
+    whole, as a run may go on until its front is steady), or of the step budget where
+    that is larger: a run that turns steady soon after ``min_travel`` does not end at
+    a small share of a budget it never needed.
     """
     start = time.perf_counter()
     phi, xs, xl, y_front = initial_fields(opts, c, p.S)
@@ -204,9 +208,10 @@ def run(p: PhysicalParameters, opts: PhaseFieldOptions,
         history.append(outputs.measure(
             phi, xs, xl, y=y, t=t, dx=opts.dx, eta=c.eta, T0=c.T0,
             temperature_at=lambda yy, tt: T_ref + p.G * (yy - y_front - p.S * tt)))
-        if progress is not None:
-            progress(steps / max_steps, f"{steps}/{max_steps} steps, {t * 1e6:.2f} us "
-                     f"simulated (steady from {min_time * 1e6:.1f} us at the earliest), "
+        if progress is not None:  # the earliest end (min_time), else the step budget
+            done = max(steps / max_steps, 0.95 * min(t / min_time, 1.0) if min_time else 0.0)
+            progress(done, f"{steps}/{max_steps} steps, {t * 1e6:.2f} us simulated (steady "
+                     f"from {min_time * 1e6:.1f} us at the earliest), "
                      f"{history[-1].cells} cells")
         if outputs.steady(history, speed=p.S, min_time=min_time, window_time=window_time):
             status = "steady"
