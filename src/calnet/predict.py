@@ -66,6 +66,12 @@ class Prediction:
         ``noise``.
     samples : ndarray (k, n), optional
         Predictive samples of a new measurement, natural scale.
+    draw_mean, draw_sd : ndarray (draws, n), optional
+        The Gaussian predictive of a new measurement given each posterior draw, on the
+        modelled scale (``log`` units for a log-transformed output):
+        :meth:`log_density` is their mixture's.
+    log : bool
+        Whether the modelled scale is the log of the natural one.
     """
 
     dataset: str | None
@@ -78,6 +84,22 @@ class Prediction:
     budget: dict[str, np.ndarray] = field(default_factory=dict)
     prob: np.ndarray | None = None
     samples: np.ndarray | None = field(default=None, repr=False)
+    draw_mean: np.ndarray | None = field(default=None, repr=False)
+    draw_sd: np.ndarray | None = field(default=None, repr=False)
+    log: bool = False
+
+    def log_density(self, y: np.ndarray) -> np.ndarray:
+        """Log predictive density (n,) of observations ``y`` (n,, natural scale) on the
+        modelled scale: the log of the mean over draws of each draw's Gaussian."""
+        from scipy.special import logsumexp
+        from scipy.stats import norm
+
+        if self.draw_mean is None or self.draw_sd is None:
+            raise ValueError("this prediction keeps no per-draw moments")
+        y = np.asarray(y, float)
+        ym = np.log(y) if self.log else y
+        lp = norm.logpdf(ym[None], self.draw_mean, self.draw_sd)
+        return logsumexp(lp, axis=0) - math.log(lp.shape[0])
 
     def pit(self, y: np.ndarray) -> np.ndarray:
         """Probability integral transform of observations ``y`` (n,) under the predictive
@@ -414,7 +436,7 @@ def predict(network: Network, surrogates: Surrogates, posterior: NetworkPosterio
             ok &= samples <= within[1]
         prob = ok.mean(axis=0)
     return Prediction(dataset, key, st.keys, x, samples.mean(axis=0), lo, hi,
-                      budget, prob, samples)
+                      budget, prob, samples, mean_all * s + mu, sd * s, bool(st.log))
 
 
 def predict_data(network: Network, surrogates: Surrogates, posterior: NetworkPosterior,

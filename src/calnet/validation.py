@@ -97,8 +97,11 @@ def psis_loo(network: Network, surrogates: Surrogates, posterior: NetworkPosteri
 
     Returns a dict: ``calnet`` (metrics of the LOO predictive), ``training_mean``
     (the mean of the other points), ``mean``/``lower95``/``upper95`` per point,
-    ``elpd_loo``, ``elpd_se``, ``p_loo`` (modelled scale), ``pareto_k`` per point,
-    ``refit`` (indices refitted exactly) and ``method``.
+    ``elpd_loo``, ``elpd_se``, ``p_loo`` and ``elpd_pointwise`` (modelled scale; a
+    refitted point counts with its exact log predictive density), ``pareto_k`` per
+    point, ``refit`` (indices refitted exactly), ``influential`` (the points over
+    ``k_max``, highest k first: index, k, whether refitted, measurement and process
+    inputs) and ``method``.
     """
     az = import_arviz()
     full = posterior.data[dataset]
@@ -135,25 +138,37 @@ def psis_loo(network: Network, surrogates: Surrogates, posterior: NetworkPosteri
     bad = np.flatnonzero(khat > k_max)
     todo = bad[np.argsort(-khat[bad], kind="stable")][:refit_max] if sampler else bad[:0]
     refit = []
+    pointwise = np.asarray(loo.loo_i, float)  # (n,) log predictive density of each point
     if len(todo):
         refitter = _Refitter(network, surrogates, posterior, full, sampler)
         for j, i in enumerate(todo):
             if progress:
                 progress(j, len(todo))
-            mean[i], lo[i], hi[i], samples[:, i], pit[i] = refitter.predict(
+            mean[i], lo[i], hi[i], samples[:, i], pit[i], pointwise[i] = refitter.predict(
                 int(i), seed + int(i), n_samples)
             refit.append(int(i))
     refit.sort()
+    elpd, se, p_loo = float(loo.elpd_loo), float(loo.se), float(loo.p_loo)
+    if refit:  # the refitted points' exact densities replace their importance-sampled ones
+        lppd = float(np.sum(logsumexp(cond.loglik, axis=0) - np.log(S)))
+        elpd, se = float(pointwise.sum()), float(np.sqrt(n * np.var(pointwise)))
+        p_loo = lppd - elpd
     naive = np.array([np.delete(full.y, i).mean() for i in range(n)])
+    influential = [{"point": int(i), "pareto_k": float(khat[i]), "refit": int(i) in refit,
+                    "y": float(full.y[i]),
+                    "inputs": {k.split(".", 1)[1]: float(full.x[i, j])
+                               for j, k in enumerate(full.input_keys)}}
+                   for i in bad[np.argsort(-khat[bad], kind="stable")]]
     return {"method": "psis",
             "calnet": metrics(full.y, mean, lo, hi, samples=samples, pit=pit),
             "training_mean": metrics(full.y, naive),
             "mean": mean.tolist(), "lower95": lo.tolist(), "upper95": hi.tolist(),
             "pit": pit.tolist(), "pit_check": pit_check(dataset, pit),
-            "elpd_loo": float(loo.elpd_loo), "elpd_se": float(loo.se),
-            "p_loo": float(loo.p_loo), "pareto_k": khat.tolist(),
+            "elpd_loo": elpd, "elpd_se": se, "p_loo": p_loo,
+            "elpd_pointwise": pointwise.tolist(), "pareto_k": khat.tolist(),
             "max_pareto_k": float(khat.max()) if khat.size else None, "k_threshold": k_max,
-            "n_unreliable": int(len(bad)) - len(refit), "refit": refit, "n_draws": S}
+            "n_unreliable": int(len(bad)) - len(refit), "refit": refit,
+            "influential": influential, "n_draws": S}
 
 
 PIT_P_MIN = 0.01  # a Kolmogorov-Smirnov p-value of the PIT below this flags the model
@@ -354,7 +369,8 @@ class _Refitter:
         self.scales = {full.name: data_scale(network, full)}
 
     def predict(self, i: int, seed: int, n_samples: int = 4000):
-        """Mean, 95 % bounds, ``n_samples`` predictive samples and the PIT of point i."""
+        """Mean, 95 % bounds, ``n_samples`` predictive samples, the PIT and the log
+        predictive density (modelled scale) of point i."""
         full, network = self.full, self.network
         data_i = full.subset(np.arange(len(full.y)) != i)
         ld = build_koh(network, self.surrogates, free=self.own, datasets={full.name: data_i},
@@ -369,7 +385,8 @@ class _Refitter:
                        noise_var=_noise_var(network, full, i))
         draws = np.resize(pred.samples[:, 0], n_samples)
         return (float(pred.mean[0]), float(pred.lower[0]), float(pred.upper[0]), draws,
-                float(pred.pit(full.y[i:i + 1])[0]))
+                float(pred.pit(full.y[i:i + 1])[0]),
+                float(pred.log_density(full.y[i:i + 1])[0]))
 
 
 def _noise_var(network: Network, data: ExperimentalData, i: int):

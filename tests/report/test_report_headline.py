@@ -122,3 +122,19 @@ def test_a_surrogate_that_extrapolates_to_the_data_names_the_points_not_runs():
     box = headline(results([], cal=calibration(summary(), checks=checks)), warnings_section=7)
     said = box.warnings[0]  # the surrogate checks come first
     assert "at the 2 data point(s) outside the input bounds" in said and "9000" not in said
+
+
+def test_influential_points_are_named_by_their_inputs_and_measurement():
+    from calnet.report.build import _p, influential_note
+
+    loo = {"k_threshold": 0.7, "influential": [
+        {"point": 7, "pareto_k": 3.0, "refit": True, "y": 4.058, "inputs": {"x": 1.0}},
+        {"point": 0, "pareto_k": 1.03, "refit": False, "y": 0.1, "inputs": {"x": 0.0}}]}
+    note = influential_note("d", loo, "mm")
+    assert note.startswith("d: 2 points with Pareto k > 0.7")
+    assert "x = 1: 4.058 mm (k = 3, re-calibrated without it); x = 0: 0.1 mm (k = 1.03)" in note
+    one = influential_note("d", {**loo, "influential": loo["influential"][:1]}, most=1)
+    assert "1 point with" in one and "4.058 (k = 3" in one and "more" not in one
+    assert influential_note("d", loo, most=1).endswith("and 1 more.")
+    assert _p(float("nan"), "too few points") == "\u2013 (too few points)"
+    assert _p(None) == "\u2013" and _p(0.25) == "0.25"

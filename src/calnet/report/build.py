@@ -159,8 +159,11 @@ def _caption(ctx, results: RunResults, key: str) -> str:
                 "the measurements; filled markers are training points, hollow markers "
                 "held-out test points.")
     if kind == "pit":
+        v = results.validation.get(name)
+        which = ("left out (leave-one-out) and in-sample" if v is not None and "pit" in v.loo
+                 else "in-sample (no leave-one-out)")
         return (f"{name}: where each measurement of {observes} falls in its predictive "
-                "distribution (PIT), left out (leave-one-out) and in-sample; a calibrated "
+                f"distribution (PIT), {which}; a calibrated "
                 "model gives a flat histogram, a U shape means intervals too narrow, a hump "
                 "too wide, a slope a bias.")
     if kind == "sobol":
@@ -233,7 +236,11 @@ def _sections(ctx, results: RunResults) -> list[Section]:
         Table("Sampler diagnostics (all sampled variables)",
               ["model", "divergences", "max R-hat", "min bulk ESS"], diag)],
         figures=pick("posterior "))
-    vrows, lrows = [], []
+    vrows, lrows, loo_notes = [], [], []
+    units = _units(ctx)
+
+    def d_unit(name):
+        return unit_text(units.get(name))
 
     def row(name, predictor, r):
         return [name, predictor, fmt(r.get("rmse")), fmt(r.get("nrmse")), fmt(r.get("mape")),
@@ -249,6 +256,10 @@ def _sections(ctx, results: RunResults) -> list[Section]:
         if "calnet" in loo:
             vrows.append(row(name, "calnet (leave-one-out)", loo["calnet"]))
             vrows.append(row(name, "training mean (leave-one-out)", loo["training_mean"]))
+        if "skipped" in loo:
+            loo_notes.append(f"{name}: no leave-one-out ({loo['skipped']}).")
+        if loo.get("influential"):
+            loo_notes.append(influential_note(name, loo, d_unit(name)))
         if "elpd_loo" in loo:
             k = np.asarray(loo["pareto_k"])
             check = loo["pit_check"]
@@ -260,8 +271,8 @@ def _sections(ctx, results: RunResults) -> list[Section]:
                 f"{loo['n_unreliable']}",
                 " / ".join(fmt(c.get(f"pit_coverage{q}")) for q in (50, 80, 95)),
                 ("flagged" if check["flagged"] else "ok")
-                + f" (outside the band p = {fmt(check['outside_pvalue'])}, uniformity "
-                f"p = {fmt(check['ks_pvalue'])})"])
+                + f" (outside the band p = {_p(check['outside_pvalue'])}, uniformity "
+                f"p = {_p(check['ks_pvalue'], 'too few points')})"])
     brows = [[name, src, fmt(share)] for name, v in results.validation.items()
              for src, share in v.variance_shares.items()]
     tables = [
@@ -281,7 +292,8 @@ def _sections(ctx, results: RunResults) -> list[Section]:
         "Uncertainty budget (share of predictive variance, averaged over points; the "
         "discrepancy's share is what the model itself does not explain)",
         ["data set", "source", "share"], brows))
-    val = Section("Prediction and validation", paragraphs=variant_notes, tables=tables,
+    val = Section("Prediction and validation", paragraphs=loo_notes + variant_notes,
+                  tables=tables,
                   figures=pick("predictive ") + pick("pit "))
     srows, few = [], {}
     for name, e in results.sensitivity.items():
@@ -327,6 +339,27 @@ def quick_spread_note(draws: dict[str, int]) -> str:
     return (f"Quick run: the spread of ST over posterior draws comes from {n} only, so it "
             "is indicative, not a 95 % interval; run without --quick for a meaningful "
             "spread.")
+
+
+def _p(value, missing: str = "") -> str:
+    """A p-value cell: an en dash (and why) where there is none."""
+    if value is None or not np.isfinite(value):
+        return "\u2013" + (f" ({missing})" if missing else "")
+    return fmt(value)
+
+
+def influential_note(name: str, loo: dict, unit: str = "", most: int = 5) -> str:
+    """The points of a data set whose Pareto k exceeds the threshold, named by their
+    process inputs and measurement, highest k first: the measurements the calibration
+    leans on most, or outliers."""
+    points = loo["influential"]
+    said = [f"{', '.join(f'{k} = {fmt(v)}' for k, v in p['inputs'].items())}: "
+            f"{fmt(p['y'])}{' ' + unit if unit else ''} (k = {fmt(p['pareto_k'])}"
+            f"{', re-calibrated without it' if p['refit'] else ''})" for p in points[:most]]
+    more = f" and {len(points) - most} more" if len(points) > most else ""
+    return (f"{name}: {len(points)} point{'s' if len(points) > 1 else ''} with Pareto k > "
+            f"{fmt(loo['k_threshold'])}, which the posterior leans on most (a measurement "
+            f"to check, or one the model cannot explain): {'; '.join(said)}{more}.")
 
 
 def comparison_tables(comparison) -> tuple[list[Table], list[str]]:
