@@ -196,3 +196,21 @@ def test_the_campaign_stage_passes_on_the_campaigns_notes(tmp_path):
         sys.path.remove(str(tmp_path))
     said = [str(w.message) for w in seen]
     assert any(m.startswith("toy: what the simulator printed is in ") for m in said), said
+
+
+def test_variants_of_a_spec_without_a_discrepancy_change_nothing():
+    """Without a discrepancy, non_orthogonal is the spec's model too (it was run and
+    compared under its name, a copy of no_discrepancy); reference still adds one."""
+    from calnet.spec.models import DiscrepancySettings
+
+    network = load_spec(NINB)
+    off = DiscrepancySettings(enabled=False)
+    none = network.model_copy(update={"data": tuple(
+        ds.model_copy(update={"discrepancy": off}) for ds in network.data)})
+    assert validation.same_as_spec(none, VARIANTS) == ("no_discrepancy", "non_orthogonal")
+    default = network.model_copy(update={"data": tuple(
+        ds.model_copy(update={"discrepancy": DiscrepancySettings()}) for ds in network.data)})
+    assert validation.same_as_spec(default, VARIANTS) == ()
+
+
+VARIANTS = ("no_discrepancy", "non_orthogonal", "reference")

@@ -204,13 +204,14 @@ VARIANTS = ("no_discrepancy", "non_orthogonal", "reference")
 
 def variant(network: Network, name: str) -> Network:
     """``network`` with every data set's discrepancy replaced: ``no_discrepancy`` (none),
-    ``non_orthogonal`` (the same priors, not orthogonal to the parameters) or
-    ``reference`` (the reference study's KOH)."""
+    ``non_orthogonal`` (the same priors, not orthogonal to the parameters; a data set
+    without a discrepancy keeps none) or ``reference`` (the reference study's KOH)."""
     def new(ds):
         if name == "no_discrepancy":
             return DiscrepancySettings(enabled=False)
-        if name == "non_orthogonal":
-            return ds.discrepancy.model_copy(update={"orthogonal": False})
+        if name == "non_orthogonal":  # a data set without a discrepancy keeps none
+            return (ds.discrepancy.model_copy(update={"orthogonal": False})
+                    if ds.discrepancy.enabled else ds.discrepancy)
         if name == "reference":
             return DiscrepancySettings.model_validate("reference")
         raise ValueError(f"unknown variant '{name}'; known: {list(VARIANTS)}")
@@ -221,8 +222,8 @@ def variant(network: Network, name: str) -> Network:
 
 def same_as_spec(network: Network, variants) -> tuple[str, ...]:
     """The ``variants`` that change nothing in ``network`` (``no_discrepancy`` where no
-    data set has a discrepancy, ``non_orthogonal`` where none is orthogonal): comparing
-    them would compare the spec's model with itself."""
+    data set has a discrepancy, ``non_orthogonal`` where none has an orthogonal one):
+    comparing them would compare the spec's model with itself."""
     return tuple(name for name in variants if variant(network, name) == network)
 
 
