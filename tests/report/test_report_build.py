@@ -35,3 +35,28 @@ def test_a_quick_runs_spread_is_labelled_indicative():
         "Quick run: the spread of ST over posterior draws comes from 3 posterior draws only, "
         "so it is indicative, not a 95 % interval")
     assert "d1: 3, d2: 5 posterior draws only" in quick_spread_note({"d1": 3, "d2": 5})
+
+
+def test_the_comparison_says_whether_the_discrepancy_is_needed():
+    from dataclasses import replace
+
+    from calnet.report.verdict import comparison_verdicts
+
+    def s(elpd, diff, dse, k=0.4):
+        return replace(score(elpd), elpd_diff=diff, dse=dse, max_pareto_k=k)
+
+    needed = {"w": {"spec": s(-118.0, 0.0, 0.0), "no_discrepancy": s(-132.2, 14.2, 2.4)}}
+    assert comparison_verdicts(needed) == [
+        "w: the spec's model predicts the left-out points better than no_discrepancy (ELPD "
+        "14.2 ± 2.4 higher, more than two standard errors); the discrepancy is needed."]
+    alike = {"p": {"spec": s(3.24, 0.0, 0.0), "no_discrepancy": s(2.93, 0.31, 0.66)}}
+    assert comparison_verdicts(alike)[0].endswith(
+        "(ELPD 0.31 ± 0.66 higher, within two standard errors, no clear difference); the "
+        "data do not need the discrepancy.")
+    # the variant best by far, with a Pareto k that makes it uncertain
+    worse = {"d": {"spec": s(-40.0, 6.0, 1.5), "no_discrepancy": s(-34.0, 0.0, 0.0, k=1.13)}}
+    (v,) = comparison_verdicts(worse)
+    assert v.startswith("d: no_discrepancy predicts the left-out points better than the "
+                        "spec's model (ELPD 6 ± 1.5 higher, more than two standard errors); "
+                        "the discrepancy does not help")
+    assert v.endswith("(Pareto k up to 1.13: these ELPDs are uncertain).")

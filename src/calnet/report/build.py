@@ -17,6 +17,7 @@ from calnet.report.html import Section, Table, fmt, write_report
 from calnet.report.metrics import write_metrics
 from calnet.report.posterior_csv import write_posterior_csv
 from calnet.report.reference import reference_rows
+from calnet.report.verdict import comparison_verdicts
 from calnet.results import CalibrationResult, RunResults
 
 
@@ -287,6 +288,7 @@ def _sections(ctx, results: RunResults) -> list[Section]:
             ["data set", "points", "ELPD ± se", "p_loo", "max k", "k > 0.7 / refitted / "
              "unreliable", "LOO coverage 50 / 80 / 95 %", "calibration (PIT)"], lrows))
     comparison, variant_notes = comparison_tables(results.comparison or {})
+    variant_notes = comparison_verdicts(results.comparison or {}) + variant_notes
     tables += comparison
     tables.append(Table(
         "Uncertainty budget (share of predictive variance, averaged over points; the "

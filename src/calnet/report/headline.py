@@ -27,6 +27,7 @@ from typing import Any
 from calnet.report.emulation import headline_table
 from calnet.report.figures import unit_text
 from calnet.report.html import Headline, Table, fmt
+from calnet.report.verdict import comparison_verdicts
 from calnet.results import CalibrationResult, DatasetValidation, RunResults
 
 #: bullets in the box; the rest are counted and left to the Warnings section
@@ -161,7 +162,7 @@ def _lines(results: RunResults) -> list[str]:
         lines.append(f"Sampler: max R-hat {rhat:.3f} (limit {cal.rhat_max}), min bulk ESS "
                      f"{ess:.0f} (limit {cal.ess_min}), {div} divergent transitions: "
                      + ("within the limits." if ok else "see the warnings."))
-    return lines
+    return lines + [f"Comparison: {v}" for v in comparison_verdicts(results.comparison or {})]
 
 
 def _surrogate_warning(name: str, check: Mapping[str, Any]) -> str:

@@ -1,0 +1,59 @@
+"""What a comparison of discrepancy variants by leave-one-out says, in a sentence per
+variant and data set (the report's validation section and its headline)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+from calnet.report.html import fmt
+
+K_RELIABLE = 0.7  # Pareto k above which a PSIS ELPD is not to be trusted
+
+_MEANING = {  # what each variant's result says about the spec's discrepancy
+    "no_discrepancy": ("the discrepancy is needed", "the data do not need the discrepancy",
+                       "the discrepancy does not help: the model predicts better without it"),
+    "non_orthogonal": ("orthogonality helps", "orthogonality makes no clear difference",
+                       "the discrepancy predicts better without orthogonality"),
+    "reference": ("the spec's discrepancy predicts better than the reference study's",
+                  "the spec's and the reference study's discrepancy predict alike",
+                  "the reference study's discrepancy predicts better"),
+}
+
+
+def comparison_verdicts(comparison: Mapping[str, Mapping[str, Any]]) -> list[str]:
+    """One sentence per data set and variant: which model predicts the left-out points
+    better, by how much (ELPD difference and its standard error, clear beyond two), what
+    that says about the discrepancy, and whether a Pareto k makes it uncertain.
+
+    ``comparison``: ``{data set: {"spec" or variant: VariantScore}}``."""
+    out = []
+    for name, cmp in comparison.items():
+        spec = cmp.get("spec")
+        if spec is None:
+            continue
+        for variant, r in cmp.items():
+            if variant == "spec":
+                continue
+            diff = r.elpd_loo - spec.elpd_loo  # > 0: the variant predicts better
+            # ArviZ's standard error is of each model's difference to the best
+            se = r.dse if spec.elpd_diff == 0 else spec.dse if r.elpd_diff == 0 else None
+            clear = se is not None and abs(diff) > 2 * se
+            better, worse = (variant, "the spec's model") if diff > 0 else (
+                "the spec's model", variant)
+            size = (f"ELPD {fmt(abs(diff))} ± {fmt(se)} higher" if se is not None
+                    else f"ELPD {fmt(abs(diff))} higher")
+            how = ("no standard error of the difference" if se is None
+                   else "more than two standard errors" if clear
+                   else "within two standard errors, no clear difference")
+            meaning = _MEANING.get(variant)
+            said = ""
+            if meaning:
+                said = "; " + (meaning[1] if not clear else meaning[0] if diff < 0
+                               else meaning[2])
+            k = max(r.max_pareto_k, spec.max_pareto_k)
+            shaky = (f" (Pareto k up to {fmt(k)}: these ELPDs are uncertain)"
+                     if k > K_RELIABLE else "")
+            out.append(f"{name}: {better} predicts the left-out points better than {worse} "
+                       f"({size}, {how}){said}{shaky}.")
+    return out
