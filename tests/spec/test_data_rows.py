@@ -64,3 +64,14 @@ def test_rows_of_another_data_set_of_the_same_output_count_once(base_spec, write
                       r"\(also in data set 'width'\)"):
         data = read_all(load_spec(write_spec(base_spec)))
     assert data["more"].y.tolist() == [83] and len(data["width"].y) == 3
+
+
+def test_a_data_set_that_only_repeats_another_is_an_error(base_spec, write_spec, tmp_path):
+    """A copy of another data set's file would be left with no row (and the run crashed
+    in the surrogate check): a one-line error names it."""
+    base_spec["data"]["copy"] = {**base_spec["data"]["width"], "path": "copy.csv"}
+    path = write_spec(base_spec)
+    (path.parent / "copy.csv").write_text((path.parent / "width.csv").read_text())
+    with pytest.raises(SpecError, match="every row of data set 'copy' repeats a measurement "
+                       "of heat.W in data set 'width', so it adds nothing; remove it"):
+        read_all(load_spec(path))

@@ -171,7 +171,7 @@ def check_surrogates(network, surrogates, posterior, *, n_draws: int = 50
             ratio = sds[k] / data_sd if data_sd > 0 else math.inf
             dim = int(surrogates[k].gp.n_inputs)
             factor = (ratio / RATIO_TARGET) ** 2
-            needed[k] = int(min(1e6, math.ceil(runs[k] * max(factor, 1.0) ** (dim / 3.0))))
+            needed[k] = int(math.ceil(min(1e6, runs[k] * max(factor, 1.0) ** (dim / 3.0))))
         out.append(SurrogateCheck(ds, sds, data_sd, runs, needed, int(outside.sum()), share))
     return out
 

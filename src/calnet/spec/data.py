@@ -295,6 +295,12 @@ def read_all(network: Network) -> dict[str, ExperimentalData]:
         held = seen.setdefault(ds.observes, {})
         repeats = {i: f"also in data set '{held[row]}'" for i, row in enumerate(_rows(data))
                    if row in held}
+        if repeats and len(repeats) == len(data.y):
+            others = sorted({held[row] for row in _rows(data)})
+            raise SpecError(f"every row of data set '{ds.name}' repeats a measurement of "
+                            f"{ds.observes} in data set {', '.join(map(repr, others))}, so "
+                            "it adds nothing; remove it (or its copied rows)",
+                            file=network.source or None, field=f"data.{ds.name}")
         out[ds.name] = _once(data, repeats, f"{ds.path}: data.{ds.name}")
         for row in _rows(out[ds.name]):
             held.setdefault(row, ds.name)
