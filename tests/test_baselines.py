@@ -55,3 +55,22 @@ def test_metrics_scores_against_closed_forms():
     assert missed["interval_score95"] == pytest.approx(0.5 + (2 / 0.05) * 0.5 / 2)
     assert missed["mape"] is None  # a zero observation: percentages are meaningless
     assert metrics(np.array([-0.2, 1.0]), np.array([0.0, 1.0]))["mape"] is None
+    # the NRMSE of a split on the whole data set's range: one point has one too
+    assert metrics(np.array([2.0]), np.array([2.5]), y_range=4.0)["nrmse"] == 0.125
+    assert metrics(np.array([2.0]), np.array([2.5]))["nrmse"] is None
+
+
+def test_the_baselines_score_the_test_points_on_the_data_sets_range():
+    """The test rows' NRMSE divides by the range of all the data set's measurements, as
+    calnet's rows do, not by the range of the few test values."""
+    from calnet.validation import baselines
+
+    x = np.array([[100.0, 0.5], [150.0, 1.0], [200.0, 1.5], [250.0, 2.0]])
+    train, test = _data(x[:3], [1.0, 5.0, 9.0]), _data(x[3:], [4.0])
+    from types import SimpleNamespace
+
+    box = {"P": (50.0, 300.0), "v": (0.1, 2.5)}
+    model = SimpleNamespace(variable=lambda n: SimpleNamespace(lower=box[n][0],
+                                                               upper=box[n][1]))
+    got = baselines(SimpleNamespace(model=lambda m: model), train, test)["training_mean"]
+    assert got["rmse"] == pytest.approx(1.0) and got["nrmse"] == pytest.approx(1.0 / 8.0)

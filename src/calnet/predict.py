@@ -468,15 +468,18 @@ def interval_score(y: np.ndarray, lower: np.ndarray, upper: np.ndarray,
 
 def metrics(y: np.ndarray, mean: np.ndarray, lower: np.ndarray | None = None,
             upper: np.ndarray | None = None, *, samples: np.ndarray | None = None,
-            pit: np.ndarray | None = None) -> dict[str, float | None]:
+            pit: np.ndarray | None = None,
+            y_range: float | None = None) -> dict[str, float | None]:
     """Errors of predictions of ``y``: RMSE (the reference study's SE_pred, method.md
-    section 5), NRMSE (RMSE / range of y), MAPE (%, None where :func:`mape_meaningful`
-    says no); with a 95 % band its coverage and mean interval score; with predictive
-    samples (k, n) the mean CRPS; with PIT values (n,) the coverage of the central 50,
-    80 and 95 % intervals."""
+    section 5), NRMSE (RMSE / ``y_range``, default the range of y: pass the whole data
+    set's so that its splits share one scale), MAPE (%, None where
+    :func:`mape_meaningful` says no); with a 95 % band its coverage and mean interval
+    score; with predictive samples (k, n) the mean CRPS; with PIT values (n,) the
+    coverage of the central 50, 80 and 95 % intervals."""
     y, mean = np.asarray(y, float), np.asarray(mean, float)
     rmse = float(np.sqrt(np.mean((y - mean) ** 2)))
-    spread = float(np.ptp(y)) if len(y) > 1 else 0.0
+    spread = (float(y_range) if y_range is not None
+              else float(np.ptp(y)) if len(y) > 1 else 0.0)
     out: dict[str, float | None] = {
         "n": int(len(y)), "rmse": rmse,
         "nrmse": rmse / spread if spread > 0 else None,

@@ -34,8 +34,10 @@ def baselines(network: Network, train: ExperimentalData, test: ExperimentalData,
               *, seed: int = 0) -> dict[str, dict[str, float]]:
     """Metrics of two naive predictors of ``test``: the training mean, and a GP fitted
     directly to process inputs -> output on the training points."""
-    out = {"training_mean": metrics(test.y, np.full(len(test.y), train.y.mean()))}
-    power = _power_law(train, test)
+    span = float(np.ptp(np.r_[train.y, test.y]))  # the data set's range: one NRMSE scale
+    out = {"training_mean": metrics(test.y, np.full(len(test.y), train.y.mean()),
+                                    y_range=span)}
+    power = _power_law(train, test, span)
     if power is not None:
         out["power_law"] = power
     keys = train.input_keys
@@ -49,13 +51,15 @@ def baselines(network: Network, train: ExperimentalData, test: ExperimentalData,
         mean, var = (np.asarray(a) for a in gp.predict(test.x, include_nugget=True))
         mean, var = (np.asarray(a) for a in gp.to_natural(mean, var))
         sd = np.sqrt(var)
-        out["direct_gp"] = metrics(test.y, mean, mean - 1.96 * sd, mean + 1.96 * sd)
+        out["direct_gp"] = metrics(test.y, mean, mean - 1.96 * sd, mean + 1.96 * sd,
+                                   y_range=span)
     except Exception as err:  # too few points for a GP is a result, not a failure
         out["direct_gp"] = {"error": str(err)}
     return out
 
 
-def _power_law(train: ExperimentalData, test: ExperimentalData) -> dict | None:
+def _power_law(train: ExperimentalData, test: ExperimentalData,
+               span: float | None = None) -> dict | None:
     """``y = c prod_j x_j^b_j`` by least squares on the logs (only for positive data); the
     reference study's second naive baseline (method.md section 7)."""
     if (train.x <= 0).any() or (test.x <= 0).any() or (train.y <= 0).any():
@@ -65,7 +69,7 @@ def _power_law(train: ExperimentalData, test: ExperimentalData) -> dict | None:
         return None
     coef, *_ = np.linalg.lstsq(A, np.log(train.y), rcond=None)
     pred = np.exp(np.column_stack([np.ones(len(test.y)), np.log(test.x)]) @ coef)
-    return {**metrics(test.y, pred), "exponents": coef[1:].tolist()}
+    return {**metrics(test.y, pred, y_range=span), "exponents": coef[1:].tolist()}
 
 
 K_HAT_MAX = 0.7  # Pareto k above which PSIS is unreliable (Vehtari et al. 2024)
@@ -82,7 +86,7 @@ def _quiet_pareto():
 def psis_loo(network: Network, surrogates: Surrogates, posterior: NetworkPosterior,
              dataset: str, *, sampler: SamplerSettings | None = None, seed: int = 0,
              k_max: float = K_HAT_MAX, refit_max: int | None = None, n_samples: int = 4000,
-             progress=None) -> dict:
+             progress=None, y_range: float | None = None) -> dict:
     """Leave-one-out predictive of every calibration point of ``dataset`` by
     Pareto-smoothed importance sampling of the posterior (ArviZ's ``loo``/``psislw``).
 
@@ -97,6 +101,7 @@ def psis_loo(network: Network, surrogates: Surrogates, posterior: NetworkPosteri
 
     Returns a dict: ``calnet`` (metrics of the LOO predictive), ``training_mean``
     (the mean of the other points), ``mean``/``lower95``/``upper95`` per point,
+    ``y_range`` scales the NRMSE (default: the range of the calibration points).
     ``elpd_loo``, ``elpd_se``, ``p_loo`` and ``elpd_pointwise`` (modelled scale; a
     refitted point counts with its exact log predictive density), ``pareto_k`` per
     point, ``refit`` (indices refitted exactly), ``influential`` (the points over
@@ -160,8 +165,9 @@ def psis_loo(network: Network, surrogates: Surrogates, posterior: NetworkPosteri
                                for j, k in enumerate(full.input_keys)}}
                    for i in bad[np.argsort(-khat[bad], kind="stable")]]
     return {"method": "psis",
-            "calnet": metrics(full.y, mean, lo, hi, samples=samples, pit=pit),
-            "training_mean": metrics(full.y, naive),
+            "calnet": metrics(full.y, mean, lo, hi, samples=samples, pit=pit,
+                              y_range=y_range),
+            "training_mean": metrics(full.y, naive, y_range=y_range),
             "mean": mean.tolist(), "lower95": lo.tolist(), "upper95": hi.tolist(),
             "pit": pit.tolist(), "pit_check": pit_check(dataset, pit),
             "elpd_loo": elpd, "elpd_se": se, "p_loo": p_loo,
@@ -328,18 +334,19 @@ def validate_dataset(network: Network, surrogates: Surrogates, posterior: Networ
     """
     pred, train = prediction, ~data.is_test
     pit = pred.pit(data.y)  # posterior predictive check: uniform if calibrated
+    span = float(np.ptp(data.y))  # every split's NRMSE on the whole data set's range
     errors = metrics(data.y[train], pred.mean[train], pred.lower[train], pred.upper[train],
-                     samples=pred.samples[:, train], pit=pit[train])
+                     samples=pred.samples[:, train], pit=pit[train], y_range=span)
     test = None
     if data.is_test.any():
         test = metrics(data.test.y, pred.mean[data.is_test], pred.lower[data.is_test],
                        pred.upper[data.is_test], samples=pred.samples[:, data.is_test],
-                       pit=pit[data.is_test])
+                       pit=pit[data.is_test], y_range=span)
     # PSIS on the posterior; a point with Pareto k > 0.7 re-samples the observing model's
     # stage without it
     loo_sampler = secondary_sampler(sampler)
     loo = psis_loo(network, surrogates, posterior, data.name, sampler=loo_sampler, seed=seed,
-                   refit_max=loo_max,
+                   refit_max=loo_max, y_range=span,
                    progress=(lambda i, n: progress(f"LOO refit {data.name} {i + 1}/{n}"))
                    if progress else None)
     if loo.get("pit_check", {}).get("flagged"):

@@ -277,7 +277,8 @@ def _sections(ctx, results: RunResults) -> list[Section]:
     brows = [[name, src, fmt(share)] for name, v in results.validation.items()
              for src, share in v.variance_shares.items()]
     tables = [
-        Table("Predictive accuracy (NRMSE = RMSE / range of the measurements; MAPE only "
+        Table("Predictive accuracy (NRMSE = RMSE / range of the data set's measurements, "
+              "every split on the same range; MAPE only "
               "where the measurements stay away from zero; CRPS in the output's unit)",
               ["data set", "predictor", "RMSE", "NRMSE", "MAPE %", "CRPS", "95% coverage"],
               vrows)]
