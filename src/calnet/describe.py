@@ -54,9 +54,25 @@ def describe_network(network: Network, console: Console) -> None:
         for ds in network.data:
             data = read_dataset(network, ds)
             console.print(escape(f"  {ds.name}: {ds.path} observes {ds.observes}; "
-                                 f"{len(data.y)} points ({int((~data.is_test).sum())} "
-                                 f"train, {int(data.is_test.sum())} test); inputs "
+                                 f"{_count(len(data.y), 'point')} "
+                                 f"({int((~data.is_test).sum())} train, "
+                                 f"{int(data.is_test.sum())} test); inputs "
                                  f"{list(data.input_keys)}"), soft_wrap=True)
+        compare = network.settings.compare
+        if compare:
+            from calnet.validation import same_as_spec
+
+            same = same_as_spec(network, compare)
+            console.print(f"compared by leave-one-out with the variants {', '.join(compare)}"
+                          + (f"; [yellow]warning:[/] {' and '.join(same)} change"
+                             f"{'s' if len(same) == 1 else ''} nothing in this spec, so "
+                             f"{'it is' if len(same) == 1 else 'they are'} not run"
+                             if same else ""), soft_wrap=True)
+
+
+def _count(n: int, noun: str) -> str:
+    """``"1 point"``, ``"3 points"``."""
+    return f"{n} {noun}{'' if n == 1 else 's'}"
 
 
 def unused_outputs(network: Network, model: str) -> list[str]:

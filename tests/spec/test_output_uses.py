@@ -94,3 +94,26 @@ def test_check_warnings_show_the_simulator_verbatim(tmp_path):
     res = runner.invoke(app, ["check", str(tmp_path)], terminal_width=400)
     assert res.exit_code == 0, res.output
     assert "simulator 'python:x:f' cannot be imported here" in res.output, res.output
+
+
+def test_check_says_what_the_run_compares(tmp_path):
+    """calnet check names settings.compare, warns of a variant that changes nothing here
+    (no discrepancy: no_discrepancy and non_orthogonal), and counts one point as one."""
+    raw = _chain(data=True)
+    raw["data"]["d"]["discrepancy"] = "none"
+    raw["settings"] = {"compare": ["no_discrepancy", "non_orthogonal", "reference"]}
+    res = _check(tmp_path, raw)
+    assert res.exit_code == 0, res.output
+    said = " ".join(res.output.split())
+    assert "d.csv observes b.y; 1 point (1 train, 0 test)" in said
+    assert ("compared by leave-one-out with the variants no_discrepancy, non_orthogonal, "
+            "reference; warning: no_discrepancy and non_orthogonal change nothing in this "
+            "spec, so they are not run") in said
+
+
+def test_a_variant_named_twice_is_a_one_line_error(tmp_path):
+    raw = _chain(data=True)
+    raw["settings"] = {"compare": ["no_discrepancy", "no_discrepancy"]}
+    res = _check(tmp_path, raw)
+    assert res.exit_code == 2, res.output
+    assert "names a variant twice; list each once" in " ".join(res.output.split())

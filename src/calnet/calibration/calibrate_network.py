@@ -194,7 +194,8 @@ def build_koh(network: Network, surrogates: Surrogates, *, free: list[str],
     ld = KOHDensity(spec, data, name, names, keys)
     n_obs = sum(len(d.y) for d in datasets.values())
     if n_obs < ld.dim:
-        warnings.warn(f"{name}: {n_obs} data points for {ld.dim} sampled parameters "
+        warnings.warn(f"{name}: {n_obs} data point{'' if n_obs == 1 else 's'} for "
+                      f"{ld.dim} sampled parameters "
                       "(calibration parameters and discrepancy hyperparameters); the "
                       "posterior will lean on the priors", CalibrationWarning, stacklevel=2)
     return ld

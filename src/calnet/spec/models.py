@@ -417,6 +417,13 @@ class Settings(Frozen):
         """``predict: M.y`` is ``predict: [M.y]`` (and the same for ``compare``)."""
         return [value] if isinstance(value, str) else value
 
+    @field_validator("compare")
+    @classmethod
+    def _each_variant_once(cls, value: tuple[str, ...]) -> tuple[str, ...]:
+        if len(set(value)) < len(value):
+            raise ValueError(f"{list(value)} names a variant twice; list each once")
+        return value
+
     @field_validator("predict")
     @classmethod
     def _qualified_outputs(cls, value: tuple[str, ...]) -> tuple[str, ...]:
