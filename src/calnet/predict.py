@@ -44,6 +44,11 @@ from calnet.surrogates.fit_network import Surrogates, check_surrogates
 Z95 = 1.959963984540054
 
 
+MIXTURE_ESS_MIN = 20.0
+"""Fewest effective draws carrying a predictive mixture's density at an observation for
+:meth:`Prediction.log_density` to take the mixture's value."""
+
+
 @dataclass(frozen=True)
 class Prediction:
     """Posterior predictive of one data set's output at process settings ``x``, or of a
@@ -88,9 +93,17 @@ class Prediction:
     draw_sd: np.ndarray | None = field(default=None, repr=False)
     log: bool = False
 
-    def log_density(self, y: np.ndarray) -> np.ndarray:
+    def log_density(self, y: np.ndarray, min_ess: float = MIXTURE_ESS_MIN
+                    ) -> tuple[np.ndarray, np.ndarray]:
         """Log predictive density (n,) of observations ``y`` (n,, natural scale) on the
-        modelled scale: the log of the mean over draws of each draw's Gaussian."""
+        modelled scale, and whether each is the mixture's (n,) bool.
+
+        The density is the mean over draws of each draw's Gaussian. Far in its tail (an
+        outlier) a few draws carry that mean, and a finite set of draws puts the log
+        density far too low (the draws that would carry it lie in the posterior's
+        tail): where the effective number of draws carrying it falls below ``min_ess``,
+        the Gaussian with the mixture's mean and variance is used instead, which is
+        exact for a Gaussian predictive (a model linear in its parameters)."""
         from scipy.special import logsumexp
         from scipy.stats import norm
 
@@ -98,8 +111,14 @@ class Prediction:
             raise ValueError("this prediction keeps no per-draw moments")
         y = np.asarray(y, float)
         ym = np.log(y) if self.log else y
-        lp = norm.logpdf(ym[None], self.draw_mean, self.draw_sd)
-        return logsumexp(lp, axis=0) - math.log(lp.shape[0])
+        lp = norm.logpdf(ym[None], self.draw_mean, self.draw_sd)  # (draws, n)
+        mixture = logsumexp(lp, axis=0) - math.log(lp.shape[0])
+        w = np.exp(lp - lp.max(axis=0))
+        ess = w.sum(axis=0) ** 2 / np.sum(w**2, axis=0)
+        var = np.mean(self.draw_sd**2, axis=0) + np.var(self.draw_mean, axis=0)
+        gauss = norm.logpdf(ym, np.mean(self.draw_mean, axis=0), np.sqrt(var))
+        ok = ess >= min_ess
+        return np.where(ok, mixture, gauss), ok
 
     def pit(self, y: np.ndarray) -> np.ndarray:
         """Probability integral transform of observations ``y`` (n,) under the predictive

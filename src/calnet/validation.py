@@ -103,7 +103,9 @@ def psis_loo(network: Network, surrogates: Surrogates, posterior: NetworkPosteri
     (the mean of the other points), ``mean``/``lower95``/``upper95`` per point,
     ``y_range`` scales the NRMSE (default: the range of the calibration points).
     ``elpd_loo``, ``elpd_se``, ``p_loo`` and ``elpd_pointwise`` (modelled scale; a
-    refitted point counts with its exact log predictive density), ``pareto_k`` per
+    refitted point counts with the log density of its refit's predictive, a mixture
+    over the refit's draws, or where few draws carry it (a far outlier) the Gaussian of
+    the same mean and variance: :meth:`calnet.predict.Prediction.log_density`), ``pareto_k`` per
     point, ``refit`` (indices refitted exactly), ``influential`` (the points over
     ``k_max``, highest k first: index, k, whether refitted, measurement and process
     inputs) and ``method``.
@@ -142,16 +144,18 @@ def psis_loo(network: Network, surrogates: Surrogates, posterior: NetworkPosteri
             lo[i], hi[i] = q
     bad = np.flatnonzero(khat > k_max)
     todo = bad[np.argsort(-khat[bad], kind="stable")][:refit_max] if sampler else bad[:0]
-    refit = []
+    refit, gaussian = [], []
     pointwise = np.asarray(loo.loo_i, float)  # (n,) log predictive density of each point
     if len(todo):
         refitter = _Refitter(network, surrogates, posterior, full, sampler)
         for j, i in enumerate(todo):
             if progress:
                 progress(j, len(todo))
-            mean[i], lo[i], hi[i], samples[:, i], pit[i], pointwise[i] = refitter.predict(
-                int(i), seed + int(i), n_samples)
+            mean[i], lo[i], hi[i], samples[:, i], pit[i], pointwise[i], mixed = \
+                refitter.predict(int(i), seed + int(i), n_samples)
             refit.append(int(i))
+            if not mixed:
+                gaussian.append(int(i))
     refit.sort()
     elpd, se, p_loo = float(loo.elpd_loo), float(loo.se), float(loo.p_loo)
     if refit:  # the refitted points' exact densities replace their importance-sampled ones
@@ -160,6 +164,8 @@ def psis_loo(network: Network, surrogates: Surrogates, posterior: NetworkPosteri
         p_loo = lppd - elpd
     naive = np.array([np.delete(full.y, i).mean() for i in range(n)])
     influential = [{"point": int(i), "pareto_k": float(khat[i]), "refit": int(i) in refit,
+                    "density": ("moment-matched Gaussian" if int(i) in gaussian
+                                else "mixture" if int(i) in refit else "PSIS"),
                     "y": float(full.y[i]),
                     "inputs": {k.split(".", 1)[1]: float(full.x[i, j])
                                for j, k in enumerate(full.input_keys)}}
@@ -357,6 +363,9 @@ def validate_dataset(network: Network, surrogates: Surrogates, posterior: Networ
                              test=test, baselines_test=baselines_test)
 
 
+REFIT_DRAWS = 400  # posterior draws of a refit's predictive at its point
+
+
 class _Refitter:
     """Exact leave-one-out of single points: the observing model's stage re-sampled
     without the point, the other models' parameters held at their posterior means (a
@@ -389,12 +398,12 @@ class _Refitter:
         stage = StageResult((self.model,), (full.name,), idata, ld)
         post_i = with_stage(self.posterior, stage, {full.name: data_i})
         pred = predict(network, self.surrogates, post_i, full.name, full.x[i:i + 1],
-                       n_draws=100, n_samples=-(-n_samples // 100), seed=seed,
-                       noise_var=_noise_var(network, full, i))
+                       n_draws=REFIT_DRAWS, n_samples=-(-n_samples // REFIT_DRAWS),
+                       seed=seed, noise_var=_noise_var(network, full, i))
         draws = np.resize(pred.samples[:, 0], n_samples)
+        lpd, mixture = pred.log_density(full.y[i:i + 1])
         return (float(pred.mean[0]), float(pred.lower[0]), float(pred.upper[0]), draws,
-                float(pred.pit(full.y[i:i + 1])[0]),
-                float(pred.log_density(full.y[i:i + 1])[0]))
+                float(pred.pit(full.y[i:i + 1])[0]), float(lpd[0]), bool(mixture[0]))
 
 
 def _noise_var(network: Network, data: ExperimentalData, i: int):

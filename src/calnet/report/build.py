@@ -356,9 +356,14 @@ def influential_note(name: str, loo: dict, unit: str = "", most: int = 5) -> str
     process inputs and measurement, highest k first: the measurements the calibration
     leans on most, or outliers."""
     points = loo["influential"]
+
+    def how(p):
+        return ((", re-calibrated without it" if p["refit"] else "")
+                + (", its density from the Gaussian of its predictive"
+                   if p.get("density", "").startswith("moment") else ""))
     said = [f"{', '.join(f'{k} = {fmt(v)}' for k, v in p['inputs'].items())}: "
-            f"{fmt(p['y'])}{' ' + unit if unit else ''} (k = {fmt(p['pareto_k'])}"
-            f"{', re-calibrated without it' if p['refit'] else ''})" for p in points[:most]]
+            f"{fmt(p['y'])}{' ' + unit if unit else ''} (k = {fmt(p['pareto_k'])}{how(p)})"
+            for p in points[:most]]
     more = f" and {len(points) - most} more" if len(points) > most else ""
     return (f"{name}: {len(points)} point{'s' if len(points) > 1 else ''} with Pareto k > "
             f"{fmt(loo['k_threshold'])}, which the posterior leans on most (a measurement "
