@@ -36,3 +36,15 @@ def _release_compiled_programs():
         clear_cache()
         jax.clear_caches()
         gc.collect()
+
+
+@pytest.fixture
+def python_sigint():
+    """Python's own SIGINT handler for the test, as in a terminal: a suite started as a
+    shell's background job inherits SIGINT ignored, and then a signal the test sends
+    itself would do nothing."""
+    import signal
+
+    old = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, old)

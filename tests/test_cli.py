@@ -174,7 +174,7 @@ def test_a_read_only_output_folder_is_said_in_words(tmp_path, monkeypatch):
                                   "is read-only (write to another folder)")
 
 
-def test_a_ctrl_c_that_python_drops_still_exits_130():
+def test_a_ctrl_c_that_python_drops_still_exits_130(python_sigint):
     """A KeyboardInterrupt dropped where it was raised (Python drops it inside a gc
     callback) still ends the command with 130 and one line, not with 0."""
     import os

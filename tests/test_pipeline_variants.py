@@ -118,7 +118,7 @@ def test_a_run_stopped_early_says_it_waits_for_the_variants_in_flight(context, m
                for n in notes), notes
 
 
-def test_a_ctrl_c_that_python_drops_still_stops_the_run():
+def test_a_ctrl_c_that_python_drops_still_stops_the_run(python_sigint):
     """A KeyboardInterrupt raised inside a garbage-collection callback is dropped by
     Python; the latch keeps it, and the run's next step raises it."""
     import os
