@@ -113,8 +113,10 @@ def psis_loo(network: Network, surrogates: Surrogates, posterior: NetworkPosteri
     az = import_arviz()
     full = posterior.data[dataset]
     if posterior.n_draws < 2 or len(full.y) < 2:
+        n_points = len(full.y)
         return {"method": "psis", "skipped": f"{posterior.n_draws} posterior draws and "
-                f"{len(full.y)} calibration points: nothing to leave out"}
+                f"{n_points} calibration point{'' if n_points == 1 else 's'}: nothing to "
+                "leave out"}
     cond = loo_conditionals(network, surrogates, posterior, dataset)
     S, n = cond.loglik.shape
     idata = az.from_dict(log_likelihood={dataset: cond.loglik[None]})
