@@ -394,7 +394,10 @@ class _Context:
                 note("comparison with " + ", ".join(self.variants))
                 self.comparison = compare_variants(
                     self.network, self.sur, self.post, tuple(self.variants),
-                    sampler=self.sampler, seed=self.seed, calibrated=self.variants)
+                    sampler=self.sampler, seed=self.seed, calibrated=self.variants,
+                    spec_pointwise={name: np.asarray(v.loo["elpd_pointwise"])
+                                    for name, v in loo.items()
+                                    if "elpd_pointwise" in v.loo})
             naive, self.explored = other.result()
         self.validated = {name: replace(v, baselines_test=naive.get(name))
                           for name, v in loo.items()}

@@ -114,6 +114,8 @@ class VariantScore:
     notes : tuple of str
         A variant's failed convergence or surrogate checks (the spec's own are reported
         with its calibration).
+    dse_spec : float or None
+        Standard error of the ELPD difference to the spec's own model (0 for the spec's).
     """
 
     elpd_loo: float
@@ -124,11 +126,12 @@ class VariantScore:
     max_pareto_k: float
     draws: int
     notes: tuple[str, ...] = ()
+    dse_spec: float | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return {"elpd_loo": self.elpd_loo, "p_loo": self.p_loo, "elpd_diff": self.elpd_diff,
                 "dse": self.dse, "weight": self.weight, "max_pareto_k": self.max_pareto_k,
-                "draws": self.draws, "notes": list(self.notes)}
+                "draws": self.draws, "notes": list(self.notes), "dse_spec": self.dse_spec}
 
 
 #: ``{data set: {model name: score}}``; the spec's own model is named ``spec``

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import contextlib
 import warnings
+from collections.abc import Mapping
 
 import numpy as np
 from scipy import stats
@@ -271,13 +272,18 @@ def calibrate_variants(network: Network, surrogates: Surrogates, data, variants,
 
 def compare_variants(network: Network, surrogates: Surrogates, posterior: NetworkPosterior,
                      variants: tuple[str, ...], *, sampler: SamplerSettings, seed: int = 0,
-                     progress=None, calibrated=None) -> Comparison:
+                     progress=None, calibrated=None,
+                     spec_pointwise: Mapping[str, np.ndarray] | None = None) -> Comparison:
     """Calibrate each variant of ``network`` (:func:`variant`) on the posterior's data
     and compare it with the spec's own model by PSIS-LOO, per data set (ArviZ's
     ``compare``: ELPD, difference to the best and its standard error, stacking weight).
 
     ``calibrated``: the variants' ``{name: (network, posterior)}`` from
-    :func:`calibrate_variants`, when they were calibrated already.
+    :func:`calibrate_variants`, when they were calibrated already. ``spec_pointwise``:
+    ``{data set: pointwise ELPD}`` of the spec's model from :func:`psis_loo` with its
+    exact refits (``elpd_pointwise``), so that the comparison scores the spec's model as
+    its leave-one-out does; the variants are not refitted (their Pareto k says how far
+    to trust them).
 
     Returns ``{data set: {model name: VariantScore}}`` where the spec's own model is
     named ``spec``; a score's ``notes`` are a variant's failed convergence or surrogate
@@ -296,6 +302,9 @@ def compare_variants(network: Network, surrogates: Surrogates, posterior: Networ
             with _quiet_pareto():
                 loos[name] = az.loo(az.from_dict(log_likelihood={ds: ll[None]}),
                                     pointwise=True, reff=1.0)
+        if spec_pointwise is not None and ds in spec_pointwise:
+            loos["spec"] = _with_pointwise(loos["spec"], spec_pointwise[ds])
+        pointwise = {name: np.asarray(loo["loo_i"], float) for name, loo in loos.items()}
         with _quiet_pareto(), warnings.catch_warnings():
             # ArviZ 0.23's compare sorts in place, which pandas >= 3.1 deprecates: not
             # the user's to act on
@@ -307,9 +316,30 @@ def compare_variants(network: Network, surrogates: Surrogates, posterior: Networ
                        weight=float(row["weight"]),
                        max_pareto_k=float(np.max(loos[name].pareto_k)),
                        draws=int(posts[name][1].n_draws),
-                       notes=() if name == "spec" else tuple(posts[name][1].notes))
+                       notes=() if name == "spec" else tuple(posts[name][1].notes),
+                       dse_spec=_pair_se(pointwise["spec"], pointwise[name]))
                    for name, row in table.iterrows()}
     return out
+
+
+def _with_pointwise(loo, pointwise: np.ndarray):
+    """ArviZ's ``ELPDData`` ``loo`` with the pointwise ELPD ``pointwise`` (n,): the ELPD,
+    its standard error and ``p_loo`` (the in-sample lppd less the ELPD) from it."""
+    pointwise = np.asarray(pointwise, float)
+    lppd = float(loo["elpd_loo"]) + float(loo["p_loo"])
+    new = loo.copy()
+    new["loo_i"] = loo["loo_i"].copy(data=pointwise)
+    new["elpd_loo"] = float(pointwise.sum())
+    new["se"] = float(np.sqrt(len(pointwise) * np.var(pointwise)))
+    new["p_loo"] = lppd - new["elpd_loo"]
+    return new
+
+
+def _pair_se(a: np.ndarray, b: np.ndarray) -> float:
+    """Standard error of the ELPD difference of two models from their pointwise values
+    (ArviZ's ``dse`` for a pair)."""
+    d = np.asarray(a, float) - np.asarray(b, float)
+    return float(np.sqrt(len(d) * np.var(d)))
 
 
 def validate_dataset(network: Network, surrogates: Surrogates, posterior: NetworkPosterior,

@@ -193,3 +193,26 @@ def test_pit_check_on_known_pit_values():
             f"{four['ks_pvalue']:.2g}") in four["message"], four["message"]
     wide = pit_check("d", rng.uniform(0.4, 0.6, 60))
     assert wide["flagged"] and "too wide" in wide["message"]
+
+
+def test_the_comparison_scores_the_spec_with_its_refitted_pointwise_elpd():
+    """The comparison takes the spec's pointwise ELPD with its refits (the leave-one-out
+    table's numbers), and the standard error of a pair's difference is ArviZ's."""
+    import arviz as az
+
+    from calnet.validation import _pair_se, _with_pointwise
+
+    rng = np.random.default_rng(0)
+    loos = [az.loo(az.from_dict(log_likelihood={"d": rng.normal(m, 1.0, (1, 400, 9))}),
+                   pointwise=True, reff=1.0) for m in (0.0, -0.3)]
+    refitted = np.asarray(loos[0]["loo_i"]).copy()
+    refitted[4] -= 7.0  # an outlier's exact density, far below its PSIS value
+    new = _with_pointwise(loos[0], refitted)
+    assert new["elpd_loo"] == pytest.approx(refitted.sum())
+    assert new["se"] == pytest.approx(np.sqrt(9 * np.var(refitted)))
+    lppd = float(loos[0]["elpd_loo"] + loos[0]["p_loo"])
+    assert new["p_loo"] == pytest.approx(lppd - refitted.sum())
+    table = az.compare({"spec": new, "other": loos[1]}, ic="loo")
+    worse = table.index[1]
+    assert table.loc[worse, "dse"] == pytest.approx(
+        _pair_se(np.asarray(new["loo_i"]), np.asarray(loos[1]["loo_i"])))

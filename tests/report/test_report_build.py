@@ -42,21 +42,33 @@ def test_the_comparison_says_whether_the_discrepancy_is_needed():
 
     from calnet.report.verdict import comparison_verdicts
 
-    def s(elpd, diff, dse, k=0.4):
-        return replace(score(elpd), elpd_diff=diff, dse=dse, max_pareto_k=k)
+    def s(elpd, diff, dse, k=0.4, pair=None):
+        return replace(score(elpd), elpd_diff=diff, dse=dse, max_pareto_k=k, dse_spec=pair)
 
     needed = {"w": {"spec": s(-118.0, 0.0, 0.0), "no_discrepancy": s(-132.2, 14.2, 2.4)}}
     assert comparison_verdicts(needed) == [
         "w: the spec's model predicts the left-out points better than no_discrepancy (ELPD "
-        "14.2 ± 2.4 higher, more than two standard errors); the discrepancy is needed."]
-    alike = {"p": {"spec": s(3.24, 0.0, 0.0), "no_discrepancy": s(2.93, 0.31, 0.66)}}
-    assert comparison_verdicts(alike)[0].endswith(
-        "(ELPD 0.31 ± 0.66 higher, within two standard errors, no clear difference); the "
-        "data do not need the discrepancy.")
+        "difference 14.2 ± 2.4, more than two standard errors); the discrepancy is needed."]
+    # within two standard errors, whichever model leads: no verdict on the discrepancy
+    for spec, nodisc in ((s(3.24, 0.0, 0.0), s(2.93, 0.31, 0.66)),
+                         (s(2.93, 0.31, 0.66), s(3.24, 0.0, 0.0))):
+        assert comparison_verdicts({"p": {"spec": spec, "no_discrepancy": nodisc}}) == [
+            "p: no clear difference between the spec's model and no_discrepancy (ELPD "
+            "difference 0.31 ± 0.66, within two standard errors); the data cannot tell "
+            "whether the discrepancy is needed."]
     # the variant best by far, with a Pareto k that makes it uncertain
     worse = {"d": {"spec": s(-40.0, 6.0, 1.5), "no_discrepancy": s(-34.0, 0.0, 0.0, k=1.13)}}
     (v,) = comparison_verdicts(worse)
     assert v.startswith("d: no_discrepancy predicts the left-out points better than the "
-                        "spec's model (ELPD 6 ± 1.5 higher, more than two standard errors); "
-                        "the discrepancy does not help")
+                        "spec's model (ELPD difference 6 ± 1.5, more than two standard "
+                        "errors); the discrepancy does not help")
     assert v.endswith("(Pareto k up to 1.13: these ELPDs are uncertain).")
+    # a third model best: the pair's own standard error (dse_spec), else no claim
+    three = {"d": {"reference": s(0.0, 0.0, 0.0), "spec": s(-1.0, 1.0, 0.5),
+                   "non_orthogonal": s(-1.02, 1.02, 0.5, pair=0.001)}}
+    assert comparison_verdicts(three)[1].startswith(
+        "d: the spec's model predicts the left-out points better than non_orthogonal (ELPD "
+        "difference 0.02 ± 0.001, more than two standard errors)")
+    three["d"]["non_orthogonal"] = s(-1.02, 1.02, 0.5)
+    assert "no clear difference" in comparison_verdicts(three)[1]
+    assert "no standard error of the difference" in comparison_verdicts(three)[1]

@@ -11,7 +11,8 @@ from calnet.report.html import fmt
 K_RELIABLE = 0.7  # Pareto k above which a PSIS ELPD is not to be trusted
 
 _MEANING = {  # what each variant's result says about the spec's discrepancy
-    "no_discrepancy": ("the discrepancy is needed", "the data do not need the discrepancy",
+    "no_discrepancy": ("the discrepancy is needed",
+                       "the data cannot tell whether the discrepancy is needed",
                        "the discrepancy does not help: the model predicts better without it"),
     "non_orthogonal": ("orthogonality helps", "orthogonality makes no clear difference",
                        "the discrepancy predicts better without orthogonality"),
@@ -23,8 +24,9 @@ _MEANING = {  # what each variant's result says about the spec's discrepancy
 
 def comparison_verdicts(comparison: Mapping[str, Mapping[str, Any]]) -> list[str]:
     """One sentence per data set and variant: which model predicts the left-out points
-    better, by how much (ELPD difference and its standard error, clear beyond two), what
-    that says about the discrepancy, and whether a Pareto k makes it uncertain.
+    better where the ELPD difference exceeds two standard errors (else: no clear
+    difference), what that says about the discrepancy, and whether a Pareto k makes it
+    uncertain.
 
     ``comparison``: ``{data set: {"spec" or variant: VariantScore}}``."""
     out = []
@@ -36,24 +38,25 @@ def comparison_verdicts(comparison: Mapping[str, Mapping[str, Any]]) -> list[str
             if variant == "spec":
                 continue
             diff = r.elpd_loo - spec.elpd_loo  # > 0: the variant predicts better
-            # ArviZ's standard error is of each model's difference to the best
-            se = r.dse if spec.elpd_diff == 0 else spec.dse if r.elpd_diff == 0 else None
-            clear = se is not None and abs(diff) > 2 * se
-            better, worse = (variant, "the spec's model") if diff > 0 else (
-                "the spec's model", variant)
-            size = (f"ELPD {fmt(abs(diff))} ± {fmt(se)} higher" if se is not None
-                    else f"ELPD {fmt(abs(diff))} higher")
-            how = ("no standard error of the difference" if se is None
-                   else "more than two standard errors" if clear
-                   else "within two standard errors, no clear difference")
+            se = r.dse_spec  # of the difference to the spec's model, from pointwise ELPDs
+            if se is None:  # ArviZ's, of each model's difference to the best
+                se = r.dse if spec.elpd_diff == 0 else spec.dse if r.elpd_diff == 0 else None
             meaning = _MEANING.get(variant)
-            said = ""
-            if meaning:
-                said = "; " + (meaning[1] if not clear else meaning[0] if diff < 0
-                               else meaning[2])
             k = max(r.max_pareto_k, spec.max_pareto_k)
             shaky = (f" (Pareto k up to {fmt(k)}: these ELPDs are uncertain)"
                      if k > K_RELIABLE else "")
+            size = f"ELPD difference {fmt(abs(diff))}" + (f" ± {fmt(se)}" if se is not None
+                                                           else "")
+            if se is None or abs(diff) <= 2 * se:
+                why = ("no standard error of the difference" if se is None
+                       else "within two standard errors")
+                out.append(f"{name}: no clear difference between the spec's model and "
+                           f"{variant} ({size}, {why})"
+                           + (f"; {meaning[1]}" if meaning else "") + f"{shaky}.")
+                continue
+            better, worse = (variant, "the spec's model") if diff > 0 else (
+                "the spec's model", variant)
+            said = f"; {meaning[0] if diff < 0 else meaning[2]}" if meaning else ""
             out.append(f"{name}: {better} predicts the left-out points better than {worse} "
-                       f"({size}, {how}){said}{shaky}.")
+                       f"({size}, more than two standard errors){said}{shaky}.")
     return out
