@@ -292,17 +292,40 @@ def test_export_only_writes_the_store_as_it_is(tmp_path):
     assert store.read_bytes() == before
 
 
-@pytest.mark.parametrize(("args", "message"), [
-    (["--export-only"], "--export-only writes a store to a file: give --export FILE"),
-    (["--export-only", "--export", "x.csv", "--runs", "3"],
-     "--export-only simulates and imports nothing"),
-    (["--export-only", "--export", "x.csv"], "no campaign store for 'toy' at"),
+@pytest.mark.parametrize(("args", "code", "message"), [
+    (["--export-only"], 2, "--export-only writes a store to a file: give --export FILE"),
+    (["--export-only", "--export", "x.csv", "--runs", "3", "--fresh"], 2,
+     "--export-only simulates and imports nothing: drop --runs and --fresh"),
+    (["--export-only", "--export", "x.csv"], 1, "no campaign store for 'toy' at"),
+    (["--export-only", "--export", "x.csv", "--store", "nope.sqlite"], 1,
+     "no campaign store for 'toy' at 'nope.sqlite'"),
 ])
-def test_export_only_errors_are_one_line(tmp_path, args, message):
+def test_export_only_errors_are_one_line(tmp_path, monkeypatch, args, code, message):
+    monkeypatch.chdir(tmp_path)
     spec = toy_spec(tmp_path, runs=4)
-    args = [a if a != "x.csv" else str(tmp_path / a) for a in args]
     result = CliRunner().invoke(app, ["campaign", str(spec), "--model", "toy", *args])
-    assert result.exit_code == 1, result.output
-    assert message in " ".join(result.output.split())
-    assert "Traceback" not in result.output
+    assert result.exit_code == code, result.output
+    said = " ".join(result.output.split())
+    assert message in said and "Traceback" not in result.output
+    assert ("first" in said) == ("--store" not in args and code == 1)  # no misleading fix
     assert not (tmp_path / "campaigns").exists()
+
+
+def test_export_only_refuses_another_models_store_and_names_a_changed_seed(tmp_path):
+    spec = toy_spec(tmp_path, runs=4, seed=2)
+    assert CliRunner().invoke(app, ["campaign", str(spec), "--no-progress"]).exit_code == 0
+    store = str(tmp_path / "campaigns" / "toy.sqlite")
+    doc = spec.read_text().replace("toy:", "other:", 1)
+    other = tmp_path / "other" / "network.yaml"
+    other.parent.mkdir()
+    other.write_text(doc)
+    refused = CliRunner().invoke(app, ["campaign", str(other), "--model", "other", "--store",
+                                       store, "--export", str(tmp_path / "o.csv"),
+                                       "--export-only"])
+    assert refused.exit_code == 1 and "holds runs of model 'toy', not of 'other'" in \
+        " ".join(refused.output.split()), refused.output
+    seeded = CliRunner().invoke(app, ["campaign", str(spec), "--model", "toy", "--seed", "5",
+                                      "--export", str(tmp_path / "s.csv"), "--export-only"])
+    assert seeded.exit_code == 0 and (tmp_path / "s.csv").is_file(), seeded.output
+    assert "was made from seed 2, not 5; it is exported as it is" in " ".join(
+        seeded.output.split()), seeded.output

@@ -72,6 +72,14 @@ def campaign(
 
     network = load_spec(spec)
     names = [model] if model else list(network.order)
+    if export_only:
+        if export:
+            check_export(export)
+        _export_only(network, names, store, export, Console(highlight=False),
+                     {"--runs": runs, "--workers": workers, "--scheduler": scheduler,
+                      "--fresh": fresh, "--retry-failed": retry_failed, "--import": import_},
+                     seed)
+        return
     if len(names) > 1 and (store or export):
         raise CampaignError("--store and --export name one file; give --model too")
     if import_ and len(names) > 1:
@@ -83,10 +91,6 @@ def campaign(
     if export:
         check_export(export)
     console = Console(highlight=False)
-    if export_only:
-        _export_only(network, names, store, export, console,
-                     other=import_ or fresh or retry_failed or runs or workers or scheduler)
-        return
     useless, skipped, why = [], [], {}
     for name in names:
         if any(a in useless for a in network.ancestors(name)):
@@ -120,27 +124,44 @@ def campaign(
 
 
 def _export_only(network: Any, names: list[str], store: Path | None, export: Path | None,
-                 console: Any, *, other: Any) -> None:
-    """``--export-only``: one model's store, as it is, to ``export``."""
-    from calnet.campaign.campaign import _model
+                 console: Any, given: dict[str, Any], seed: int | None) -> None:
+    """``--export-only``: one model's store, as it is, to ``export``; a store of another
+    model is refused, one made from another spec of the model or another seed is
+    exported with a warning that says so."""
+    from calnet.campaign.campaign import _difference, _model
     from calnet.campaign.store import RunStore, default_store
     from calnet.campaign.table import export_runs
+    from calnet.errors import UsageError
 
     if not export:
-        raise CampaignError("--export-only writes a store to a file: give --export FILE")
-    if other:
-        raise CampaignError("--export-only simulates and imports nothing: drop --runs, "
-                            "--workers, --scheduler, --fresh, --retry-failed and --import")
+        raise UsageError("--export-only writes a store to a file: give --export FILE")
+    used = [flag for flag, value in given.items() if value]
+    if used:
+        raise UsageError(f"--export-only simulates and imports nothing: drop "
+                         f"{' and '.join(used)}")
     if len(names) > 1:
-        raise CampaignError("--export-only exports one model's store; give --model too")
-    _model(network, names[0])
+        raise UsageError("--export-only exports one model's store: give --model NAME")
+    model = _model(network, names[0])
     path = store or default_store(network, names[0])
     if not path.is_file():
-        raise CampaignError(f"no campaign store for '{names[0]}' at '{path}'; run `calnet "
-                            f"campaign {network.source or network.root} --model {names[0]}` "
-                            "first")
+        spec = network.source or network.root
+        raise CampaignError(f"no campaign store for '{names[0]}' at '{path}'"
+                            + ("" if store else f"; run `calnet campaign {spec} --model "
+                                                f"{names[0]}` first"))
     with RunStore(path, readonly=True) as db:
-        counts = db.status_counts()
+        meta, counts = db.meta(), db.status_counts()
+    if meta.get("model") and meta["model"] != model.name:
+        raise CampaignError(f"the store '{path}' holds runs of model '{meta['model']}', not "
+                            f"of '{model.name}'; give --model {meta['model']} (or that "
+                            "model's store)")
+    want = network.settings.seed if seed is None else seed
+    difference = _difference(meta, model, want) if meta else None
+    if difference is not None:
+        kind, change = difference
+        warnings.warn(f"the store '{path}' was made from "
+                      + (f"a different '{model.name}' spec ({change})" if kind == "spec"
+                         else f"seed {meta.get('seed')}, not {want}")
+                      + "; it is exported as it is", CampaignWarning, stacklevel=2)
     total = sum(counts.values())
     console.print(f"[bold]{names[0]}[/]: {total} runs in {path} ("
                   + ", ".join(f"{k} {n}" for k, n in sorted(counts.items()))
