@@ -136,7 +136,10 @@ def psis_loo(network: Network, surrogates: Surrogates, posterior: NetworkPosteri
         comp = rng.choice(S, size=n_samples, p=w[i] / w[i].sum())
         z = cond.mean[comp, i] + cond.sd[comp, i] * rng.standard_normal(n_samples)
         samples[:, i] = np.exp(z) if cond.log else z
-        q = np.percentile(z, [2.5, 97.5])
+        # the mixture's own 2.5 and 97.5 % quantiles, so that the band agrees with the
+        # exact LOO-PIT (a point is outside the band exactly when its PIT is in the tails)
+        q = [_mixture_quantile(w[i] / w[i].sum(), cond.mean[:, i], cond.sd[:, i], p)
+             for p in (0.025, 0.975)]
         if cond.log:  # the mixture of log-normals' mean, from the log weights
             lw = np.asarray(logw)[i]
             mean[i] = np.exp(logsumexp(lw + cond.mean[:, i] + 0.5 * cond.sd[:, i] ** 2)
@@ -393,6 +396,17 @@ def validate_dataset(network: Network, surrogates: Surrogates, posterior: Networ
                       "draws": loo_sampler.draws}
     return DatasetValidation(train=errors, pit=pit, loo=loo, variance_shares=pred.shares(),
                              test=test, baselines_test=baselines_test)
+
+
+def _mixture_quantile(weights: np.ndarray, mean: np.ndarray, sd: np.ndarray,
+                      p: float) -> float:
+    """The ``p`` quantile of the Gaussian mixture ``sum_s weights_s N(mean_s, sd_s^2)``
+    (weights summing to 1), by bisection on its distribution function."""
+    from scipy.optimize import brentq
+
+    lo, hi = float(np.min(mean - 12 * sd)), float(np.max(mean + 12 * sd))
+    return float(brentq(lambda q: float(weights @ stats.norm.cdf((q - mean) / sd)) - p,
+                        lo, hi, xtol=1e-12 * max(1.0, abs(lo), abs(hi))))
 
 
 REFIT_DRAWS = 400  # posterior draws of a refit's predictive at its point

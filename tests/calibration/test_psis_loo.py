@@ -216,3 +216,16 @@ def test_the_comparison_scores_the_spec_with_its_refitted_pointwise_elpd():
     worse = table.index[1]
     assert table.loc[worse, "dse"] == pytest.approx(
         _pair_se(np.asarray(new["loo_i"]), np.asarray(loos[1]["loo_i"])))
+
+
+def test_the_loo_band_is_the_mixtures_own_quantiles():
+    """The LOO band's ends are the mixture's 2.5 and 97.5 % quantiles, so a point lies
+    outside the band exactly when its LOO-PIT is in the tails."""
+    from calnet.validation import _mixture_quantile
+
+    one = _mixture_quantile(np.array([1.0]), np.array([2.0]), np.array([0.5]), 0.975)
+    assert one == pytest.approx(stats.norm.ppf(0.975, 2.0, 0.5), abs=1e-10)
+    w, m, s = np.array([0.3, 0.7]), np.array([0.0, 3.0]), np.array([1.0, 0.2])
+    for p in (0.025, 0.5, 0.975):
+        q = _mixture_quantile(w, m, s, p)
+        assert w @ stats.norm.cdf((q - m) / s) == pytest.approx(p, abs=1e-10)
