@@ -36,8 +36,12 @@ SCRIPT = textwrap.dedent("""
         t.start()
     for t in threads:
         t.join(timeout=60)
-    pool = sum(open(f"/proc/self/task/{t}/comm").read().strip() == "tf_XLAEigen"
-               for t in os.listdir("/proc/self/task"))
+    def name(task):  # a thread may end between the listing and the read
+        try:
+            return open(f"/proc/self/task/{task}/comm").read().strip()
+        except FileNotFoundError:
+            return ""
+    pool = sum(name(t) == "tf_XLAEigen" for t in os.listdir("/proc/self/task"))
     print("hung" if any(t.is_alive() for t in threads) else "finished", pool, flush=True)
     os._exit(0)
 """)
