@@ -60,13 +60,11 @@ def describe_network(network: Network, console: Console) -> None:
                                  f"{list(data.input_keys)}"), soft_wrap=True)
         compare = network.settings.compare
         if compare:
-            from calnet.validation import same_as_spec
+            from calnet.validation import changes_nothing, same_as_spec
 
             same = same_as_spec(network, compare)
             console.print(f"compared by leave-one-out with the variants {', '.join(compare)}"
-                          + (f"; [yellow]warning:[/] {' and '.join(same)} change"
-                             f"{'s' if len(same) == 1 else ''} nothing in this spec, so "
-                             f"{'it is' if len(same) == 1 else 'they are'} not run"
+                          + (f"; [yellow]warning:[/] {changes_nothing(same, 'not run')}"
                              if same else ""), soft_wrap=True)
 
 

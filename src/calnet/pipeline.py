@@ -286,17 +286,21 @@ class _Context:
 
     def calibration(self, note) -> None:
         from calnet.calibration.calibrate_network import calibrate
-        from calnet.validation import calibrate_variants, same_as_spec, secondary_sampler
+        from calnet.validation import (
+            calibrate_variants,
+            changes_nothing,
+            same_as_spec,
+            secondary_sampler,
+        )
 
         train = {k: v.train for k, v in self.data.items()}
         variants = self.network.settings.compare if train else ()
         same = same_as_spec(self.network, variants)
         if same:
-            warnings.warn(f"settings.compare: {' and '.join(same)} "
-                          f"change{'s' if len(same) == 1 else ''} nothing in this spec (its "
-                          "data sets' discrepancies already are so), so "
-                          f"{'it is' if len(same) == 1 else 'they are'} neither calibrated "
-                          "nor compared", CalibrationWarning, stacklevel=1)
+            warnings.warn("settings.compare: " + changes_nothing(
+                same, "neither calibrated nor compared",
+                " (its data sets' discrepancies already are so)"),
+                CalibrationWarning, stacklevel=1)
             variants = tuple(v for v in variants if v not in same)
         # the variants of settings.compare are calibrated beside the spec's model, in a
         # thread that starts once the spec's sampler is compiled: their compilation then

@@ -149,7 +149,8 @@ def psis_loo(network: Network, surrogates: Surrogates, posterior: NetworkPosteri
             mean[i] = np.sum(w[i] * cond.mean[:, i]) / w[i].sum()
             lo[i], hi[i] = q
     bad = np.flatnonzero(khat > k_max)
-    todo = bad[np.argsort(-khat[bad], kind="stable")][:refit_max] if sampler else bad[:0]
+    ranked = bad[np.argsort(-khat[bad], kind="stable")]  # highest k first
+    todo = ranked[:refit_max] if sampler else ranked[:0]
     refit, gaussian = [], []
     pointwise = np.asarray(loo.loo_i, float)  # (n,) log predictive density of each point
     if len(todo):
@@ -163,11 +164,8 @@ def psis_loo(network: Network, surrogates: Surrogates, posterior: NetworkPosteri
             if not mixed:
                 gaussian.append(int(i))
     refit.sort()
-    elpd, se, p_loo = float(loo.elpd_loo), float(loo.se), float(loo.p_loo)
     if refit:  # the refitted points' exact densities replace their importance-sampled ones
-        lppd = float(np.sum(logsumexp(cond.loglik, axis=0) - np.log(S)))
-        elpd, se = float(pointwise.sum()), float(np.sqrt(n * np.var(pointwise)))
-        p_loo = lppd - elpd
+        loo = _with_pointwise(loo, pointwise)
     naive = np.array([np.delete(full.y, i).mean() for i in range(n)])
     influential = [{"point": int(i), "pareto_k": float(khat[i]), "refit": int(i) in refit,
                     "density": ("moment-matched Gaussian" if int(i) in gaussian
@@ -175,14 +173,15 @@ def psis_loo(network: Network, surrogates: Surrogates, posterior: NetworkPosteri
                     "y": float(full.y[i]),
                     "inputs": {k.split(".", 1)[1]: float(full.x[i, j])
                                for j, k in enumerate(full.input_keys)}}
-                   for i in bad[np.argsort(-khat[bad], kind="stable")]]
+                   for i in ranked]
     return {"method": "psis",
             "calnet": metrics(full.y, mean, lo, hi, samples=samples, pit=pit,
                               y_range=y_range),
             "training_mean": metrics(full.y, naive, y_range=y_range),
             "mean": mean.tolist(), "lower95": lo.tolist(), "upper95": hi.tolist(),
             "pit": pit.tolist(), "pit_check": pit_check(dataset, pit),
-            "elpd_loo": elpd, "elpd_se": se, "p_loo": p_loo,
+            "elpd_loo": float(loo["elpd_loo"]), "elpd_se": float(loo["se"]),
+            "p_loo": float(loo["p_loo"]),
             "elpd_pointwise": pointwise.tolist(), "pareto_k": khat.tolist(),
             "max_pareto_k": float(khat.max()) if khat.size else None, "k_threshold": k_max,
             "n_unreliable": int(len(bad)) - len(refit), "refit": refit,
@@ -236,6 +235,14 @@ def variant(network: Network, name: str) -> Network:
 
     data = tuple(ds.model_copy(update={"discrepancy": new(ds)}) for ds in network.data)
     return network.model_copy(update={"data": data})
+
+
+def changes_nothing(same: tuple[str, ...], then: str, why: str = "") -> str:
+    """``"no_discrepancy changes nothing in this spec<why>, so it is <then>"`` for the
+    variants ``same`` that :func:`same_as_spec` found."""
+    one = len(same) == 1
+    return (f"{' and '.join(same)} change{'s' if one else ''} nothing in this spec{why}, so "
+            f"{'it is' if one else 'they are'} {then}")
 
 
 def same_as_spec(network: Network, variants) -> tuple[str, ...]:

@@ -227,7 +227,8 @@ def _sections(ctx, results: RunResults) -> list[Section]:
                          unit_text(r["unit"]), fmt(r.get("rhat")), fmt(r.get("ess_bulk"))])
     diag = [[k, s.get("divergences", ""), fmt(s.get("max_rhat")), fmt(s.get("min_ess_bulk"))]
             for k, s in summary.items()]
-    ref = reference_rows(results, _units(ctx))  # only with a reference.json
+    units = _units(ctx)
+    ref = reference_rows(results, units)  # only with a reference.json
     cal = Section("Calibration", paragraphs=[
         "Estimates are posterior modes (KDE)"
         + (", as the reference study reports" if ref else "")
@@ -238,10 +239,6 @@ def _sections(ctx, results: RunResults) -> list[Section]:
               ["model", "divergences", "max R-hat", "min bulk ESS"], diag)],
         figures=pick("posterior "))
     vrows, lrows, loo_notes = [], [], []
-    units = _units(ctx)
-
-    def d_unit(name):
-        return unit_text(units.get(name))
 
     def row(name, predictor, r):
         return [name, predictor, fmt(r.get("rmse")), fmt(r.get("nrmse")), fmt(r.get("mape")),
@@ -260,7 +257,7 @@ def _sections(ctx, results: RunResults) -> list[Section]:
         if "skipped" in loo:
             loo_notes.append(f"{name}: no leave-one-out ({loo['skipped']}).")
         if loo.get("influential"):
-            loo_notes.append(influential_note(name, loo, d_unit(name)))
+            loo_notes.append(influential_note(name, loo, unit_text(units.get(name))))
         if "elpd_loo" in loo:
             k = np.asarray(loo["pareto_k"])
             check = loo["pit_check"]
