@@ -320,3 +320,26 @@ def test_the_prior_panels_show_each_parameters_prior_density(both, indep):
         assert panel.prior_x[0] == p.lower and panel.prior_x[-1] == p.upper
         np.testing.assert_allclose(panel.prior_y, want, rtol=1e-10, atol=1e-12)
         assert panel.posterior_samples.shape == (both[1].n_draws,)
+
+
+def test_a_dense_mass_matrix_is_a_sampler_setting(indep, monkeypatch):
+    """``settings.sampler.dense_mass`` reaches the sampler (whose dense-mass draws are
+    checked against a closed-form posterior in test_cal_sampling.py)."""
+    import calnet.calibration.calibrate_network as cn
+
+    network, sur, _ = indep
+    seen = []
+
+    class Stop(Exception):
+        pass
+
+    def spy(ld, **kwargs):
+        seen.append(kwargs["dense_mass"])
+        raise Stop
+
+    monkeypatch.setattr(cn, "sample_nuts", spy)
+    for dense in (False, True):
+        with pytest.raises(Stop):
+            calibrate(network, sur, mode="joint", seed=3,
+                      sampler=SamplerSettings(chains=2, warmup=20, draws=20, dense_mass=dense))
+    assert seen == [False, True]

@@ -240,7 +240,8 @@ def _sample(ld: KOHDensity, sampler: SamplerSettings, seed: int,
     """NUTS on ``ld``; ``progress`` gets plain progress lines (:class:`Lines`)."""
     return sample_nuts(ld, seed=seed, num_chains=sampler.chains, num_warmup=sampler.warmup,
                        num_draws=sampler.draws, thin=sampler.thin,
-                       target_accept=sampler.target_accept, chain_method=sampler.chain_method,
+                       target_accept=sampler.target_accept, dense_mass=sampler.dense_mass,
+                       chain_method=sampler.chain_method,
                        progress=Lines(ld.name, progress) if progress else False,
                        compiled=compiled)
 

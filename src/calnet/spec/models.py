@@ -349,6 +349,12 @@ class SamplerSettings(Frozen):
     draws: int = Field(1000, ge=10)
     thin: int = Field(1, ge=1)
     target_accept: float = Field(0.9, gt=0, lt=1)
+    dense_mass: bool = Field(
+        False, description="adapt a dense inverse mass matrix (one covariance of all the "
+        "sampled variables) instead of a diagonal one: fewer gradient evaluations per "
+        "effective draw where the posterior's variables are correlated; its warm-up "
+        "estimates dim^2 / 2 covariances, so keep warm-up well above the number of "
+        "sampled variables")
     chain_method: Literal["auto", "sequential", "parallel", "vectorized"] = Field(
         "auto", description="how chains share the CPU (auto: parallel over XLA host "
         "devices when there are several)")
