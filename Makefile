@@ -10,6 +10,10 @@ BIN := $(VENV)/bin
 export OPENBLAS_NUM_THREADS ?= 1
 export OMP_NUM_THREADS ?= 1
 export MKL_NUM_THREADS ?= 1
+# pytest-xdist workers (auto: one per core); the tests of a file share one worker, which
+# keeps each file's module-scoped fixtures built once
+TEST_WORKERS ?= auto
+PYTEST := $(BIN)/python -m pytest -n $(TEST_WORKERS) --dist loadfile
 
 .PHONY: demo test test-slow lint install clean
 
@@ -25,10 +29,10 @@ demo: install
 	$(BIN)/calnet run examples/ninb --out out/ninb
 
 test: install
-	$(BIN)/python -m pytest -m "not slow and not integration"
+	$(PYTEST) -m "not slow and not integration"
 
 test-slow: install
-	$(BIN)/python -m pytest -m "slow or integration"
+	$(PYTEST) -m "slow or integration"
 
 lint: install
 	$(BIN)/ruff check src tests benchmarks
