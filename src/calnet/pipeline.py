@@ -9,6 +9,7 @@ report shows the outputs of ``settings.predict`` predicted through the chain.
 
 from __future__ import annotations
 
+import os
 import threading
 import time
 import warnings
@@ -91,13 +92,19 @@ def run_pipeline(spec: str | Path, *, out: Path, fresh: bool = False, quick: boo
     console = console or Console()
     t_start = time.perf_counter()
     started = datetime.now(UTC)
-    network = load_spec(spec)
-    out = Path(out)
-    for sub in ("figures", "posterior", "surrogates"):
-        (out / sub).mkdir(parents=True, exist_ok=True)
+    caught: list = []
+    try:  # the spec's and the data's warnings, in the report too
+        with warnings.catch_warnings(record=True) as caught:
+            network = load_spec(spec)
+            out = Path(out)
+            for sub in ("figures", "posterior", "surrogates"):
+                (out / sub).mkdir(parents=True, exist_ok=True)
+            ctx = _Context(network, out, quick, fresh, loo_max if loo_max is not None
+                           else (12 if quick else 15))
+    finally:
+        early = _recorded(caught)
+    ctx.warnings += [_without_location(text, network) for text in early]
     timings: dict[str, float] = {}
-    ctx = _Context(network, out, quick, fresh, loo_max if loo_max is not None
-                   else (12 if quick else 15))
     ctx.run_info["timings_s"] = timings
     # ArviZ imports matplotlib.pyplot, whose import records warnings (catch_warnings with
     # record=True sets process-wide state): imported first in a stage's thread while the
@@ -119,9 +126,7 @@ def run_pipeline(spec: str | Path, *, out: Path, fresh: bool = False, quick: boo
             with warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("always", CalibrationWarning)
                 getattr(ctx, stage)(note)
-            ctx.warnings += [str(w.message) for w in caught]
-            for w in caught:
-                warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+            ctx.warnings += _recorded(caught)
             timings[stage] = round(time.perf_counter() - t0, 2)
             timings["total"] = round(time.perf_counter() - t_start, 2)  # so far
             show.done(stage, timings[stage])
@@ -224,6 +229,23 @@ class _Lines:
 
     def done(self, stage: str, seconds: float) -> None:
         self._print(f"{stage}: done in {seconds:.1f} s")
+
+
+def _recorded(caught) -> list[str]:
+    """The texts of recorded warnings (for the report and metrics.json), each warned
+    again so that the command line shows them."""
+    for w in caught:
+        warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    return [str(w.message) for w in caught]
+
+
+def _without_location(text: str, network: Network) -> str:
+    """``text`` with the spec's folder left out of its paths, so that metrics.json is the
+    same wherever the spec is (``/a/b/data/x.csv`` -> ``data/x.csv``)."""
+    if network.source:
+        text = text.replace(network.source, Path(network.source).name)
+    root = str(Path(network.root))
+    return text if root == "." else text.replace(root + os.sep, "")
 
 
 class _Context:

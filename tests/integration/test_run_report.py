@@ -53,9 +53,19 @@ def check_report(out: Path) -> None:
 def test_quick_run_report_of_two_data_sets_and_a_variant(tmp_path, monkeypatch):
     work = tmp_path / "twodata"
     shutil.copytree(TWODATA, work, ignore=shutil.ignore_patterns("campaigns", "__pycache__"))
+    with (work / "d1.csv").open("a") as f:  # a measurement beyond x's upper bound, 2
+        f.write(f"2.05,{1.2 * 2.05 + 0.2 * math.sin(3 * 2.05):.4f}\n")
     monkeypatch.syspath_prepend(str(work))
     monkeypatch.setenv("PYTHONPATH", str(work))
     out = tmp_path / "out"
     result = CliRunner().invoke(app, ["run", str(work), "--out", str(out), "--quick"])
     assert result.exit_code == 0, result.output
     check_report(out)
+    # the data's warning, given while the data are read, is in the report and metrics,
+    # without the spec's folder (metrics.json is the same wherever the spec is)
+    outside = "d1.csv: data.d1: 1 of 11 point(s) lie outside the model's input bounds"
+    assert outside in result.output
+    metrics = (out / "metrics.json").read_text()
+    assert any(w.startswith(outside) for w in json.loads(metrics)["warnings"])
+    assert str(tmp_path) not in metrics
+    assert outside in report_text(out) and "No warnings" not in report_text(out)
