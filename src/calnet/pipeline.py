@@ -294,7 +294,9 @@ class _Context:
                     f"simulated. Fix the simulator, then run 'calnet campaign SPEC --model "
                     f"{name} --retry-failed' and this command again")
             if failed:  # recorded with the stage, shown at the end of the run
-                warnings.warn(failed, CampaignWarning, stacklevel=2)
+                commonest = common_failures(store, most=1)
+                warnings.warn(failed + (f"; the commonest message, {commonest[0]}"
+                                        if commonest else ""), CampaignWarning, stacklevel=2)
             self.stores[name] = Path(store)
             self.campaigns[name] = CampaignSummary(runs.n_total, runs.n_excluded,
                                                    dict(runs.status_counts))

@@ -356,3 +356,19 @@ def test_one_chain_gets_a_split_r_hat(caplog):
     # spread), where ArviZ alone gives NaN
     assert summary.n_chains == 1 and 1.0 <= summary.max_r_hat < 1.05
     assert "Shape validation failed" not in caplog.text
+
+
+def test_a_single_chain_that_has_not_converged_is_not_called_chains():
+    """The R-hat warning of one chain speaks of its halves and asks for more chains."""
+    from dataclasses import replace
+
+    from calnet.calibration.diagnostics import convergence_problems
+
+    idata = sample_nuts(_TwoModes(), seed=1, num_chains=1, num_warmup=20, num_draws=40,
+                        init=np.array([[0.0]]))
+    summary = summarize(idata, warn=False)
+    worst = replace(summary.parameters[0], r_hat=1.05)
+    (said,) = [m for m in convergence_problems(replace(summary, parameters=(worst,)))
+               if "R-hat" in m]
+    assert "the two halves of the only chain disagree" in said and "chains disagree" not in said
+    assert "run several chains (settings.sampler.chains)" in said

@@ -173,6 +173,21 @@ def test_a_posterior_is_not_read_under_other_noise_or_discrepancy(both, indep, t
         load_posterior(tmp_path, load_spec(changed))
 
 
+def test_every_data_set_with_other_settings_is_named(both, indep, tmp_path):
+    network, _, root = indep
+    save_posterior(both[0], tmp_path, network)
+    changed = root / "changed_both.yaml"
+    text = textwrap.dedent(SPEC)
+    for cols in ("columns: {x: x, y: y}}", "columns: {x: x, w: w}}"):
+        text = text.replace(cols, cols[:-1] + ", noise: {sd: 0.1}}")
+    changed.write_text(text)
+    with pytest.raises(CalibrationError) as err:
+        load_posterior(tmp_path, load_spec(changed))
+    said = str(err.value)
+    assert "noise settings for data set 'ydata'" in said
+    assert "and other noise settings for data set 'wdata'" in said
+
+
 @pytest.mark.parametrize("old, new, said", [
     ("parameters: {a: {lower: 0.5, upper: 1.5}}", "parameters: {a: {lower: 0.5, upper: 3}}",
      "model 'up' (parameters)"),
@@ -272,6 +287,14 @@ def test_segmented_plugs_prior_draws_of_an_upstream_model_without_data(indep, pl
     assert post.prior_only == ("up",) and [s.models for s in post.stages] == [("down",)]
     # with the prior draws plugged in, down's draws are moved by them: said in the stage
     assert post.stages[0].moved_by == (("up.a",) if plug == "posterior" else ())
+    # one R-hat and ESS per parameter: the sampler's, which its warnings give, also for
+    # draws moved by the upstream draws
+    from calnet.calibration.summary import posterior_summary
+
+    diag = post.stages[0].diagnostics
+    row = posterior_summary(network, post)["down"]["parameters"]["b"]
+    sampled = next(p for p in diag.parameters if p.name.startswith("theta") and "[b]" in p.name)
+    assert (row["rhat"], row["ess_bulk"]) == (sampled.r_hat, sampled.ess_bulk)
     assert post.theta["up"].shape == (100, 1) == post.theta["down"].shape
     assert np.all((post.theta["up"] >= 0.5) & (post.theta["up"] <= 1.5))
 

@@ -101,17 +101,25 @@ def test_emulation_only_and_parameterless_runs_say_what_was_calibrated():
     assert "no calibration parameters" in headline(with_data).lines[0]
 
 
-def test_draws_moved_by_upstream_draws_point_at_the_upstream_stage():
-    """Segmented with plugged posterior draws: a stage's draws carry the upstream ones, so
-    an upstream stage whose chains disagree leaves the downstream R-hat high too; the
-    warning says where to look instead of asking for more draws of this stage."""
+def test_draws_moved_by_upstream_draws_get_their_samplers_advice():
+    """Segmented with plugged posterior draws: the stage's R-hat and ESS are its sampler's
+    (an upstream stage's own warning covers that stage), so the advice is the sampler's."""
     s = summary(rhat=1.844, ess=3.0)
     s["micro"]["moved_by"] = ["thermal.a"]
     box = headline(results([BOUND], cal=calibration(s)))
-    assert box.warnings[1] == ("micro: its draws have not converged (max R-hat 1.844 > 1.01, "
-                               "min bulk ESS 3 < 400); they carry the posterior draws of "
-                               "thermal.a (segmented mode), so check those stages' "
-                               "convergence first.")
+    assert box.warnings[1] == ("micro: the sampler has not converged (max R-hat 1.844 > "
+                               "1.01, min bulk ESS 3 < 400); raise settings.sampler.warmup "
+                               "and draws; chains that still disagree sit in separate modes "
+                               "the data cannot tell apart.")
+
+
+def test_an_r_hat_just_above_the_limit_does_not_read_as_equal_to_it():
+    from calnet.calibration.diagnostics import rhat_text
+
+    assert rhat_text(1.0104) == "1.0104" and rhat_text(1.0184) == "1.018"
+    assert rhat_text(1.0096) == "1.010" and rhat_text(1.003) == "1.003"
+    box = headline(results([BOUND], cal=calibration(summary(rhat=1.0104, ess=900.0))))
+    assert "max R-hat 1.0104 > 1.01" in box.warnings[1]
 
 
 def test_a_surrogate_that_extrapolates_to_the_data_names_the_points_not_runs():

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import pytest
 
 from calnet.errors import SpecError, SpecWarning
@@ -357,3 +359,14 @@ def test_columns_are_needed_where_two_inputs_share_a_name(base_spec, write_spec)
     del base_spec["data"]["spacing"]["columns"]
     err = _error(write_spec(base_spec))
     assert "data.spacing: ['heat.P', 'micro.P'] share a name" in str(err), err
+
+
+def test_a_single_chain_is_warned_of(base_spec, write_spec):
+    base_spec["settings"] = {"sampler": {"chains": 1}}
+    with pytest.warns(SpecWarning, match="settings.sampler.chains is 1: R-hat then compares "
+                                         "the two halves of one chain"):
+        load_spec(write_spec(base_spec))
+    base_spec["settings"] = {"sampler": {"chains": 2}}
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", SpecWarning)
+        load_spec(write_spec(base_spec))

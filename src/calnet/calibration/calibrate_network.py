@@ -417,9 +417,11 @@ def _segmented(network, surrogates, data, plan, seed, sampler, emu, plug, progre
         if plug == "posterior" and moved and ld.dim:
             idata = cut_by_linear_response(ld, idata, {k: draws[k] for k in moved},
                                            {k: plug_at[k] for k in moved})
-            diagnostics = None  # of the draws before the move
-        stage = StageResult((name,), tuple(own), idata, ld, diagnostics,
-                            tuple(moved) if diagnostics is None else ())
+        else:
+            moved = []
+        # the diagnostics stay the sampler's (those its warnings gave), also for draws moved
+        # by upstream draws: R-hat and ESS of moved draws mix in the upstream stages' draws
+        stage = StageResult((name,), tuple(own), idata, ld, diagnostics, tuple(moved))
         stages.append(stage)
         draws.update(key_draws(stage))
         for k in free:

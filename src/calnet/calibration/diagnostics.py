@@ -246,14 +246,25 @@ def stuck_chains(lp) -> list[int]:
     return [int(c) for c in np.flatnonzero(mean[best] - mean > bar)]
 
 
+def rhat_text(r_hat: float, limit: float = RHAT_MAX) -> str:
+    """R-hat with three decimals, or four where three would show it equal to ``limit``
+    (1.0104 -> "1.0104", not "1.010 > 1.01")."""
+    text = f"{r_hat:.3f}"
+    return f"{r_hat:.4f}" if r_hat > limit and float(text) <= limit else text
+
+
 def convergence_problems(summary: PosteriorSummary) -> list[str]:
     """One message per failed check (R-hat, bulk ESS, divergences); empty when fine."""
     out, m = [], summary.model
     if summary.max_r_hat > RHAT_MAX:
         worst = max(summary.parameters, key=lambda p: p.r_hat)
-        out.append(f"{m}: R-hat {worst.r_hat:.3f} > {RHAT_MAX} for {readable(worst.name)}; "
-                   "chains disagree - raise settings.sampler.warmup and draws; chains that "
-                   "still disagree sit in separate modes the data cannot tell apart")
+        what = ("the two halves of the only chain disagree - raise settings.sampler.warmup "
+                "and draws, and run several chains (settings.sampler.chains), which also "
+                "show modes that one chain never leaves" if summary.n_chains == 1 else
+                "chains disagree - raise settings.sampler.warmup and draws; chains that "
+                "still disagree sit in separate modes the data cannot tell apart")
+        out.append(f"{m}: R-hat {rhat_text(worst.r_hat)} > {RHAT_MAX} for "
+                   f"{readable(worst.name)}; {what}")
     if summary.min_ess_bulk < ESS_MIN:
         worst = min(summary.parameters, key=lambda p: p.ess_bulk)
         out.append(f"{m}: bulk ESS {worst.ess_bulk:.0f} < {ESS_MIN} for "

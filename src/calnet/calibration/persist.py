@@ -178,12 +178,17 @@ def _check_matches(post, network: Network, folder: Path, data_meta: dict) -> Non
             raise CalibrationError(f"the posterior in '{folder}': data set '{ds}' has inputs "
                                    f"{list(d.input_keys)} but the spec gives {keys}; "
                                    "calibrate again")
+    differ = []  # every data set whose noise or discrepancy settings changed
+    for ds in post.data:
         then = data_meta.get(ds, {}).get("settings")
         now = _term_settings(network, ds)
         changed = [k for k in now if then is not None and then.get(k) != now[k]]
         if changed:
-            raise CalibrationError(
-                f"the posterior in '{folder}' was calibrated with other "
-                f"{' and '.join(changed)} settings for data set '{ds}' ("
-                + "; ".join(_differences(k, then.get(k), now[k]) for k in changed)
-                + "); calibrate again with this spec, or use the spec it was calibrated with")
+            differ.append(f"{' and '.join(changed)} settings for data set '{ds}' ("
+                          + "; ".join(_differences(k, then.get(k), now[k]) for k in changed)
+                          + ")")
+    if differ:
+        raise CalibrationError(
+            f"the posterior in '{folder}' was calibrated with other " + ", and other ".join(
+                differ) + "; calibrate again with this spec, or use the spec it was "
+            "calibrated with")

@@ -41,12 +41,15 @@ def posterior_summary(network: Network, post: NetworkPosterior) -> dict:
 
     def diag(stage):
         """R-hat, ESS and the error of the mean from the calibration's own diagnostics
-        (computed once, where the stage was sampled); the other Monte Carlo errors here."""
+        (computed once, where the stage was sampled: the sampler's, also for draws moved
+        by upstream draws); the other Monte Carlo errors here."""
         if id(stage) not in cache:
             p = stage.idata.posterior
             cache[id(stage)] = {
                 "summary": stage.diagnostics or summarize(stage.idata, hdi_probs=(),
                                                           warn=False),
+                # draws moved by upstream draws (segmented): the error of their own mean
+                "mcse_mean": az.mcse(p, method="mean") if stage.moved_by else None,
                 "mcse_sd": az.mcse(p, method="sd"),
                 "mcse_q2.5": az.mcse(p, method="quantile", prob=0.025),
                 "mcse_q97.5": az.mcse(p, method="quantile", prob=0.975)}
@@ -89,7 +92,8 @@ def posterior_summary(network: Network, post: NetworkPosterior) -> dict:
                 d = diag(stage)
                 (coord,) = sel.values()
                 scalar = d["summary"][f"{var}[{coord}]"]
-                row["mcse_mean"] = scalar.mcse_mean
+                row["mcse_mean"] = (scalar.mcse_mean if d["mcse_mean"] is None
+                                    else float(d["mcse_mean"][var].sel(sel)))
                 row.update({k: float(d[k][var].sel(sel)) for k in (
                     "mcse_sd", "mcse_q2.5", "mcse_q97.5")})
                 row.update({"rhat": scalar.r_hat, "ess_bulk": scalar.ess_bulk,

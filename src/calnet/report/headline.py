@@ -24,6 +24,7 @@ import re
 from collections.abc import Mapping
 from typing import Any
 
+from calnet.calibration.diagnostics import rhat_text
 from calnet.report.emulation import headline_table
 from calnet.report.figures import unit_text
 from calnet.report.html import Headline, Table, fmt
@@ -181,17 +182,13 @@ def _surrogate_warning(name: str, check: Mapping[str, Any]) -> str:
 def _sampler_warning(stage: str, s: Mapping[str, Any], cal: CalibrationResult) -> str | None:
     problems = []
     if s["max_rhat"] > cal.rhat_max:
-        problems.append(f"max R-hat {s['max_rhat']:.3f} > {cal.rhat_max}")
+        problems.append(f"max R-hat {rhat_text(s['max_rhat'], cal.rhat_max)} > {cal.rhat_max}")
     if s["min_ess_bulk"] < cal.ess_min:
         problems.append(f"min bulk ESS {s['min_ess_bulk']:.0f} < {cal.ess_min}")
     if s["divergences"]:
         problems.append(f"{s['divergences']} divergent transitions")
     if not problems:
         return None
-    if s.get("moved_by"):  # the draws were moved by upstream posterior draws
-        return (f"{stage}: its draws have not converged ({', '.join(problems)}); they carry "
-                f"the posterior draws of {', '.join(s['moved_by'])} (segmented mode), so "
-                "check those stages' convergence first.")
     advice = []
     if s["max_rhat"] > cal.rhat_max:
         advice.append("raise settings.sampler.warmup and draws; chains that still disagree "

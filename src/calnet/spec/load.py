@@ -58,6 +58,7 @@ def load_spec(spec: str | Path, *, read_data: bool = True) -> Network:
     network = parse_spec(raw, root=path.parent, source=str(path))
     check_simulators(network)
     check_priors(network)
+    check_sampler(network)
     if read_data:
         read_all(network)
     return network
@@ -244,6 +245,16 @@ def check_simulators(network: Network) -> None:
             warnings.warn(f"{network.source}: models.{model.name}: parameters {undeclared} "
                           "are not declared and stay at the simulator's defaults",
                           SpecWarning, stacklevel=3)
+
+
+def check_sampler(network: Network) -> None:
+    """Warn of a single chain: R-hat then compares the chain's two halves, which cannot
+    show a mode the chain never left (docs/method.md: several chains, never one)."""
+    if network.settings.sampler.chains == 1:
+        warnings.warn(f"{Path(network.source).name}: settings.sampler.chains is 1: R-hat "
+                      "then compares the two halves of one chain, which cannot show a mode "
+                      "that chain never left; run several chains (4, the default)",
+                      SpecWarning, stacklevel=3)
 
 
 #: a parameter prior with less than this share of its mass within the bounds is named
