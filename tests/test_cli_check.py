@@ -151,3 +151,32 @@ def test_check_reads_the_campaign_import_tables(spec, table, strict, said):
     errors = [line for line in result.output.splitlines() if line.startswith("error:")]
     assert result.exit_code == 2 and len(errors) == 1, result.output
     assert "models.M.campaign.import: " in errors[0] and said in errors[0], errors
+
+
+@pytest.mark.parametrize("data, settings, said", [
+    ("", "", ["noise sd sampled, prior half-normal (scale: the observations' sd); "
+              "discrepancy orthogonal to the model's parameters, sd prior half-normal",
+              "calibration: segmented (plug: posterior), surrogate variance in the "
+              "likelihood; sampler: 4 chains x (1000 warm-up + 1000 draws), target_accept "
+              "0.9, diagonal mass matrix"]),
+    (", noise: {sd: 0.05}, discrepancy: none",
+     "  sampler: {chains: 2, warmup: 300, draws: 200, thin: 2, dense_mass: true}\n"
+     "  calibration: {mode: joint, emulator_variance: false}\n",
+     ["noise sd 0.05 (known); no discrepancy",
+      "calibration: joint, surrogate variance left out of the likelihood; sampler: 2 chains "
+      "x (300 warm-up + 200 draws, thin 2), target_accept 0.9, dense mass matrix"]),
+    (", noise: {prior: {dist: halfnormal, sigma: 0.2}}, "
+     "discrepancy: {orthogonal: false, sd_prior: {dist: halfnormal, sigma: 0.3}}", "",
+     ["noise sd sampled, prior halfnormal(sigma=0.2); discrepancy free to mimic the "
+      "model's parameters, sd prior halfnormal(sigma=0.3)"]),
+])
+def test_check_says_how_each_data_set_and_the_sampler_enter(spec, data, settings, said):
+    """Known noise, no discrepancy and the sampler's settings are visible before a run."""
+    text = (spec / "network.yaml").read_text()
+    text = text.replace("columns: {x: x, y: y}}", "columns: {x: x, y: y}" + data + "}")
+    (spec / "network.yaml").write_text(text + settings)
+    result = CliRunner().invoke(app, ["check", str(spec)])
+    assert result.exit_code == 0, result.output
+    flat = " ".join(result.output.split())
+    for line in said:
+        assert line in flat, (line, result.output)
