@@ -198,6 +198,9 @@ class CalibrationResult:
         What the user should know about how the posterior was obtained.
     surrogate_check : dict of data set -> dict
         The surrogates' sd at the posterior against the data's.
+    datasets : dict of data set -> dict
+        :func:`calnet.calibration.summary.data_set_summary`: the noise sd (known or its
+        posterior) and the discrepancy's sd and length scales.
     """
 
     mode: str
@@ -211,11 +214,12 @@ class CalibrationResult:
     sampler: Mapping[str, Any] = field(default_factory=dict)
     notes: tuple[str, ...] = ()
     surrogate_check: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
+    datasets: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
         """The ``calibration`` entry of metrics.json."""
         return {"mode": self.mode, "plug": self.plug, "sampler": self.sampler,
-                "models": self.models, "notes": list(self.notes),
+                "models": self.models, "datasets": self.datasets, "notes": list(self.notes),
                 "surrogate_check": self.surrogate_check}
 
 

@@ -366,3 +366,24 @@ def test_a_dense_mass_matrix_is_a_sampler_setting(indep, monkeypatch):
             calibrate(network, sur, mode="joint", seed=3,
                       sampler=SamplerSettings(chains=2, warmup=20, draws=20, dense_mass=dense))
     assert seen == [False, True]
+
+
+def test_each_data_set_s_noise_and_discrepancy_are_summarised(both, indep):
+    """The noise and discrepancy sds are the square roots of the sampled variances, in
+    the data's units, and the length scales are named by the model's inputs."""
+    from calnet.calibration.summary import data_set_summary
+
+    network, _, _ = indep
+    post = both[1]  # joint: one stage samples both data sets' terms
+    out = data_set_summary(network, post)
+    assert set(out) == {"ydata", "wdata"}
+    p = post.stages[0].idata.posterior
+    for ds in ("ydata", "wdata"):
+        for name, var in (("noise_sd", "se2"), ("discrepancy_sd", "sd2")):
+            sd = np.sqrt(np.asarray(p[f"{var}_{ds}"]).ravel())
+            assert out[ds][name]["mean"] == pytest.approx(sd.mean(), rel=1e-12)
+            assert out[ds][name]["q97.5"] == pytest.approx(np.percentile(sd, 97.5), rel=1e-12)
+        assert out[ds]["scale"] == "linear"
+    # the discrepancy lives on the observed model's inputs
+    assert list(out["ydata"]["length_scales"]) == ["x"]
+    assert list(out["wdata"]["length_scales"]) == ["s"]

@@ -69,3 +69,10 @@ def test_quick_run_report_of_two_data_sets_and_a_variant(tmp_path, monkeypatch):
     assert any(w.startswith(outside) for w in json.loads(metrics)["warnings"])
     assert str(tmp_path) not in metrics
     assert outside in report_text(out) and "No warnings" not in report_text(out)
+    # each data set's noise sd and discrepancy, as calibrated (the data's noise sd: 0.03)
+    terms = json.loads(metrics)["calibration"]["datasets"]
+    assert set(terms) == {"d1", "d2"}
+    for d in terms.values():
+        for q in (d["noise_sd"], d["discrepancy_sd"], d["length_scales"]["x"]):
+            assert 0 < q["q2.5"] < q["mean"] < q["q97.5"], d
+    assert "Noise and discrepancy per data set" in report_text(out)

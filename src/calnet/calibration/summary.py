@@ -18,7 +18,7 @@ from calnet.results import CalibrationResult, PriorPanel
 from calnet.spec import Network
 from calnet.spec.models import SamplerSettings
 
-__all__ = ["posterior_summary", "prior_panels", "calibration_result"]
+__all__ = ["posterior_summary", "data_set_summary", "prior_panels", "calibration_result"]
 
 
 def _where_sampled(post, key: str):
@@ -112,6 +112,50 @@ def posterior_summary(network: Network, post: NetworkPosterior) -> dict:
     return out
 
 
+def _interval(x: np.ndarray) -> dict:
+    return {"mean": float(x.mean()), "q2.5": float(np.percentile(x, 2.5)),
+            "q97.5": float(np.percentile(x, 97.5))}
+
+
+def data_set_summary(network: Network, post: NetworkPosterior) -> dict:
+    """Per data set, how its noise and discrepancy came out: the noise sd (known, or its
+    posterior mean and 95 % interval), the discrepancy sd and length scales (posterior,
+    or ``None`` without a discrepancy), in the output's units on its modelled scale
+    (``ln y`` for ``transform: log``), with ``unit`` saying which."""
+    draws: dict[str, np.ndarray] = {}
+    coords: dict[str, list[str]] = {}
+    for stage in post.stages:
+        for var, arr in stage.idata.posterior.data_vars.items():
+            if var.startswith(("se2_", "sd2_", "ell_")):
+                values = np.asarray(arr.values)
+                draws[var] = values.reshape((-1,) + values.shape[2:])
+                if values.ndim == 3:
+                    coords[var] = [str(c) for c in arr[arr.dims[-1]].values]
+    out = {}
+    for ds in network.data:
+        if ds.name not in post.data:
+            continue
+        model, name = ds.observes.split(".")
+        var = network.model(model).variable(name)
+        log = getattr(var, "transform", None) == "log"
+        row: dict = {"unit": f"ln({var.unit})" if log else var.unit,
+                     "scale": "log" if log else "linear"}
+        if f"se2_{ds.name}" in draws:
+            row["noise_sd"] = _interval(np.sqrt(draws[f"se2_{ds.name}"]))
+        else:
+            row["noise_sd"] = {"known": ds.noise.sd if ds.noise.sd is not None
+                               else f"column {ds.noise.sd_column}"}
+        if f"sd2_{ds.name}" in draws:
+            row["discrepancy_sd"] = _interval(np.sqrt(draws[f"sd2_{ds.name}"]))
+            ell = draws[f"ell_{ds.name}"]
+            row["length_scales"] = {c: _interval(ell[:, j]) for j, c in
+                                    enumerate(coords.get(f"ell_{ds.name}", range(ell.shape[1])))}
+        else:
+            row["discrepancy_sd"] = None
+        out[ds.name] = row
+    return out
+
+
 @partial(jax.jit, static_argnums=0, compiler_options=FEW_CALLS)
 def _densities(priors: tuple, xs):
     """Density of each prior on its row of ``xs`` (k, m): one small program for a model's
@@ -159,4 +203,5 @@ def calibration_result(network: Network, post: NetworkPosterior, *,
         mode=post.mode, plug=post.plug, calibrated=post.calibrated, models=summary,
         theta=post.theta, panels=panels, sampler=sampler.model_dump(), notes=tuple(post.notes),
         surrogate_check={c.dataset: c.to_dict() for c in post.checks},
+        datasets=data_set_summary(network, post) if post.calibrated else {},
         rhat_max=RHAT_MAX, ess_min=ESS_MIN)

@@ -182,8 +182,35 @@ def _caption(ctx, results: RunResults, key: str) -> str:
     return key
 
 
+def _terms_table(cal) -> list[Table]:
+    """Each data set's noise sd and discrepancy (sd, length scales) as calibrated."""
+    rows = []
+    for ds, d in cal.datasets.items():
+        unit = unit_text(d["unit"])
+        noise = d["noise_sd"]
+        if "known" in noise:
+            rows.append([ds, "noise sd (known)", fmt(noise["known"]), "", unit])
+        else:
+            rows.append([ds, "noise sd", fmt(noise["mean"]),
+                         f"[{fmt(noise['q2.5'])}, {fmt(noise['q97.5'])}]", unit])
+        if d["discrepancy_sd"] is None:
+            rows.append([ds, "discrepancy", "none", "", ""])
+            continue
+        q = d["discrepancy_sd"]
+        rows.append([ds, "discrepancy sd", fmt(q["mean"]),
+                     f"[{fmt(q['q2.5'])}, {fmt(q['q97.5'])}]", unit])
+        for name, q in d["length_scales"].items():
+            rows.append([ds, f"discrepancy length scale, {name}", fmt(q["mean"]),
+                         f"[{fmt(q['q2.5'])}, {fmt(q['q97.5'])}]", "(unit box)"])
+    if not rows:
+        return []
+    return [Table("Noise and discrepancy per data set (on the output's modelled scale)",
+                  ["data set", "quantity", "mean", "95% interval", "unit"], rows)]
+
+
 def _sections(ctx, results: RunResults) -> list[Section]:
     fig, net, cal = ctx.figures, ctx.network, results.calibration
+    cal_result = cal
     summary = cal.models
     pick = lambda prefix: [(p, _caption(ctx, results, k))  # noqa: E731
                            for k, p in fig.items() if k.startswith(prefix)]
@@ -235,6 +262,7 @@ def _sections(ctx, results: RunResults) -> list[Section]:
         + "; intervals are central 95 %."], tables=[
         Table("Posterior summary", ["model", "parameter", "range", "mode", "mean", "95% interval",
                                     "unit", "R-hat", "bulk ESS"], rows),
+        *_terms_table(cal_result),
         Table("Sampler diagnostics (all sampled variables)",
               ["model", "divergences", "max R-hat", "min bulk ESS"], diag)],
         figures=pick("posterior "))
