@@ -24,6 +24,13 @@ from typing import Any
 import numpy as np
 
 
+def rhat_text(r_hat: float, limit: float = 1.01) -> str:
+    """R-hat with three decimals, or four where three would show it equal to ``limit``
+    (1.0104 -> "1.0104", not "1.010 > 1.01")."""
+    text = f"{r_hat:.3f}"
+    return f"{r_hat:.4f}" if r_hat > limit and float(text) <= limit else text
+
+
 @dataclass(frozen=True)
 class CampaignSummary:
     """The simulator runs of one model's campaign.

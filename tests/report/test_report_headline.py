@@ -114,7 +114,7 @@ def test_draws_moved_by_upstream_draws_get_their_samplers_advice():
 
 
 def test_an_r_hat_just_above_the_limit_does_not_read_as_equal_to_it():
-    from calnet.calibration.diagnostics import rhat_text
+    from calnet.results import rhat_text
 
     assert rhat_text(1.0104) == "1.0104" and rhat_text(1.0184) == "1.018"
     assert rhat_text(1.0096) == "1.010" and rhat_text(1.003) == "1.003"

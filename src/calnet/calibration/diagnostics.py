@@ -18,6 +18,7 @@ import numpy as np
 from scipy.stats import gaussian_kde
 
 from calnet.errors import CalibrationWarning
+from calnet.results import rhat_text
 
 __all__ = ["ParameterSummary", "PosteriorSummary", "summarize", "kde_mode", "import_arviz",
            "RHAT_MAX", "ESS_MIN"]
@@ -244,13 +245,6 @@ def stuck_chains(lp) -> list[int]:
     best = int(np.argmax(mean))
     bar = np.maximum(STUCK_GAP, STUCK_SDS * np.maximum(sd, sd[best]))
     return [int(c) for c in np.flatnonzero(mean[best] - mean > bar)]
-
-
-def rhat_text(r_hat: float, limit: float = RHAT_MAX) -> str:
-    """R-hat with three decimals, or four where three would show it equal to ``limit``
-    (1.0104 -> "1.0104", not "1.010 > 1.01")."""
-    text = f"{r_hat:.3f}"
-    return f"{r_hat:.4f}" if r_hat > limit and float(text) <= limit else text
 
 
 def convergence_problems(summary: PosteriorSummary) -> list[str]:

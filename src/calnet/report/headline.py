@@ -24,12 +24,11 @@ import re
 from collections.abc import Mapping
 from typing import Any
 
-from calnet.calibration.diagnostics import rhat_text
 from calnet.report.emulation import headline_table
 from calnet.report.figures import unit_text
 from calnet.report.html import Headline, Table, fmt
 from calnet.report.verdict import comparison_verdicts
-from calnet.results import CalibrationResult, DatasetValidation, RunResults
+from calnet.results import CalibrationResult, DatasetValidation, RunResults, rhat_text
 
 #: bullets in the box; the rest are counted and left to the Warnings section
 MAX_WARNINGS = 6
