@@ -30,7 +30,7 @@ from calnet.calibration.persist import save_posterior
 from calnet.calibration.sampling import cache_info
 from calnet.calibration.summary import calibration_result
 from calnet.campaign import default_store, load_runs, run_campaign
-from calnet.campaign.failures import common_failures, store_failure_note
+from calnet.campaign.failures import common_failures, commonest_failure, store_failure_note
 from calnet.emulation import output_slices
 from calnet.errors import CalibrationWarning, CalnetError, CampaignError, CampaignWarning
 from calnet.explore import explore
@@ -294,8 +294,8 @@ class _Context:
                     f"simulated. Fix the simulator, then run 'calnet campaign SPEC --model "
                     f"{name} --retry-failed' and this command again")
             if failed:  # recorded with the stage, shown at the end of the run
-                commonest = common_failures(store, most=1)
-                warnings.warn(failed + (f"; the commonest message, {commonest[0]}"
+                commonest = commonest_failure(store)
+                warnings.warn(failed + (f"; the commonest outcome: {commonest}"
                                         if commonest else ""), CampaignWarning, stacklevel=2)
             self.stores[name] = Path(store)
             self.campaigns[name] = CampaignSummary(runs.n_total, runs.n_excluded,

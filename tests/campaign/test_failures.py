@@ -55,3 +55,19 @@ def test_failures_of_two_causes_name_both_ranges():
     scattered = [{"status": "failed" if i % 3 == 0 else "ok", "inputs": {"x": float(i)}}
                  for i in range(30)]
     assert failure_note("M", scattered, ["x"]).endswith("separates them from the ok runs")
+
+
+def test_the_commonest_outcome_counts_messages_that_differ_in_numbers():
+    """Runs that did not converge after different iteration counts are one outcome: the
+    commonest is the status with most runs, shown with its commonest message."""
+    from calnet.campaign.failures import commonest_outcome
+
+    rows = [{"status": status, "message": message} for status, message in [
+        ("failed", "no output"), ("failed", "no output"),
+        ("nonconverged", "stopped after 500 its (residual 1e-2)"),
+        ("nonconverged", "stopped after 500 its (residual 3e-3)"),
+        ("nonconverged", "stopped after 500 its (residual 3e-3)"),
+        ("ok", ""), ("pending", None)]]
+    assert commonest_outcome(rows) == ("nonconverged (3 runs), e.g. stopped after 500 its "
+                                       "(residual 3e-3)")
+    assert commonest_outcome(rows[-2:]) is None

@@ -115,8 +115,8 @@ def test_run_warns_about_a_model_with_many_failed_runs(work, tmp_path):
                       r"\[[0-9.]+, 0\.[0-4]\d*\]", text)
     assert found, text
     # and why they failed: the simulator's commonest message
-    assert re.search(r"the commonest message, \d+ runs: failed: ValueError: solver diverged",
-                     text), text
+    assert re.search(r"the commonest outcome: failed \(\d+ runs\), e\.g\. ValueError: "
+                     r"solver diverged", text), text
     assert text.index("warning: M:") > text.index("total wall time")  # at the end
     warnings = json.loads((out / "metrics.json").read_text())["warnings"]
     assert any(w.startswith("M: ") and "did not finish ok" in w for w in warnings)

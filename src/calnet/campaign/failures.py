@@ -103,6 +103,30 @@ def common_failures(store: str | Path, most: int = 2) -> list[str]:
     return [f"{n} run{'s' if n > 1 else ''}: {text}" for text, n in counts.most_common(most)]
 
 
+def commonest_failure(store: str | Path) -> str | None:
+    """:func:`commonest_outcome` of the runs in ``store``."""
+    from calnet.campaign.store import RunStore
+
+    with RunStore(Path(store), readonly=True) as db:
+        return commonest_outcome(db.rows())
+
+
+def commonest_outcome(rows: Iterable[Mapping[str, Any]]) -> str | None:
+    """The commonest outcome of the runs that did not finish ok, with the commonest
+    message among them: ``"nonconverged (11 runs), e.g. Newton did not converge: ..."``;
+    None where every run is ok. Messages that differ only in their numbers (iterations,
+    residuals) count under their outcome."""
+    from calnet.campaign.logs import without_where
+
+    bad = [r for r in rows if r["status"] not in ("ok", "pending", None)]
+    if not bad:
+        return None
+    status, n = Counter(r["status"] for r in bad).most_common(1)[0]
+    message = Counter(without_where(r.get("message") or "no message")
+                      for r in bad if r["status"] == status).most_common(1)[0][0]
+    return f"{status} ({n} run{'s' if n > 1 else ''}), e.g. {message}"
+
+
 def _separating(bad: list, ok: list, columns: Sequence[str]) -> list[tuple[str, str]]:
     """``(range of the bad runs, range of the ok runs)`` for each column whose two
     ranges do not overlap."""
