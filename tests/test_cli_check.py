@@ -162,13 +162,15 @@ def test_check_reads_the_campaign_import_tables(spec, table, strict, said):
     (", noise: {sd: 0.05}, discrepancy: none",
      "  sampler: {chains: 2, warmup: 300, draws: 200, thin: 2, dense_mass: true}\n"
      "  calibration: {mode: joint, emulator_variance: false}\n",
-     ["noise sd 0.05 (known); no discrepancy",
+     ["noise sd 0.05 (known; taken to the log scale as sd / y); no discrepancy",
       "calibration: joint, surrogate variance left out of the likelihood; sampler: 2 chains "
       "x (300 warm-up + 200 draws, thin 2), target_accept 0.9, dense mass matrix"]),
     (", noise: {prior: {dist: halfnormal, sigma: 0.2}}, "
      "discrepancy: {orthogonal: false, sd_prior: {dist: halfnormal, sigma: 0.3}}", "",
      ["noise sd sampled, prior halfnormal(sigma=0.2); discrepancy free to mimic the "
       "model's parameters, sd prior halfnormal(sigma=0.3)"]),
+    (", noise: {prior: {dist: invgamma, a: 2, b: 0.01}}", "",
+     ["noise variance sampled, prior invgamma(a=2, b=0.01)"]),
 ])
 def test_check_says_how_each_data_set_and_the_sampler_enter(spec, data, settings, said):
     """Known noise, no discrepancy and the sampler's settings are visible before a run."""

@@ -58,7 +58,7 @@ def describe_network(network: Network, console: Console) -> None:
                                  f"({int((~data.is_test).sum())} train, "
                                  f"{int(data.is_test.sum())} test); inputs "
                                  f"{list(data.input_keys)}"), soft_wrap=True)
-            console.print(escape(f"    {term_text(ds)}"), soft_wrap=True)
+            console.print(escape(f"    {term_text(network, ds)}"), soft_wrap=True)
         console.print(escape(settings_text(network)), soft_wrap=True)
         compare = network.settings.compare
         if compare:
@@ -70,33 +70,12 @@ def describe_network(network: Network, console: Console) -> None:
                              if same else ""), soft_wrap=True)
 
 
-def _prior_text(prior) -> str:
-    """``halfnormal(sigma=0.5)``: a prior as written in a spec."""
-    fields = ", ".join(f"{k}={v:g}" for k, v in prior.model_dump().items() if k != "dist")
-    return f"{prior.dist}({fields})"
-
-
-def term_text(ds) -> str:
+def term_text(network: Network, ds) -> str:
     """A data set's noise and discrepancy in words, as they enter its likelihood."""
-    n, d = ds.noise, ds.discrepancy
-    if n.sd is not None:
-        noise = f"noise sd {n.sd:g} (known)"
-    elif n.sd_column:
-        noise = f"noise sd from column '{n.sd_column}' (known)"
-    elif n.reference:
-        noise = "noise variance sampled, the reference study's InverseGamma(2, 1) prior"
-    elif n.prior is not None:
-        noise = f"noise sd sampled, prior {_prior_text(n.prior)}"
-    else:
-        noise = "noise sd sampled, prior half-normal (scale: the observations' sd)"
-    if not d.enabled:
-        return f"{noise}; no discrepancy"
-    if d.reference:
-        return f"{noise}; discrepancy: the reference study's (InverseGamma(2, 1), not orthogonal)"
-    sd = (f"prior {_prior_text(d.sd_prior)}" if d.sd_prior is not None
-          else "prior half-normal (scale: the observations' sd)")
-    return (f"{noise}; discrepancy {'orthogonal to' if d.orthogonal else 'free to mimic'} "
-            f"the model's parameters, sd {sd}")
+    model, name = ds.observes.split(".")
+    out = network.model(model).variable(name)
+    log = getattr(out, "transform", None) == "log"
+    return f"{ds.noise.text(out.unit, log)}; {ds.discrepancy.text()}"
 
 
 def settings_text(network: Network) -> str:

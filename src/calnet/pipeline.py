@@ -103,7 +103,7 @@ def run_pipeline(spec: str | Path, *, out: Path, fresh: bool = False, quick: boo
                            else (12 if quick else 15))
     finally:
         early = _recorded(caught)
-    ctx.warnings += [_without_location(text, network) for text in early]
+    ctx.spec_warnings = [_without_location(text, network) for text in early]
     timings: dict[str, float] = {}
     ctx.run_info["timings_s"] = timings
     # ArviZ imports matplotlib.pyplot, whose import records warnings (catch_warnings with
@@ -257,6 +257,7 @@ class _Context:
         self.seed = network.settings.seed
         self.run_info: dict = {}  # what varies between runs with the same seed
         self.warnings: list[str] = []
+        self.spec_warnings: list[str] = []  # given while the spec and the data were read
         self.data = read_all(network)
         self.stores: dict[str, Path] = {}
         self.figures: dict[str, Path] = {}
@@ -437,7 +438,11 @@ class _Context:
             surrogates=self.sur, calibration=self.calibrated, predictions=self.predictions,
             validation=self.validated, sensitivity=self.explored,
             predicted_outputs=self.emulated, comparison=self.comparison,
-            warnings=tuple(sorted(set(self.warnings))),
+            # the spec's and data's warnings first, in the order given (the report's box
+            # shows the first few), then the stages' in an order that does not depend on
+            # the threads' timing
+            warnings=tuple(dict.fromkeys(self.spec_warnings)) + tuple(
+                sorted(set(self.warnings) - set(self.spec_warnings))),
             reference=read_reference(self.network.path(".")))
         write_outputs(self, self.results)
 

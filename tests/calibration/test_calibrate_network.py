@@ -186,6 +186,10 @@ def test_every_data_set_with_other_settings_is_named(both, indep, tmp_path):
     said = str(err.value)
     assert "noise settings for data set 'ydata'" in said
     assert "and other noise settings for data set 'wdata'" in said
+    # in words, not field names: the default prior is named, not "none"
+    assert ("(noise sd sampled, prior half-normal (scale: the observations' sd); "
+            "discrepancy orthogonal to the model's parameters") in said
+    assert "there; noise sd 0.1 (known); discrepancy orthogonal" in said and "none" not in said
 
 
 @pytest.mark.parametrize("old, new, said", [

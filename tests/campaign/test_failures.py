@@ -69,5 +69,9 @@ def test_the_commonest_outcome_counts_messages_that_differ_in_numbers():
         ("nonconverged", "stopped after 500 its (residual 3e-3)"),
         ("ok", ""), ("pending", None)]]
     assert commonest_outcome(rows) == ("nonconverged (3 runs), e.g. stopped after 500 its "
-                                       "(residual 3e-3)")
+                                       "(residual 1e-2)")
     assert commonest_outcome(rows[-2:]) is None
+    # a simulator that names the value at which it failed: those messages are one kind
+    rows = ([{"status": "failed", "message": f"diverged at x={x}"} for x in (0.61, 0.7, 0.93)]
+            + [{"status": "failed", "message": "mesh too coarse"}] * 2)
+    assert commonest_outcome(rows) == "failed (5 runs), e.g. diverged at x=0.61"

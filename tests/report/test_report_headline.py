@@ -120,6 +120,7 @@ def test_an_r_hat_just_above_the_limit_does_not_read_as_equal_to_it():
     assert rhat_text(1.0096) == "1.010" and rhat_text(1.003) == "1.003"
     box = headline(results([BOUND], cal=calibration(summary(rhat=1.0104, ess=900.0))))
     assert "max R-hat 1.0104 > 1.01" in box.warnings[1]
+    assert any("max R-hat 1.0104 (limit 1.01)" in line for line in box.lines), box.lines
 
 
 def test_a_surrogate_that_extrapolates_to_the_data_names_the_points_not_runs():

@@ -138,6 +138,29 @@ def _check_spec(then: dict | None, network: Network, folder: Path) -> None:
             "spec it was calibrated with")
 
 
+def _settings_change(network: Network, dataset: str, then: dict) -> str:
+    """``noise sd sampled, ... there; noise sd 0.05 (known) here``: a data set's noise and
+    discrepancy as calibrated and as this spec gives them, in words."""
+    from calnet.spec.models import DiscrepancySettings, NoiseSettings
+
+    ds = network.dataset(dataset)
+    model, name = ds.observes.split(".")
+    out = network.model(model).variable(name)
+    log = getattr(out, "transform", None) == "log"
+
+    def words(noise, discrepancy) -> str:
+        return f"{noise.text(out.unit, log)}; {discrepancy.text()}"
+
+    try:
+        before = words(NoiseSettings.model_validate(then["noise"]),
+                       DiscrepancySettings.model_validate(then["discrepancy"]))
+    except (KeyError, ValueError):  # written by another version: the fields themselves
+        now = _term_settings(network, dataset)
+        return "; ".join(_differences(k, then.get(k), now[k]) for k in now
+                         if then.get(k) != now[k])
+    return f"{before} there; {words(ds.noise, ds.discrepancy)} here"
+
+
 def _differences(name: str, then, now) -> str:
     """``noise.sd 0.02 there, none here``: the fields of a setting that differ."""
     if isinstance(then, dict) and isinstance(now, dict):
@@ -185,8 +208,7 @@ def _check_matches(post, network: Network, folder: Path, data_meta: dict) -> Non
         changed = [k for k in now if then is not None and then.get(k) != now[k]]
         if changed:
             differ.append(f"{' and '.join(changed)} settings for data set '{ds}' ("
-                          + "; ".join(_differences(k, then.get(k), now[k]) for k in changed)
-                          + ")")
+                          + _settings_change(network, ds, then) + ")")
     if differ:
         raise CalibrationError(
             f"the posterior in '{folder}' was calibrated with other " + ", and other ".join(

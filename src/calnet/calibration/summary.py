@@ -143,8 +143,9 @@ def data_set_summary(network: Network, post: NetworkPosterior) -> dict:
         if f"se2_{ds.name}" in draws:
             row["noise_sd"] = _interval(np.sqrt(draws[f"se2_{ds.name}"]))
         else:
+            # a known sd is given in the output's own unit, also for a log output
             row["noise_sd"] = {"known": ds.noise.sd if ds.noise.sd is not None
-                               else f"column {ds.noise.sd_column}"}
+                               else f"column {ds.noise.sd_column}", "unit": var.unit}
         if f"sd2_{ds.name}" in draws:
             row["discrepancy_sd"] = _interval(np.sqrt(draws[f"sd2_{ds.name}"]))
             ell = draws[f"ell_{ds.name}"]

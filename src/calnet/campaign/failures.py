@@ -20,6 +20,7 @@ they lie at x in [0.6, 0.8], the ok runs at x in [0, 0.4] (the surrogate extrapo
 
 from __future__ import annotations
 
+import re
 from collections import Counter
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
@@ -115,16 +116,21 @@ def commonest_outcome(rows: Iterable[Mapping[str, Any]]) -> str | None:
     """The commonest outcome of the runs that did not finish ok, with the commonest
     message among them: ``"nonconverged (11 runs), e.g. Newton did not converge: ..."``;
     None where every run is ok. Messages that differ only in their numbers (iterations,
-    residuals) count under their outcome."""
+    residuals, the input at which it failed) count as one."""
     from calnet.campaign.logs import without_where
 
     bad = [r for r in rows if r["status"] not in ("ok", "pending", None)]
     if not bad:
         return None
     status, n = Counter(r["status"] for r in bad).most_common(1)[0]
-    message = Counter(without_where(r.get("message") or "no message")
-                      for r in bad if r["status"] == status).most_common(1)[0][0]
-    return f"{status} ({n} run{'s' if n > 1 else ''}), e.g. {message}"
+    messages = [without_where(r.get("message") or "no message")
+                for r in bad if r["status"] == status]
+    kinds = [_NUMBER.sub("#", m) for m in messages]  # "diverged at x=0.61" ~ "... x=0.72"
+    kind = Counter(kinds).most_common(1)[0][0]
+    return f"{status} ({n} run{'s' if n > 1 else ''}), e.g. {messages[kinds.index(kind)]}"
+
+
+_NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
 
 
 def _separating(bad: list, ok: list, columns: Sequence[str]) -> list[tuple[str, str]]:

@@ -18,7 +18,7 @@ from calnet.report.metrics import write_metrics
 from calnet.report.posterior_csv import write_posterior_csv
 from calnet.report.reference import reference_rows
 from calnet.report.verdict import comparison_verdicts
-from calnet.results import CalibrationResult, RunResults
+from calnet.results import CalibrationResult, RunResults, rhat_text
 
 
 def _axis_labels(network, input_keys) -> list[str]:
@@ -182,14 +182,21 @@ def _caption(ctx, results: RunResults, key: str) -> str:
     return key
 
 
+def _rhat(value, limit: float) -> str:
+    """An R-hat cell: three decimals, four where three would hide that it exceeds
+    ``limit``; a dash where there is none."""
+    return fmt(None) if value is None else rhat_text(value, limit)
+
+
 def _terms_table(cal) -> list[Table]:
     """Each data set's noise sd and discrepancy (sd, length scales) as calibrated."""
     rows = []
     for ds, d in cal.datasets.items():
         unit = unit_text(d["unit"])
         noise = d["noise_sd"]
-        if "known" in noise:
-            rows.append([ds, "noise sd (known)", fmt(noise["known"]), "", unit])
+        if "known" in noise:  # in the output's own unit, as the spec gives it
+            rows.append([ds, "noise sd (known)", fmt(noise["known"]), "",
+                         unit_text(noise["unit"])])
         else:
             rows.append([ds, "noise sd", fmt(noise["mean"]),
                          f"[{fmt(noise['q2.5'])}, {fmt(noise['q97.5'])}]", unit])
@@ -251,9 +258,10 @@ def _sections(ctx, results: RunResults) -> list[Section]:
         for p, r in s["parameters"].items():
             rows.append([model, p, f"[{fmt(r['lower'])}, {fmt(r['upper'])}]", fmt(r["mode"]),
                          fmt(r["mean"]), f"[{fmt(r['q2.5'])}, {fmt(r['q97.5'])}]",
-                         unit_text(r["unit"]), fmt(r.get("rhat")), fmt(r.get("ess_bulk"))])
-    diag = [[k, s.get("divergences", ""), fmt(s.get("max_rhat")), fmt(s.get("min_ess_bulk"))]
-            for k, s in summary.items()]
+                         unit_text(r["unit"]), _rhat(r.get("rhat"), cal.rhat_max),
+                         fmt(r.get("ess_bulk"))])
+    diag = [[k, s.get("divergences", ""), _rhat(s.get("max_rhat"), cal.rhat_max),
+             fmt(s.get("min_ess_bulk"))] for k, s in summary.items()]
     units = _units(ctx)
     ref = reference_rows(results, units)  # only with a reference.json
     cal = Section("Calibration", paragraphs=[

@@ -159,7 +159,8 @@ def _lines(results: RunResults) -> list[str]:
         ess = min(s["min_ess_bulk"] for s in stages.values())
         div = sum(s["divergences"] for s in stages.values())
         ok = rhat <= cal.rhat_max and ess >= cal.ess_min and div == 0
-        lines.append(f"Sampler: max R-hat {rhat:.3f} (limit {cal.rhat_max}), min bulk ESS "
+        lines.append(f"Sampler: max R-hat {rhat_text(rhat, cal.rhat_max)} (limit "
+                     f"{cal.rhat_max}), min bulk ESS "
                      f"{ess:.0f} (limit {cal.ess_min}), {div} divergent transitions: "
                      + ("within the limits." if ok else "see the warnings."))
     return lines + [f"Comparison: {v}" for v in comparison_verdicts(results.comparison or {})]

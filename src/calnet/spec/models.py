@@ -265,6 +265,23 @@ class NoiseSettings(Frozen):
     def known(self) -> bool:
         return self.sd is not None or self.sd_column is not None
 
+    def text(self, unit: str = "", log: bool = False) -> str:
+        """In words: ``noise sd 5 um (known)``, ``noise sd sampled, prior ...``; ``unit``
+        is the output's, ``log`` whether it has ``transform: log``."""
+        unit = "" if unit in ("", "1") else f" {unit}"
+        to_log = "; taken to the log scale as sd / y" if log else ""
+        if self.sd is not None:
+            return f"noise sd {self.sd:g}{unit} (known{to_log})"
+        if self.sd_column:
+            return (f"noise sd from column '{self.sd_column}'{unit and ' in' + unit} "
+                    f"(known{to_log})")
+        if self.reference:
+            return "noise variance sampled, the reference study's InverseGamma(2, 1) prior"
+        if self.prior is not None:
+            on = "variance" if self.prior.dist == "invgamma" else "sd"
+            return f"noise {on} sampled, prior {prior_text(self.prior)}"
+        return "noise sd sampled, prior half-normal (scale: the observations' sd)"
+
 
 class DiscrepancySettings(Frozen):
     """The KOH discrepancy of one data set (method.md section 3).
@@ -301,6 +318,19 @@ class DiscrepancySettings(Frozen):
         if self.reference and self.sd_prior is not None:
             raise ValueError("give either reference or sd_prior, not both")
         return self
+
+    def text(self) -> str:
+        """In words: ``no discrepancy``, ``discrepancy orthogonal to ...``."""
+        if not self.enabled:
+            return "no discrepancy"
+        if self.reference:
+            return "discrepancy: the reference study's (InverseGamma(2, 1), not orthogonal)"
+        sd = (f"prior {prior_text(self.sd_prior)}" if self.sd_prior is not None
+              else "prior half-normal (scale: the observations' sd)")
+        ell = ("" if self.length_scale_prior == LogNormalPrior()
+               else f", length scales prior {prior_text(self.length_scale_prior)}")
+        return (f"discrepancy {'orthogonal to' if self.orthogonal else 'free to mimic'} the "
+                f"model's parameters, sd {sd}{ell}")
 
 
 class Dataset(Frozen):
@@ -339,6 +369,12 @@ class Dataset(Frozen):
     @property
     def observed_output(self) -> str:
         return self.observes.split(".")[1]
+
+
+def prior_text(prior) -> str:
+    """``halfnormal(sigma=0.5)``: a prior as written in a spec."""
+    fields = ", ".join(f"{k}={v:g}" for k, v in prior.model_dump().items() if k != "dist")
+    return f"{prior.dist}({fields})"
 
 
 class SamplerSettings(Frozen):
