@@ -58,7 +58,7 @@ def describe_network(network: Network, console: Console) -> None:
                                  f"({int((~data.is_test).sum())} train, "
                                  f"{int(data.is_test.sum())} test); inputs "
                                  f"{list(data.input_keys)}"), soft_wrap=True)
-            console.print(escape(f"    {term_text(network, ds)}"), soft_wrap=True)
+            console.print(escape(f"    {network.term_text(ds)}"), soft_wrap=True)
         console.print(escape(settings_text(network)), soft_wrap=True)
         compare = network.settings.compare
         if compare:
@@ -68,14 +68,6 @@ def describe_network(network: Network, console: Console) -> None:
             console.print(f"compared by leave-one-out with the variants {', '.join(compare)}"
                           + (f"; [yellow]warning:[/] {changes_nothing(same, 'not run')}"
                              if same else ""), soft_wrap=True)
-
-
-def term_text(network: Network, ds) -> str:
-    """A data set's noise and discrepancy in words, as they enter its likelihood."""
-    model, name = ds.observes.split(".")
-    out = network.model(model).variable(name)
-    log = getattr(out, "transform", None) == "log"
-    return f"{ds.noise.text(out.unit, log)}; {ds.discrepancy.text()}"
 
 
 def settings_text(network: Network) -> str:

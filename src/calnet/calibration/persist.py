@@ -144,21 +144,14 @@ def _settings_change(network: Network, dataset: str, then: dict) -> str:
     from calnet.spec.models import DiscrepancySettings, NoiseSettings
 
     ds = network.dataset(dataset)
-    model, name = ds.observes.split(".")
-    out = network.model(model).variable(name)
-    log = getattr(out, "transform", None) == "log"
-
-    def words(noise, discrepancy) -> str:
-        return f"{noise.text(out.unit, log)}; {discrepancy.text()}"
-
     try:
-        before = words(NoiseSettings.model_validate(then["noise"]),
-                       DiscrepancySettings.model_validate(then["discrepancy"]))
+        before = network.term_text(ds, NoiseSettings.model_validate(then["noise"]),
+                                   DiscrepancySettings.model_validate(then["discrepancy"]))
     except (KeyError, ValueError):  # written by another version: the fields themselves
         now = _term_settings(network, dataset)
         return "; ".join(_differences(k, then.get(k), now[k]) for k in now
                          if then.get(k) != now[k])
-    return f"{before} there; {words(ds.noise, ds.discrepancy)} here"
+    return f"{before} there; {network.term_text(ds)} here"
 
 
 def _differences(name: str, then, now) -> str:

@@ -123,21 +123,20 @@ def data_set_summary(network: Network, post: NetworkPosterior) -> dict:
     or ``None`` without a discrepancy), in the output's units on its modelled scale
     (``ln y`` for ``transform: log``), with ``unit`` saying which."""
     draws: dict[str, np.ndarray] = {}
-    coords: dict[str, list[str]] = {}
+    coords: dict[str, list[str]] = {}  # the length scales' inputs
     for stage in post.stages:
         for var, arr in stage.idata.posterior.data_vars.items():
             if var.startswith(("se2_", "sd2_", "ell_")):
                 values = np.asarray(arr.values)
                 draws[var] = values.reshape((-1,) + values.shape[2:])
-                if values.ndim == 3:
-                    coords[var] = [str(c) for c in arr[arr.dims[-1]].values]
+            if var.startswith("ell_"):
+                coords[var] = [str(c) for c in arr[arr.dims[-1]].values]
     out = {}
     for ds in network.data:
         if ds.name not in post.data:
             continue
-        model, name = ds.observes.split(".")
-        var = network.model(model).variable(name)
-        log = getattr(var, "transform", None) == "log"
+        var = network.observed(ds)
+        log = var.transform == "log"
         row: dict = {"unit": f"ln({var.unit})" if log else var.unit,
                      "scale": "log" if log else "linear"}
         if f"se2_{ds.name}" in draws:
@@ -149,8 +148,8 @@ def data_set_summary(network: Network, post: NetworkPosterior) -> dict:
         if f"sd2_{ds.name}" in draws:
             row["discrepancy_sd"] = _interval(np.sqrt(draws[f"sd2_{ds.name}"]))
             ell = draws[f"ell_{ds.name}"]
-            row["length_scales"] = {c: _interval(ell[:, j]) for j, c in
-                                    enumerate(coords.get(f"ell_{ds.name}", range(ell.shape[1])))}
+            row["length_scales"] = {c: _interval(ell[:, j])
+                                    for j, c in enumerate(coords[f"ell_{ds.name}"])}
         else:
             row["discrepancy_sd"] = None
         out[ds.name] = row

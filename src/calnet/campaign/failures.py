@@ -90,44 +90,53 @@ def store_failure_note(store: str | Path, model: Model, *,
 
 def common_failures(store: str | Path, most: int = 2) -> list[str]:
     """The ``most`` commonest messages of the runs in ``store`` that did not finish ok,
-    each as ``"N runs: status: message"``, commonest first."""
-    from collections import Counter
-
-    from calnet.campaign.logs import without_where
-    from calnet.campaign.store import RunStore
-
-    with RunStore(Path(store), readonly=True) as db:
-        rows = db.rows()
-    # each run's message names its own logs: runs that failed alike differ only there
-    counts = Counter(f"{r['status']}: {without_where(r.get('message') or 'no message')}"
-                     for r in rows if r["status"] not in ("ok", "pending", None))
-    return [f"{n} run{'s' if n > 1 else ''}: {text}" for text, n in counts.most_common(most)]
+    each as ``"N runs: status: message"``, commonest first (:func:`_alike`)."""
+    bad = _not_ok(_rows(store))
+    texts = [f"{r['status']}: {m}" for r, m in zip(bad, _messages(bad), strict=True)]
+    return [f"{n} run{'s' if n > 1 else ''}: {text}" for text, n in _alike(texts)[:most]]
 
 
 def commonest_failure(store: str | Path) -> str | None:
     """:func:`commonest_outcome` of the runs in ``store``."""
-    from calnet.campaign.store import RunStore
-
-    with RunStore(Path(store), readonly=True) as db:
-        return commonest_outcome(db.rows())
+    return commonest_outcome(_rows(store))
 
 
 def commonest_outcome(rows: Iterable[Mapping[str, Any]]) -> str | None:
     """The commonest outcome of the runs that did not finish ok, with the commonest
-    message among them: ``"nonconverged (11 runs), e.g. Newton did not converge: ..."``;
-    None where every run is ok. Messages that differ only in their numbers (iterations,
-    residuals, the input at which it failed) count as one."""
-    from calnet.campaign.logs import without_where
-
-    bad = [r for r in rows if r["status"] not in ("ok", "pending", None)]
+    message among them (:func:`_alike`): ``"nonconverged (11 runs), e.g. Newton did not
+    converge: ..."``; None where every run is ok."""
+    bad = _not_ok(rows)
     if not bad:
         return None
     status, n = Counter(r["status"] for r in bad).most_common(1)[0]
-    messages = [without_where(r.get("message") or "no message")
-                for r in bad if r["status"] == status]
-    kinds = [_NUMBER.sub("#", m) for m in messages]  # "diverged at x=0.61" ~ "... x=0.72"
-    kind = Counter(kinds).most_common(1)[0][0]
-    return f"{status} ({n} run{'s' if n > 1 else ''}), e.g. {messages[kinds.index(kind)]}"
+    example = _alike(_messages([r for r in bad if r["status"] == status]))[0][0]
+    return f"{status} ({n} run{'s' if n > 1 else ''}), e.g. {example}"
+
+
+def _rows(store: str | Path) -> list[dict[str, Any]]:
+    from calnet.campaign.store import RunStore
+
+    with RunStore(Path(store), readonly=True) as db:
+        return db.rows()
+
+
+def _not_ok(rows: Iterable[Mapping[str, Any]]) -> list[Mapping[str, Any]]:
+    return [r for r in rows if r["status"] not in ("ok", "pending", None)]
+
+
+def _messages(rows: Iterable[Mapping[str, Any]]) -> list[str]:
+    """The runs' messages without the place of their logs (each run names its own)."""
+    from calnet.campaign.logs import without_where
+
+    return [without_where(r.get("message") or "no message") for r in rows]
+
+
+def _alike(texts: list[str]) -> list[tuple[str, int]]:
+    """``(example, count)`` per kind of text, commonest first: texts that differ only in
+    their numbers (iterations, residuals, the input at which a run failed) are one kind,
+    shown by its first text."""
+    kinds = [_NUMBER.sub("#", t) for t in texts]
+    return [(texts[kinds.index(k)], n) for k, n in Counter(kinds).most_common()]
 
 
 _NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")

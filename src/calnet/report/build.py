@@ -217,7 +217,6 @@ def _terms_table(cal) -> list[Table]:
 
 def _sections(ctx, results: RunResults) -> list[Section]:
     fig, net, cal = ctx.figures, ctx.network, results.calibration
-    cal_result = cal
     summary = cal.models
     pick = lambda prefix: [(p, _caption(ctx, results, k))  # noqa: E731
                            for k, p in fig.items() if k.startswith(prefix)]
@@ -262,6 +261,7 @@ def _sections(ctx, results: RunResults) -> list[Section]:
                          fmt(r.get("ess_bulk"))])
     diag = [[k, s.get("divergences", ""), _rhat(s.get("max_rhat"), cal.rhat_max),
              fmt(s.get("min_ess_bulk"))] for k, s in summary.items()]
+    terms = _terms_table(cal)
     units = _units(ctx)
     ref = reference_rows(results, units)  # only with a reference.json
     cal = Section("Calibration", paragraphs=[
@@ -270,7 +270,7 @@ def _sections(ctx, results: RunResults) -> list[Section]:
         + "; intervals are central 95 %."], tables=[
         Table("Posterior summary", ["model", "parameter", "range", "mode", "mean", "95% interval",
                                     "unit", "R-hat", "bulk ESS"], rows),
-        *_terms_table(cal_result),
+        *terms,
         Table("Sampler diagnostics (all sampled variables)",
               ["model", "divergences", "max R-hat", "min bulk ESS"], diag)],
         figures=pick("posterior "))

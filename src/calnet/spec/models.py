@@ -14,6 +14,7 @@ from calnet.spec.variables import (
     Output,
     Parameter,
     ScalePrior,
+    prior_text,
 )
 
 SIMULATOR_KINDS = ("builtin", "python", "command", "umbridge")
@@ -369,12 +370,6 @@ class Dataset(Frozen):
     @property
     def observed_output(self) -> str:
         return self.observes.split(".")[1]
-
-
-def prior_text(prior) -> str:
-    """``halfnormal(sigma=0.5)``: a prior as written in a spec."""
-    fields = ", ".join(f"{k}={v:g}" for k, v in prior.model_dump().items() if k != "dist")
-    return f"{prior.dist}({fields})"
 
 
 class SamplerSettings(Frozen):

@@ -327,6 +327,18 @@ class Network(Frozen):
                 return d
         raise KeyError(name)
 
+    def observed(self, ds: Dataset) -> Output:
+        """The output that data set ``ds`` observes."""
+        return self.model(ds.observed_model).output(ds.observed_output)
+
+    def term_text(self, ds: Dataset, noise: Any = None, discrepancy: Any = None) -> str:
+        """``ds``'s noise and discrepancy in words, as they enter its likelihood; ``noise``
+        and ``discrepancy`` (``NoiseSettings``, ``DiscrepancySettings``) stand in for the
+        data set's own where given."""
+        out = self.observed(ds)
+        return (f"{(noise or ds.noise).text(out.unit, out.transform == 'log')}; "
+                f"{(discrepancy or ds.discrepancy).text()}")
+
     def path(self, relative: str | Path) -> Path:
         """Resolve ``relative`` against the spec's folder."""
         p = Path(relative)

@@ -262,9 +262,13 @@ class Parameter(Bounded):
 
     def prior_text(self) -> str:
         """The prior as written in a spec: ``normal(mu=10, sigma=0.5)``."""
-        fields = ", ".join(f"{k}={v:g}" for k, v in self.prior.model_dump().items()
-                           if k != "dist")
-        return f"{self.prior.dist}({fields})"
+        return prior_text(self.prior)
+
+
+def prior_text(prior) -> str:
+    """A prior as written in a spec: ``halfnormal(sigma=0.5)``."""
+    fields = ", ".join(f"{k}={v:g}" for k, v in prior.model_dump().items() if k != "dist")
+    return f"{prior.dist}({fields})"
 
 
 class Output(Frozen):
