@@ -44,7 +44,12 @@ from calnet.report.reference import read_reference
 from calnet.results import CalibrationResult, CampaignSummary, RunResults
 from calnet.spec import Network, load_spec, read_all
 from calnet.spec.models import SamplerSettings
-from calnet.surrogates.fit_network import Surrogates, fit_surrogates
+from calnet.surrogates.fit_network import (
+    Surrogates,
+    check_cross_validation,
+    cross_validate_surrogates,
+    fit_surrogates,
+)
 from calnet.surrogates.plots import parity_plots
 from calnet.validation import baselines, compare_variants, validate_dataset
 
@@ -265,6 +270,7 @@ class _Context:
         self.emulated: dict = {}  # settings.predict outputs, from the prediction stage
         self.variants: dict = {}  # settings.compare: {variant: (network, posterior)}
         self.pending = None  # Future of the variants, calibrated in a thread
+        self.cv_pending = None  # Future of the surrogates' cross-validation
         self.held = ExitStack()  # what the calibration sets for the rest of the run
         self.validated: dict = {}  # data set -> calnet.results.DatasetValidation
         self.comparison = None  # calnet.results.Comparison, with settings.compare
@@ -303,10 +309,51 @@ class _Context:
                                                    dict(runs.status_counts))
 
     def surrogates(self, note) -> None:
-        self.sur, parity = surrogate_stage(
-            self.network, folder=self.out / "surrogates", figures=self.out / "figures",
-            stores=self.stores, seed=self.seed, restarts=2 if self.quick else None,
-            cv_folds=5 if self.quick else None, progress=note)
+        """The GPs the calibration needs; their cross-validation, which only the report
+        needs and which costs about twice the fits, runs on in a thread beside the
+        calibration's set-up and its sampler's compilation (which keep one core busy)
+        and is collected at the end of the calibration stage. BLAS stays on one thread
+        to the end of the run (:func:`map_threads`)."""
+        cv = {"stores": self.stores, "seed": self.seed,
+              "cv_folds": 5 if self.quick else None}
+        check_cross_validation(self.network, stores=self.stores, cv_folds=cv["cv_folds"])
+        self.sur = fit_surrogates(self.network, cv=False, progress=note,
+                                  restarts=2 if self.quick else None, **cv)
+        self.sur.save(self.out / "surrogates")
+        stop = threading.Event()
+
+        def before_fold():
+            if stop.is_set():
+                raise KeyboardInterrupt  # the run is on its way out
+
+        self.held.enter_context(one_blas_thread())
+        self.held.callback(self._drain_cv, stop)
+        pool = ThreadPoolExecutor(max_workers=1)
+        self.cv_pending = pool.submit(cross_validate_surrogates, self.network, self.sur,
+                                      before_fold=before_fold, **cv)
+        pool.shutdown(wait=False)
+        note("cross-validation goes on beside the calibration")
+
+    def _drain_cv(self, stop: threading.Event) -> None:
+        """On the way out of a run that stops before the cross-validation is collected:
+        no further fold starts; the one in flight ends."""
+        if self.cv_pending is not None:
+            stop.set()
+            with suppress(BaseException):
+                self.cv_pending.result()
+            self.cv_pending = None
+
+    def collect_cv(self) -> None:
+        """The surrogates with their cross-validation (waits for it), saved again with
+        it, and its parity plots."""
+        if self.cv_pending is None:
+            return
+        try:
+            self.sur = self.cv_pending.result()
+        finally:
+            self.cv_pending = None
+        self.sur.save(self.out / "surrogates")
+        parity = parity_plots(self.network, self.sur, self.out / "figures")
         self.figures.update({f"cv {key}": path for key, path in parity.items()})
 
     def calibration(self, note) -> None:
@@ -360,6 +407,7 @@ class _Context:
                 raise
             finally:
                 compiled.set()
+        self.collect_cv()
         self.calibrated = record_calibration(self.network, self.post,
                                              folder=self.out / "posterior",
                                              sampler=self.sampler)

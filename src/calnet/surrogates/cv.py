@@ -8,6 +8,7 @@ and the 95 % interval is ``exp(mu +- 1.96 sd)`` from the log-scale moments.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -132,6 +133,26 @@ def kfold_indices(n: int, k: int, seed: int = 0) -> np.ndarray:
     return fold
 
 
+def _check_k(k, name: str) -> None:
+    if not isinstance(k, (int, np.integer)) or k < 2:
+        lab = f"output {name!r}" if name else "output"
+        raise SurrogateError(f"{lab}: k must be an integer >= 2 for k-fold CV, got {k!r}")
+
+
+def check_folds(k, n: int, d: int, *, name: str = "") -> None:
+    """Raise :class:`~calnet.errors.SurrogateError` unless ``k``-fold cross-validation of
+    ``n`` points in ``d`` dimensions is possible: ``k`` an integer in ``[2, n]`` and each
+    training fold at least ``d + 2`` points."""
+    _check_k(k, name)
+    lab = f"output {name!r}" if name else "output"
+    if k > n:
+        raise SurrogateError(f"{lab}: {k}-fold CV needs at least {k} points, got {n}")
+    smallest_train = n - math.ceil(n / k)
+    if smallest_train < d + 2:
+        raise SurrogateError(f"{lab}: {k}-fold CV on {n} points leaves {smallest_train} "
+                             f"training points, need d + 2 = {d + 2}; use more folds or points")
+
+
 def cross_validate(
     X,
     y,
@@ -143,6 +164,7 @@ def cross_validate(
     seed: int = 0,
     n_restarts: int = 5,
     name: str = "",
+    before_fold: Callable[[], None] | None = None,
     **fit_kwargs,
 ) -> CVResult:
     """k-fold cross-validation of :func:`calnet.surrogates.fit_gp`.
@@ -163,6 +185,9 @@ def cross_validate(
     n_restarts : int, default 5
         Passed to :func:`fit_gp`.
     name : str
+    before_fold : callable, optional
+        Called with no argument before each fold's fit; an exception it raises (an
+        interrupted run) stops the cross-validation.
     **fit_kwargs
         Further keyword arguments of :func:`fit_gp` (bounds).
 
@@ -176,19 +201,16 @@ def cross_validate(
         Bad data (as :func:`fit_gp`), ``k`` out of range, or training folds with fewer
         than ``d + 2`` points.
     """
-    lab = f"output {name!r}" if name else "output"
-    if not isinstance(k, (int, np.integer)) or k < 2:
-        raise SurrogateError(f"{lab}: k must be an integer >= 2 for k-fold CV, got {k!r}")
+    _check_k(k, name)
     x, y, lower, upper = validate_training_data(X, y, lower=lower, upper=upper,
                                                 transform=transform, name=name, min_points=k)
     n, d = x.shape
-    smallest_train = n - math.ceil(n / k)
-    if smallest_train < d + 2:
-        raise SurrogateError(f"{lab}: {k}-fold CV on {n} points leaves {smallest_train} "
-                             f"training points, need d + 2 = {d + 2}; use more folds or points")
+    check_folds(k, n, d, name=name)
     fold = kfold_indices(n, k, seed)
     mu, var = np.empty(n), np.empty(n)
     for i in range(k):
+        if before_fold is not None:
+            before_fold()
         test = fold == i
         gp = fit_gp(x[~test], y[~test], lower=lower, upper=upper, transform=transform,
                     n_restarts=n_restarts, seed=seed, name=name, **fit_kwargs)

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -19,7 +19,7 @@ from calnet.errors import SurrogateError
 from calnet.files import make_folder, replacing
 from calnet.parallel import map_threads
 from calnet.spec import Network
-from calnet.surrogates.cv import CVResult, cross_validate
+from calnet.surrogates.cv import CVResult, check_folds, cross_validate
 from calnet.surrogates.fit import fit_gp
 from calnet.surrogates.gp import FittedGP
 from calnet.surrogates.persist import load_gp, save_gp
@@ -123,32 +123,21 @@ def check_surrogates(network: Network, surrogates: Surrogates, where: str | Path
                              "or 'calnet run' on this spec, or pass the folder of its run")
 
 
-def fit_surrogates(network: Network, *, stores: Mapping[str, Path] | None = None,
-                   seed: int | None = None, cv: bool = True, restarts: int | None = None,
-                   cv_folds: int | None = None,
-                   progress: Callable[[str], None] | None = None) -> Surrogates:
-    """Fit (and cross-validate) a GP for every output the network needs.
+@dataclass(frozen=True)
+class _Job:
+    """One output to fit: its training data, :func:`fit_gp`'s keywords and the folds."""
 
-    Parameters
-    ----------
-    network : Network
-    stores : mapping of model name to campaign store path, optional
-        Defaults to each model's default store beside the spec.
-    seed : int, optional
-        Seeds optimiser restarts and CV folds (default: ``network.settings.seed``).
-    cv : bool
-        Run k-fold cross-validation (k from the model's or the network's settings).
-    restarts, cv_folds : int, optional
-        Caps on the spec's surrogate settings (e.g. for a quick run): at most this many,
-        never more than the spec asks for.
-    progress : callable, optional
-        Called with a short message before each fit.
+    model: str
+    output: str
+    x: np.ndarray
+    y: np.ndarray
+    kw: dict
+    folds: int
+    n_excluded: int
 
-    Returns
-    -------
-    Surrogates
-    """
-    seed = network.settings.seed if seed is None else seed
+
+def _jobs(network: Network, stores, seed: int, restarts: int | None,
+          cv_folds: int | None) -> list[_Job]:
     jobs = []
     for name in network.order:
         model = network.model(name)
@@ -171,19 +160,82 @@ def fit_surrogates(network: Network, *, stores: Mapping[str, Path] | None = None
                       n_restarts=min(restarts or settings.restarts, settings.restarts),
                       seed=seed, name=f"{name}.{out.name}")
             folds = min(cv_folds or settings.cv_folds, settings.cv_folds, int(ok.sum()))
-            jobs.append((name, out.name, x[ok], y[ok], kw, folds if cv else 0,
-                         runs.n_excluded + int((~ok).sum())))
+            jobs.append(_Job(name, out.name, x[ok], y[ok], kw, folds,
+                             runs.n_excluded + int((~ok).sum())))
+    return jobs
 
-    def fit(job) -> OutputSurrogate:
-        name, out, x, y, kw, folds, n_excl = job
+
+def _cross_validate(job: _Job, gp: FittedGP, before_fold=None) -> CVResult:
+    # folds re-optimise from the full-data optimum (one start each): k refits at the cost
+    # of about k / (restarts + 1) full fits
+    return cross_validate(job.x, job.y, k=job.folds, **{**job.kw, "n_restarts": 0},
+                          init=np.asarray(gp.log_params), before_fold=before_fold)
+
+
+def fit_surrogates(network: Network, *, stores: Mapping[str, Path] | None = None,
+                   seed: int | None = None, cv: bool = True, restarts: int | None = None,
+                   cv_folds: int | None = None,
+                   progress: Callable[[str], None] | None = None) -> Surrogates:
+    """Fit (and cross-validate) a GP for every output the network needs.
+
+    Parameters
+    ----------
+    network : Network
+    stores : mapping of model name to campaign store path, optional
+        Defaults to each model's default store beside the spec.
+    seed : int, optional
+        Seeds optimiser restarts and CV folds (default: ``network.settings.seed``).
+    cv : bool
+        Run k-fold cross-validation (k from the model's or the network's settings).
+        Without it, :func:`cross_validate_surrogates` adds the same cross-validation
+        later (``calnet run`` runs it beside the calibration).
+    restarts, cv_folds : int, optional
+        Caps on the spec's surrogate settings (e.g. for a quick run): at most this many,
+        never more than the spec asks for.
+    progress : callable, optional
+        Called with a short message before each fit.
+
+    Returns
+    -------
+    Surrogates
+    """
+    seed = network.settings.seed if seed is None else seed
+    jobs = _jobs(network, stores, seed, restarts, cv_folds)
+
+    def fit(job: _Job) -> OutputSurrogate:
         if progress:
-            progress(f"{name}.{out}")
-        gp = fit_gp(x, y, **kw)
-        # folds re-optimise from the full-data optimum (one start each): k refits at the
-        # cost of about k / (restarts + 1) full fits
-        cvr = (cross_validate(x, y, k=folds, **{**kw, "n_restarts": 0},
-                              init=np.asarray(gp.log_params)) if folds else None)
-        return OutputSurrogate(name, out, gp, cvr, len(y), n_excl)
+            progress(f"{job.model}.{job.output}")
+        gp = fit_gp(job.x, job.y, **job.kw)
+        cvr = _cross_validate(job, gp) if cv and job.folds else None
+        return OutputSurrogate(job.model, job.output, gp, cvr, len(job.y), job.n_excluded)
 
     items = {s.key: s for s in map_threads(fit, jobs)}  # outputs side by side
+    return Surrogates(items)
+
+
+def check_cross_validation(network: Network, *, stores: Mapping[str, Path] | None = None,
+                           cv_folds: int | None = None) -> None:
+    """Raise :class:`~calnet.errors.SurrogateError` where :func:`cross_validate_surrogates`
+    would: an output with too few ok runs for its folds."""
+    for job in _jobs(network, stores, 0, None, cv_folds):
+        if job.folds:
+            check_folds(job.folds, *job.x.shape, name=job.kw["name"])
+
+
+def cross_validate_surrogates(network: Network, surrogates: Surrogates, *,
+                              stores: Mapping[str, Path] | None = None,
+                              seed: int | None = None, cv_folds: int | None = None,
+                              before_fold: Callable[[], None] | None = None) -> Surrogates:
+    """``surrogates`` (fitted by :func:`fit_surrogates` with ``cv=False`` and the same
+    ``stores`` and ``seed``) with the k-fold cross-validation that :func:`fit_surrogates`
+    would have given them: the same folds, starts and results, one output after another
+    in the calling thread. ``before_fold`` is called before each fold (see
+    :func:`calnet.surrogates.cv.cross_validate`)."""
+    seed = network.settings.seed if seed is None else seed
+    items = dict(surrogates.items)
+    for job in _jobs(network, stores, seed, None, cv_folds):
+        key = f"{job.model}.{job.output}"
+        if job.folds and key in items:
+            items[key] = replace(items[key], cv=_cross_validate(job, items[key].gp,
+                                                                before_fold))
     return Surrogates(items)
