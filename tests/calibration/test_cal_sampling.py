@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from calnet.calibration.diagnostics import summarize
+from calnet.calibration.diagnostics import stuck_chains, summarize
 from calnet.calibration.sampling import cache_info, sample_nuts
 from calnet.errors import CalibrationError, CalibrationWarning
 from calnet.progress import Lines
@@ -372,3 +372,16 @@ def test_a_single_chain_that_has_not_converged_is_not_called_chains():
                if "R-hat" in m]
     assert "the two halves of the only chain disagree" in said and "chains disagree" not in said
     assert "run several chains (settings.sampler.chains)" in said
+
+
+@pytest.mark.parametrize(("gap", "sd", "stuck"), [
+    (19.0, 1.0, [2]),  # a 2-parameter stage's trap: 19 below, 19 of its sds
+    (11.0, 1.0, [2]),
+    (8.0, 0.5, []),  # 16 sds, but a density ratio of only 3e3
+    (25.0, 3.0, []),  # 8 sds of a 20-parameter posterior's fluctuations: one mode
+    (35.0, 3.0, [2])])
+def test_a_chain_is_stuck_beyond_10_log_units_and_10_sds_below_the_best(gap, sd, stuck):
+    rng = np.random.default_rng(0)
+    lp = rng.normal(0.0, sd, (4, 500))
+    lp[2] -= gap
+    assert stuck_chains(lp) == stuck

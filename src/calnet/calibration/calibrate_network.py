@@ -4,7 +4,8 @@
 (:mod:`calnet.calibration.koh`) and samples it. *Joint*: one posterior over every
 calibration parameter and every data set's discrepancy and noise. *Segmented*: the models
 are calibrated in topological order, each on its own data sets with the parameters that
-earlier stages calibrated held fixed:
+earlier stages calibrated held fixed (the parameters of an upstream model without data
+of its own are calibrated in the first stage after it with data, which they act on):
 
 * ``plug="mode"``: at their posterior mode (KDE), as the reference study did;
 * ``plug="posterior"``: the *cut* posterior (theta_up from its own posterior, the stage's
@@ -17,7 +18,7 @@ earlier stages calibrated held fixed:
 
 A parameter declared ``shared: true`` in several models is one parameter: joint mode
 calibrates it with every data set; segmented mode calibrates it in the first model (in
-topological order) that has data and uses it, and plugs it into the later ones.
+topological order) that has data it acts on, and plugs it into the later ones.
 """
 
 from __future__ import annotations
@@ -368,14 +369,24 @@ def _joint(network, surrogates, data, plan, seed, sampler, emu, progress,
 
 
 def _owners(network: Network, data) -> dict[str, str]:
-    """Key -> the model whose stage calibrates it (segmented)."""
+    """Key -> the model whose stage calibrates it (segmented): the first model, in
+    topological order, with data that the parameter acts on (its own model's, or a model
+    downstream of it). A parameter that no data set depends on has no owner."""
     with_data = {network.dataset(k).observed_model for k in data}
-    owners = {}
+    owners: dict[str, str] = {}
     for m in network.order:
-        for k in parameter_keys(network, m):
-            if k not in owners and m in with_data:
-                owners[k] = m
+        if m in with_data:
+            for k in _needed_keys(network, m):
+                owners.setdefault(k, m)
     return owners
+
+
+def _needed_keys(network: Network, model: str) -> list[str]:
+    """The parameter keys of ``model`` and of the models upstream of it, in topological
+    order (a shared parameter once)."""
+    upstream = network.ancestors(model)
+    return list(dict.fromkeys(k for m in network.order if m in upstream or m == model
+                              for k in parameter_keys(network, m)))
 
 
 def _segmented(network, surrogates, data, plan, seed, sampler, emu, plug, progress, warn,
@@ -394,10 +405,9 @@ def _segmented(network, surrogates, data, plan, seed, sampler, emu, plug, progre
             if new:
                 prior_only.append(name)
             continue
-        free = [k for k in keys if owners.get(k) == name and k not in draws]
-        needed = [k for m in (*network.ancestors(name), name)
-                  for k in parameter_keys(network, m)]
-        fixed_keys = list(dict.fromkeys(k for k in needed if k not in free))
+        needed = _needed_keys(network, name)
+        free = [k for k in needed if owners.get(k) == name and k not in draws]
+        fixed_keys = [k for k in needed if k not in free]
         for k in fixed_keys:
             if k not in draws:  # used upstream of its owner: its prior stands in
                 draws[k] = _prior_draws(network, k, n, seed)
@@ -421,15 +431,27 @@ def _segmented(network, surrogates, data, plan, seed, sampler, emu, plug, progre
             moved = []
         # the diagnostics stay the sampler's (those its warnings gave), also for draws moved
         # by upstream draws: R-hat and ESS of moved draws mix in the upstream stages' draws
-        stage = StageResult((name,), tuple(own), idata, ld, diagnostics, tuple(moved))
+        # the models whose parameters this stage calibrates: upstream ones without data
+        # of their own (their parameters act on this stage's data), then this one
+        models = tuple(m for m in network.order if m == name or (
+            m in network.ancestors(name)
+            and any(k in free for k in parameter_keys(network, m))))
+        stage = StageResult(models, tuple(own), idata, ld, diagnostics, tuple(moved))
         stages.append(stage)
         draws.update(key_draws(stage))
         for k in free:
             if "." not in k:
                 users = [m for m in network.order if k in parameter_keys(network, m)]
                 notes.append(f"shared parameter '{k}' is calibrated with the data of "
-                             f"'{name}' (the first model with data that uses it) and held "
-                             f"fixed in {[u for u in users if u != name]} (segmented mode)")
+                             f"'{name}' (the first model with data that it acts on) and "
+                             f"held fixed in {[u for u in users if u != name]} "
+                             "(segmented mode)")
+        for m in models[:-1]:
+            keys_m = [k for k in parameter_keys(network, m) if k in free and "." in k]
+            if keys_m:
+                notes.append(f"'{m}' has no data of its own: its parameters "
+                             f"{[k.split('.', 1)[1] for k in keys_m]} are calibrated with "
+                             f"the data of '{name}' downstream (segmented mode)")
     plugged = {m: np.array([plug_at.get(k, np.nan) for k in parameter_keys(network, m)])
                for m in network.order if any(k in plug_at for k in parameter_keys(network, m))}
     return _posterior(network, "segmented", plug, tuple(stages), draws, data,

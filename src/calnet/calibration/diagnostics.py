@@ -220,7 +220,7 @@ def readable(name: str) -> str:
     return name
 
 
-STUCK_GAP = 20.0
+STUCK_GAP = 10.0
 """Log-density units: a chain whose mean log density lies further than this (and
 :data:`STUCK_SDS` of its fluctuations) below the best chain's sits in a local mode."""
 STUCK_SDS = 10.0
@@ -233,9 +233,10 @@ def stuck_chains(lp) -> list[int]:
     density. ``lp`` is (chains, draws).
 
     Chains of one mode differ in mean log density by about its standard deviation over
-    the square root of the effective sample size; a gap of 20 log units is a density
-    ratio of 5e8, so such a mode carries a negligible share of the posterior (unless its
-    volume were larger by as much, which no calibration problem's has been). NUTS cannot
+    the square root of the effective sample size; a gap of 10 log units is a density
+    ratio of 2e4, so such a mode carries a negligible share of the posterior unless its
+    volume were larger by nearly as much (a mode 10 times wider in each of 4 parameters),
+    while a chain kept in it would carry a whole chain's share of the draws. NUTS cannot
     leave it: a chain started in its basin stays there.
     """
     lp = np.asarray(lp, dtype=float)
