@@ -201,6 +201,32 @@ def test_a_ctrl_c_that_python_drops_still_exits_130(python_sigint):
     assert result.stderr.strip() == "interrupted"  # one line; no campaign runs to keep here
 
 
+@pytest.mark.parametrize(("name", "args", "said"), [
+    ("run", [], "the same command resumes them (later stages start again)"),
+    ("run", ["--fresh"], "the same command without --fresh resumes them (later stages"),
+    ("campaign", [], "the same command resumes them"),
+    ("campaign", ["--fresh"], "the same command without --fresh resumes them")])
+def test_an_interrupted_run_or_campaign_says_which_command_resumes_it(name, args, said):
+    """``--fresh`` deletes the finished runs: the command that resumes them is the same
+    one without it."""
+    import typer
+
+    from calnet.cli import user_errors
+
+    def command(fresh: bool = typer.Option(False, "--fresh")) -> None:
+        raise KeyboardInterrupt
+
+    command.__name__ = name
+    cmd = typer.Typer()
+    cmd.command(name)(user_errors(command))
+    cmd.command("other")(lambda: None)
+    result = CliRunner().invoke(cmd, [name, *args])
+    assert result.exit_code == 130, result.output
+    text = " ".join(result.stderr.split())
+    assert text.startswith("interrupted: finished simulation runs are kept; " + said), text
+    assert ("later stages" in text) == (name == "run")
+
+
 def test_calnet_debug_shows_the_traceback_and_keeps_exit_code_3(monkeypatch):
     import typer
 

@@ -105,3 +105,43 @@ def test_data_without_parameters_or_anything_to_sample_predicts():
     # 200 rows (the default n_draws, from 0 draws), each with its own upstream draw
     assert np.all(np.abs(pred.mean - mean) < 4 * sd / np.sqrt(200))
     assert np.all(pred.lower < mean) and np.all(mean < pred.upper)
+
+
+def test_predict_from_python_checks_its_settings_and_names():
+    """The Python ``predict`` says what the command line says: a setting that is not a
+    finite number or a data set the network does not have is a one-line UsageError (not
+    a plausible number, not a bare KeyError); a setting outside the bounds is warned of."""
+    import warnings
+
+    from calnet.errors import UsageError
+    from calnet.predict import predict
+    from calnet.spec import ExperimentalData
+
+    net, sur = _two_model_chain()
+    raw = net.model_dump(by_alias=True)
+    raw["models"][1]["outputs"][0]["measurable"] = True
+    raw["data"] = [{"name": "d", "path": "d.csv", "observes": "b.y",
+                    "columns": {"x": "x", "y": "y"}, "noise": {"sd": 0.05},
+                    "discrepancy": "none"}]
+    net = Network(**raw)
+    x = np.array([[0.2], [0.5], [0.9]])
+    data = {"d": ExperimentalData("d", "b.y", ("a.x",), x, np.sin(2 * x[:, 0]),
+                                  np.zeros(3, bool), ("1", "2", "3"), np.full(3, 0.05))}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", CalibrationWarning)
+        post = calibrate(net, sur, data=data)
+    for bad in (np.nan, np.inf):
+        with pytest.raises(UsageError, match=r"predict: a.x = (nan|inf) at row 1 is not a "
+                                             r"finite number \(1 row\(s\)\)"):
+            predict(net, sur, post, "d", np.array([[0.5], [bad]]))
+    with pytest.raises(UsageError, match=r"^no data set named 'b.y'; the network's data "
+                                         r"sets: \['d'\]$"):
+        predict(net, sur, post, "b.y", x)
+    with pytest.raises(KeyError):  # and still a KeyError for code that looks names up
+        net.dataset("nope")
+    with pytest.warns(UserWarning, match=r"predict: a.x lies outside its bounds \[0, 1\] "
+                                         r"at 1 of 2 point\(s\) \(row 1: 1.5\)"):
+        predict(net, sur, post, "d", np.array([[0.5], [1.5]]))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # inside the bounds: nothing to say
+        predict(net, sur, post, "d", x)

@@ -165,9 +165,10 @@ def user_errors(func: Callable[..., Any]) -> Callable[..., Any]:
                 raise
             except KeyboardInterrupt:
                 _show_warnings(caught)
-                kept = (": finished simulation runs are kept; the same command resumes them "
-                        "(later stages start again)" if func.__name__ in ("run", "campaign")
-                        else "")
+                from calnet.campaign.interrupt import resume_note
+
+                kept = (": " + resume_note(func.__name__, bool(kwargs.get("fresh")))
+                        if func.__name__ in ("run", "campaign") else "")
                 err_console.print(f"[bold red]interrupted[/]{kept}")
                 raise typer.Exit(130) from None
             except Exception as err:
@@ -540,7 +541,8 @@ def predict(
         for note in dict.fromkeys(notes):
             warnings.warn(note, stacklevel=1)
         pred = (predict_output(network, sur, post, name, x, seed=seed) if "." in name
-                else run_predict(network, sur, post, name, x, n_draws=draws, seed=seed))
+                else run_predict(network, sur, post, name, x, n_draws=draws, seed=seed,
+                                   warn_outside=False))  # settings_matrix said so
         results.append(pred.to_dict() | {"variance_share_per_point": shares_per_point(pred)})
         model, out_name = pred.observes.split(".")
         unit = network.model(model).output(out_name).unit
@@ -708,7 +710,7 @@ def run(
     from calnet.campaign.interrupt import sigterm_exit
     from calnet.pipeline import run_pipeline
 
-    with sigterm_exit():
+    with sigterm_exit("run", fresh):
         run_pipeline(spec, out=out, fresh=fresh, quick=quick, console=console)
 
 

@@ -42,6 +42,15 @@ class UsageError(CalnetError):
     with code 2, as for its own usage errors."""
 
 
+class UnknownName(UsageError, KeyError):
+    """A model or data set name the network does not have, given to a function
+    (``network.dataset("nope")``): a :class:`UsageError` with one line naming the known
+    ones, and a ``KeyError`` for code that looks names up."""
+
+    def __str__(self) -> str:  # KeyError's would quote the message
+        return str(self.args[0]) if self.args else ""
+
+
 class CampaignError(CalnetError):
     """A simulation campaign cannot be run or resumed."""
 

@@ -138,7 +138,7 @@ def explore_dataset(network: Network, surrogates: Surrogates, posterior: Network
     crit = network.settings.criteria.get(name)
     within = (crit.lower, crit.upper) if crit else None
     pred = predict(network, surrogates, posterior, name, mesh, n_draws=60, seed=seed,
-                   n_samples=10, within=within)
+                   n_samples=10, within=within, warn_outside=False)
     prob = None if pred.prob is None else pred.prob.reshape(GRID, GRID)
     grid = ProcessMap((names[0], names[1]), g0, g1, pred.mean.reshape(GRID, GRID), prob,
                       within if prob is not None else None)

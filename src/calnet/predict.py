@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import hashlib
 import math
+import warnings
 from collections.abc import Collection, Sequence
 from dataclasses import dataclass, field
 from functools import partial
@@ -233,6 +234,32 @@ class _Setup:
     log: bool
 
 
+def _check_settings(network: Network, dataset: str, x: np.ndarray, warn_outside: bool
+                    ) -> None:
+    """A :class:`UsageError` for a process setting that is not a finite number (or not
+    positive on a log-scale input); a warning for settings outside the declared bounds,
+    where the surrogates extrapolate (as :func:`settings_matrix` says them)."""
+    model = network.dataset(dataset).observed_model
+    for j, (key, (m, i)) in enumerate(zip(network.process_input_keys(model),
+                                          network.process_inputs(model), strict=True)):
+        var, v = network.model(m).variable(i), x[:, j]
+        rows = np.flatnonzero(~np.isfinite(v))
+        if rows.size:
+            raise UsageError(f"predict: {key} = {v[rows[0]]} at row {rows[0]} is not a finite "
+                             f"number ({rows.size} row(s)); give finite process inputs")
+        if getattr(var, "scale", "linear") == "log" and (v <= 0).any():
+            r = int(np.flatnonzero(v <= 0)[0])
+            raise UsageError(f"predict: {key} = {v[r]:g} at row {r} must be > 0 (its scale "
+                             "is log)")
+        rows = np.flatnonzero((v < var.lower) | (v > var.upper))
+        if rows.size and warn_outside:
+            unit = f" {var.unit}" if var.unit != "1" else ""
+            warnings.warn(f"predict: {key} lies outside its bounds [{var.lower:g}, "
+                          f"{var.upper:g}]{unit} at {rows.size} of {len(v)} point(s) (row "
+                          f"{rows[0]}: {v[rows[0]]:g}); the surrogates extrapolate there",
+                          UserWarning, stacklevel=3)
+
+
 def _setup(network: Network, surrogates: Surrogates, posterior: NetworkPosterior,
            dataset: str, idx: np.ndarray) -> _Setup:
     """The data set's KOH term (from the calibration data) and the draws ``idx``."""
@@ -377,7 +404,7 @@ def predict(network: Network, surrogates: Surrogates, posterior: NetworkPosterio
             dataset: str, x: np.ndarray, *, n_draws: int = 200, seed: int = 0,
             n_samples: int = 20,
             within: tuple[float | None, float | None] | None = None,
-            noise_var: np.ndarray | None = None) -> Prediction:
+            noise_var: np.ndarray | None = None, warn_outside: bool = True) -> Prediction:
     """Posterior predictive of the output observed by ``dataset`` at process settings.
 
     Parameters
@@ -399,15 +426,19 @@ def predict(network: Network, surrogates: Surrogates, posterior: NetworkPosterio
     noise_var : array (n,), optional
         Known noise variance of a new measurement at each point (modelled scale), for a
         data set with known noise (default: the mean over its calibration data).
+    warn_outside : bool
+        Warn where a setting lies outside its input's bounds (the surrogates extrapolate
+        there). A setting that is not a finite number is an error either way.
     """
     x = np.atleast_2d(np.asarray(x, dtype=float))
     # n_draws rows even from fewer draws (repeated), so that the upstream surrogates'
     # draws below still number n_draws (a posterior without parameters has 0 draws)
     idx = np.resize(draw_index(posterior.n_draws, n_draws), n_draws)
     st = _setup(network, surrogates, posterior, dataset, idx)
-    if x.shape[1] != len(st.keys):
-        raise CalnetError(f"predict: expected {len(st.keys)} process inputs "
-                          f"{list(st.keys)}, got {x.shape[1]} columns")
+    if x.ndim != 2 or x.shape[1] != len(st.keys):
+        raise UsageError(f"predict: expected {len(st.keys)} process inputs "
+                         f"{list(st.keys)}, got {x.shape[1:] or 'one'} column(s)")
+    _check_settings(network, dataset, x, warn_outside)
     xp_new = {k: device_array(x[:, j]) for j, k in enumerate(st.keys)}
     # the surrogates upstream of the observed model: the others play no part
     links = links_into(st.spec.plan, network.dataset(dataset).observed_model)
@@ -462,7 +493,7 @@ def predict_data(network: Network, surrogates: Surrogates, posterior: NetworkPos
                  data, **kwargs) -> Prediction:
     """:func:`predict` at a data set's own rows, with their known noise if any."""
     return predict(network, surrogates, posterior, data.name, data.x,
-                   noise_var=known_noise_var(network, data), **kwargs)
+                   noise_var=known_noise_var(network, data), warn_outside=False, **kwargs)
 
 
 def crps_from_samples(y: np.ndarray, samples: np.ndarray) -> np.ndarray:

@@ -452,7 +452,8 @@ class _Refitter:
         post_i = with_stage(self.posterior, stage, {full.name: data_i})
         pred = predict(network, self.surrogates, post_i, full.name, full.x[i:i + 1],
                        n_draws=REFIT_DRAWS, n_samples=-(-n_samples // REFIT_DRAWS),
-                       seed=seed, noise_var=_noise_var(network, full, i))
+                       seed=seed, noise_var=_noise_var(network, full, i),
+                       warn_outside=False)  # the data's bounds are checked when read
         draws = np.resize(pred.samples[:, 0], n_samples)
         lpd, mixture = pred.log_density(full.y[i:i + 1])
         return (float(pred.mean[0]), float(pred.lower[0]), float(pred.upper[0]), draws,

@@ -29,6 +29,14 @@ class Terminated(KeyboardInterrupt):
     """SIGTERM arrived (raised in the main thread, where Ctrl-C raises)."""
 
 
+def resume_note(command: str, fresh: bool = False) -> str:
+    """What an interrupted ``calnet run`` or ``calnet campaign`` says of its finished
+    runs: the same command resumes them, without ``--fresh`` (which would delete them)."""
+    again = "the same command without --fresh" if fresh else "the same command"
+    later = " (later stages start again)" if command == "run" else ""
+    return f"finished simulation runs are kept; {again} resumes them{later}"
+
+
 @contextmanager
 def sigterm_as_interrupt() -> Iterator[None]:
     """Within the block, SIGTERM raises :class:`Terminated` in the main thread; a second
@@ -50,28 +58,28 @@ def _raise(signum: int, frame: Any) -> None:
 
 
 @contextmanager
-def sigterm_exit() -> Iterator[None]:
+def sigterm_exit(command: str = "run", fresh: bool = False) -> Iterator[None]:
     """Within the block, SIGTERM stops the work as Ctrl-C does; then one line on stderr
-    and exit code :data:`TERMINATED_EXIT` (``typer.Exit``)."""
+    (:func:`resume_note` of ``command`` and ``fresh``) and exit code
+    :data:`TERMINATED_EXIT` (``typer.Exit``)."""
     try:
         with sigterm_as_interrupt():
             yield
     except Terminated:
         from rich.console import Console
 
-        Console(stderr=True).print("[bold red]interrupted[/] (SIGTERM): finished "
-                                   "simulation runs are kept; the same command resumes "
-                                   "them (later stages start again)",
-                                   soft_wrap=True)
+        Console(stderr=True).print("[bold red]interrupted[/] (SIGTERM): "
+                                   + resume_note(command, fresh), soft_wrap=True)
         raise typer.Exit(TERMINATED_EXIT) from None
 
 
 def sigterm_exits(func: Callable[..., Any]) -> Callable[..., Any]:
-    """A command run within :func:`sigterm_exit`."""
+    """A command run within :func:`sigterm_exit` (named by the function, with its
+    ``fresh`` argument)."""
 
     @functools.wraps(func)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
-        with sigterm_exit():
+        with sigterm_exit(func.__name__, bool(kwargs.get("fresh"))):
             return func(*args, **kwargs)
 
     return wrapper

@@ -13,6 +13,7 @@ from typing import Any
 
 from pydantic import Field, field_validator, model_validator
 
+from calnet.errors import UnknownName
 from calnet.spec.models import Dataset, Link, Model, Settings, named_mapping_to_list
 from calnet.spec.variables import Frozen, Input, Output
 
@@ -231,11 +232,13 @@ class Network(Frozen):
 
     # ------------------------------------------------------------ graph queries
     def model(self, name: str) -> Model:
-        """The model called ``name`` (KeyError if absent)."""
+        """The model called ``name`` (:class:`~calnet.errors.UnknownName`, a KeyError, if
+        absent)."""
         for m in self.models:
             if m.name == name:
                 return m
-        raise KeyError(name)
+        raise UnknownName(f"no model named '{name}'; the network's models: "
+                          f"{[m.name for m in self.models]}")
 
     @cached_property
     def order(self) -> tuple[str, ...]:
@@ -322,10 +325,13 @@ class Network(Frozen):
         return tuple(d for d in self.data if d.observed_model == model)
 
     def dataset(self, name: str) -> Dataset:
+        """The data set called ``name`` (:class:`~calnet.errors.UnknownName`, a KeyError,
+        if absent)."""
         for d in self.data:
             if d.name == name:
                 return d
-        raise KeyError(name)
+        raise UnknownName(f"no data set named '{name}'; the network's data sets: "
+                          f"{[d.name for d in self.data]}")
 
     def observed(self, ds: Dataset) -> Output:
         """The output that data set ``ds`` observes."""
