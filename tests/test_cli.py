@@ -242,3 +242,37 @@ def test_calnet_debug_shows_the_traceback_and_keeps_exit_code_3(monkeypatch):
     result = CliRunner().invoke(cmd, ["broken"])
     assert result.exit_code == 3, result.output
     assert "Traceback" in result.stderr and "internal error: ZeroDivisionError" in result.stderr
+
+
+def test_seed_reaches_the_stages_after_the_campaign(monkeypatch, tmp_path):
+    """``--seed`` of run and calibrate seeds the chains (and, for run, the stages after the
+    campaign) without touching the spec, whose settings.seed the campaign designs keep."""
+    import calnet.calibration.calibrate_network as calibrate_network
+    import calnet.pipeline as pipeline
+
+    seen = {}
+
+    def run_pipeline(spec, **kwargs):
+        seen["run"] = kwargs["seed"]
+
+    monkeypatch.setattr(pipeline, "run_pipeline", run_pipeline)
+    result = CliRunner().invoke(app, ["run", "examples/ninb", "--out", str(tmp_path),
+                                      "--seed", "7"])
+    assert result.exit_code == 0 and seen["run"] == 7, result.output
+
+    class Stop(Exception):
+        pass
+
+    def calibrate(network, sur, **kwargs):
+        seen["calibrate"] = kwargs["seed"]
+        raise Stop
+
+    import calnet.surrogates.fit_network as fit_network
+
+    monkeypatch.setattr(fit_network.Surrogates, "load", classmethod(lambda cls, d: None))
+    monkeypatch.setattr(fit_network, "check_surrogates", lambda *a: None)
+    monkeypatch.setattr(calibrate_network, "calibrate", calibrate)
+    result = CliRunner().invoke(app, ["calibrate", "examples/ninb", "--out",
+                                      str(tmp_path / "p"), "--seed", "3"])
+    assert isinstance(result.exception, Stop) or seen.get("calibrate") == 3, result.output
+    assert seen["calibrate"] == 3

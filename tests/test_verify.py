@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import textwrap
 import warnings
 
@@ -234,6 +235,10 @@ def test_verify_command_writes_verify_json(calibrated):
     assert doc["k"] == 3 and set(doc["checks"]) == {"up.y", "up.z", "down.w"}
     assert len(doc["points"]) == 9
     assert "agrees" in res.output and "verify.json" in res.output
+    # a line as each simulator run starts and ends (a run can take hours)
+    for m in ("up", "down"):
+        assert f"{m}: run 1 of 3 started" in res.stderr, res.stderr
+        assert re.search(rf"{m}: run 3 of 3 ok \(\d+\.\d s\)", res.stderr), res.stderr
     res = CliRunner().invoke(app, ["verify", str(root), "--run", str(run), "-k", "2", "--json"])
     assert res.exit_code == 0, res.output
     assert json.loads(res.stdout)["k"] == 2  # progress lines go to stderr

@@ -409,6 +409,9 @@ def calibrate(
     ] = Path("out/surrogates"),
     out: Annotated[Path, typer.Option(
         metavar="DIR", help="folder for posteriors and plots")] = Path("out/posterior"),
+    seed: Annotated[int | None, typer.Option(
+        metavar="SEED", min=0, help="seed of the chains (default: the spec's "
+        "settings.seed)")] = None,
 ) -> None:
     """Calibrate the network (KOH per model, NUTS).
 
@@ -426,7 +429,8 @@ def calibrate(
     check_surrogates(network, sur, surrogates_dir)
     out.mkdir(parents=True, exist_ok=True)  # a bad --out fails now, not after sampling
     with _working("calibrating") as note:
-        post = run_calibration(network, sur, mode=mode, plug=plug, progress=note)
+        post = run_calibration(network, sur, mode=mode, plug=plug, seed=seed,
+                               progress=note)
     result = record_calibration(network, post, folder=out)
     summary = result.models
     doc = {**summary, "surrogate_check": result.surrogate_check}
@@ -702,6 +706,10 @@ def run(
     quick: Annotated[bool, typer.Option(
         "--quick", help="fewer draws, restarts and folds, for a fast look (the report says "
         "which results are indicative only)")] = False,
+    seed: Annotated[int | None, typer.Option(
+        metavar="SEED", min=0, help="seed of the stages after the campaign: surrogate "
+        "fits, chains, predictions (default: the spec's settings.seed, which the campaign "
+        "designs keep)")] = None,
 ) -> None:
     """Run every stage on SPEC and write the report to OUT.
 
@@ -711,7 +719,7 @@ def run(
     from calnet.pipeline import run_pipeline
 
     with sigterm_exit("run", fresh):
-        run_pipeline(spec, out=out, fresh=fresh, quick=quick, console=console)
+        run_pipeline(spec, out=out, fresh=fresh, quick=quick, console=console, seed=seed)
 
 
 def main() -> None:  # pragma: no cover - console script entry

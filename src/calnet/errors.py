@@ -6,6 +6,9 @@ one line naming what was wrong and how to fix it; the CLI prints it without a tr
 
 from __future__ import annotations
 
+import re
+from collections import Counter
+
 
 class CalnetError(Exception):
     """Base class of calnet's user-facing errors."""
@@ -85,3 +88,14 @@ class SurrogateWarning(UserWarning):
 
 class SensitivityError(CalnetError):
     """A sensitivity analysis cannot be run (bad bounds, non-finite or constant output)."""
+
+
+_NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
+
+
+def alike(texts: list[str]) -> list[tuple[str, int]]:
+    """``(example, count)`` per kind of message, commonest first: messages that differ
+    only in their numbers (iterations, residuals, the input at which a run failed, a
+    chain's index) are one kind, shown by its first message."""
+    kinds = [_NUMBER.sub("#", t) for t in texts]
+    return [(texts[kinds.index(k)], n) for k, n in Counter(kinds).most_common()]

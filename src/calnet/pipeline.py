@@ -63,7 +63,8 @@ def _quick_sampler(s: SamplerSettings) -> SamplerSettings:
 
 
 def run_pipeline(spec: str | Path, *, out: Path, fresh: bool = False, quick: bool = False,
-                 console: Console | None = None, loo_max: int | None = None) -> dict:
+                 console: Console | None = None, loo_max: int | None = None,
+                 seed: int | None = None) -> dict:
     """Run every stage on ``spec`` and write ``out/report.html``, ``out/metrics.json`` and
     ``out/run_info.json``.
 
@@ -88,6 +89,10 @@ def run_pipeline(spec: str | Path, *, out: Path, fresh: bool = False, quick: boo
     loo_max : int, optional
         Most points per data set whose leave-one-out is re-calibrated exactly where PSIS
         is unreliable (Pareto k > 0.7; default 15, 12 with ``quick``).
+    seed : int, optional
+        Seed of the stages after the campaign (the surrogates' restarts and folds, the
+        chains, the predictions; default ``settings.seed``, recorded in run_info.json).
+        The campaign designs keep ``settings.seed``, so the stores stay valid.
 
     Returns
     -------
@@ -106,11 +111,14 @@ def run_pipeline(spec: str | Path, *, out: Path, fresh: bool = False, quick: boo
                 (out / sub).mkdir(parents=True, exist_ok=True)
             ctx = _Context(network, out, quick, fresh, loo_max if loo_max is not None
                            else (12 if quick else 15))
+            if seed is not None:
+                ctx.seed = int(seed)
     finally:
         early = _recorded(caught)
     ctx.spec_warnings = [_without_location(text, network) for text in early]
     timings: dict[str, float] = {}
     ctx.run_info["timings_s"] = timings
+    ctx.run_info["seed"] = ctx.seed
     # ArviZ imports matplotlib.pyplot, whose import records warnings (catch_warnings with
     # record=True sets process-wide state): imported first in a stage's thread while the
     # main thread enters and leaves its own warning contexts, it can leave the main

@@ -14,6 +14,7 @@ from scipy.special import logsumexp
 from calnet.calibration.calibrate_network import (
     NetworkPosterior,
     StageResult,
+    _owners,
     _sample,
     build_koh,
     calibrate,
@@ -22,7 +23,7 @@ from calnet.calibration.calibrate_network import (
 from calnet.calibration.diagnostics import import_arviz
 from calnet.calibration.terms import data_scale, known_noise_var, parameter_keys
 from calnet.chain import ChainPlan
-from calnet.errors import CalibrationWarning
+from calnet.errors import CalibrationWarning, alike
 from calnet.predict import Prediction, loo_conditionals, metrics, predict
 from calnet.results import Comparison, DatasetValidation, VariantScore
 from calnet.spec import ExperimentalData, Network
@@ -155,14 +156,15 @@ def psis_loo(network: Network, surrogates: Surrogates, posterior: NetworkPosteri
     pointwise = np.asarray(loo.loo_i, float)  # (n,) log predictive density of each point
     if len(todo):
         refitter = _Refitter(network, surrogates, posterior, full, sampler)
-        for j, i in enumerate(todo):
-            if progress:
-                progress(j, len(todo))
-            mean[i], lo[i], hi[i], samples[:, i], pit[i], pointwise[i], mixed = \
-                refitter.predict(int(i), seed + int(i), n_samples)
-            refit.append(int(i))
-            if not mixed:
-                gaussian.append(int(i))
+        with _once_per_kind(f"exact leave-one-out refits of {dataset}"):
+            for j, i in enumerate(todo):
+                if progress:
+                    progress(j, len(todo))
+                mean[i], lo[i], hi[i], samples[:, i], pit[i], pointwise[i], mixed = \
+                    refitter.predict(int(i), seed + int(i), n_samples)
+                refit.append(int(i))
+                if not mixed:
+                    gaussian.append(int(i))
     refit.sort()
     if refit:  # the refitted points' exact densities replace their importance-sampled ones
         loo = _with_pointwise(loo, pointwise)
@@ -419,6 +421,21 @@ def _mixture_quantile(weights: np.ndarray, mean: np.ndarray, sd: np.ndarray,
 REFIT_DRAWS = 400  # posterior draws of a refit's predictive at its point
 
 
+@contextlib.contextmanager
+def _once_per_kind(what: str):
+    """Warnings given in the block, each kind once (:func:`calnet.errors.alike`: the
+    refits of one data set warn alike, with other chains and numbers), with how many
+    times ``what`` gave it."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        yield
+    texts = [str(w.message) for w in caught]
+    for text, n in alike(texts):
+        w = caught[texts.index(text)]
+        more = f" ({n} of the {what} said so)" if n > 1 else ""
+        warnings.warn_explicit(text + more, w.category, w.filename, w.lineno)
+
+
 class _Refitter:
     """Exact leave-one-out of single points: the observing model's stage re-sampled
     without the point, the other models' parameters held at their posterior means (a
@@ -430,7 +447,13 @@ class _Refitter:
         self.full, self.sampler = full, sampler
         self.model = network.dataset(full.name).observed_model
         self.plan = ChainPlan.from_network(network)
-        self.own = parameter_keys(network, self.model)
+        # the parameters that segmented mode calibrates with this model's data: its own,
+        # and those of the models upstream without data of their own
+        owners = _owners(network, posterior.data)
+        self.own = [k for k in parameter_keys(network, self.model)
+                    if owners.get(k) == self.model] + [
+            k for k, m in owners.items()
+            if m == self.model and k not in parameter_keys(network, self.model)]
         self.fixed = {}
         for m, draws in posterior.theta.items():
             for j, k in enumerate(parameter_keys(network, m)):

@@ -17,6 +17,7 @@ included). A surrogate agrees when every ``|z| <= 3``.
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -230,7 +231,7 @@ def verify(network: Network, surrogates: Surrogates, posterior: NetworkPosterior
             progress(f"running {m} at {k} posterior points")
         outputs = [s for s in surrogates.items.values() if s.model == m]
         points += _check_model(network, plan, gps, posterior, m, outputs, draws, settings,
-                               Path(workdir) / m)
+                               Path(workdir) / m, progress)
     checks = {s.key: summarise(s.key, s.transform, [p for p in points if p.surrogate == s.key])
               for s in surrogates.items.values() if s.model in models}
     return VerifyResult(k, seed, draws, tuple(points), checks, tuple(notes))
@@ -298,8 +299,9 @@ def summarise(key: str, transform: str | None, points: Sequence[VerifyPoint]) ->
 
 # ----------------------------------------------------------------------------- helpers
 def _check_model(network, plan, gps, posterior, model_name, outputs, draws, settings,
-                 workdir) -> list[VerifyPoint]:
-    """Run ``model_name``'s simulator at every point; one VerifyPoint per output and point."""
+                 workdir, progress=None) -> list[VerifyPoint]:
+    """Run ``model_name``'s simulator at every point; one VerifyPoint per output and point
+    (``progress`` gets a line as each run starts and ends)."""
     model = network.model(model_name)
     sim = make_simulator(network, model, workdir=workdir)
     timeout = run_timeout(network, model)
@@ -312,7 +314,13 @@ def _check_model(network, plan, gps, posterior, model_name, outputs, draws, sett
         theta = thetas[model_name]
         inputs = {**dict(zip(model.input_names, np.asarray(x)[0].tolist(), strict=True)),
                   **dict(zip(model.parameter_names, np.asarray(theta).tolist(), strict=True))}
+        if progress:
+            progress(f"{model_name}: run {i + 1} of {len(settings)} started")
+        t0 = time.perf_counter()
         rec = execute_run(sim, i, inputs, timeout, expected)
+        if progress:
+            progress(f"{model_name}: run {i + 1} of {len(settings)} {rec.status} "
+                     f"({time.perf_counter() - t0:.1f} s)")
         z_in = plan.gp_inputs(model_name, x, theta)
         for s in outputs:
             mean, var = (float(np.asarray(a)[0]) for a in s.gp.predict(z_in, include_nugget=True))

@@ -6,6 +6,8 @@ import os
 import subprocess
 import sys
 
+import pytest
+
 from calnet.calibration.devices import enable_compilation_cache
 
 
@@ -49,3 +51,19 @@ def test_the_command_configures_host_devices_and_importing_it_does_not():
                          env=env, timeout=300)
     assert out.returncode == 0, out.stderr
     assert out.stdout.split() == ["4", "float64"]
+
+
+def test_asking_for_devices_after_jax_started_is_warned_of():
+    """From Python, a call after jax started cannot take effect: the chains then run one
+    after another, with other draws than the command line's for the same seed."""
+    import jax
+
+    from calnet.calibration.devices import configure_host_devices
+
+    jax.devices()  # started
+    have = jax.local_device_count()
+    with pytest.warns(UserWarning, match=rf"configure_host_devices\({have + 1}\) came after "
+                                         rf"jax started with {have} device\(s\): chains run "
+                                         "one after another"):
+        report = configure_host_devices(have + 1)
+    assert not report.applied and report.how == "too late"

@@ -229,3 +229,29 @@ def test_the_loo_band_is_the_mixtures_own_quantiles():
     for p in (0.025, 0.5, 0.975):
         q = _mixture_quantile(w, m, s, p)
         assert w @ stats.norm.cdf((q - m) / s) == pytest.approx(p, abs=1e-10)
+
+
+def test_the_refits_of_a_data_set_warn_each_kind_once():
+    """Each exact refit is a calibration of its own, and their warnings are alike but for
+    the chain and the numbers: one of each kind, with how many refits gave it."""
+    import warnings
+
+    from calnet.errors import CalibrationWarning
+    from calnet.validation import _once_per_kind
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        with _once_per_kind("exact leave-one-out refits of obs"):
+            for chain, gap in ((1, 81), (2, 176), (1, 95)):
+                warnings.warn(f"C LOO: chain {chain} of 2 stuck in a local mode (mean log "
+                              f"density {gap} below the best chain's)", CalibrationWarning,
+                              stacklevel=1)
+            warnings.warn("C LOO: R-hat 1.02 > 1.01 for C.c", CalibrationWarning, stacklevel=1)
+            warnings.warn("something else", UserWarning, stacklevel=1)
+    said = [(w.category, str(w.message)) for w in caught]
+    assert said == [
+        (CalibrationWarning, "C LOO: chain 1 of 2 stuck in a local mode (mean log density 81 "
+                             "below the best chain's) (3 of the exact leave-one-out refits "
+                             "of obs said so)"),
+        (CalibrationWarning, "C LOO: R-hat 1.02 > 1.01 for C.c"),
+        (UserWarning, "something else")]

@@ -11,6 +11,7 @@ from __future__ import annotations
 import os
 import re
 import sys
+import warnings
 from dataclasses import dataclass
 
 __all__ = ["HostDevices", "configure_host_devices", "enable_compilation_cache"]
@@ -51,7 +52,8 @@ def configure_host_devices(n: int | None = None) -> HostDevices:
 
     Sets ``XLA_FLAGS`` if jax is not imported yet (also inherited by subprocesses); if jax
     is imported but its backend has not started, sets ``jax_num_cpu_devices``; otherwise
-    nothing can be done and the report says so (chains then run one after another).
+    nothing can be done: the report says so and a warning too (chains then run one after
+    another).
     4 devices for 4 chains is fastest even on 2 cores (benchmarks/README.md,
     "Chains on CPU").
 
@@ -78,9 +80,15 @@ def configure_host_devices(n: int | None = None) -> HostDevices:
     have = jax.local_device_count()
     if have >= n:
         return HostDevices(n, True, "too late", f"jax already started with {have} devices")
-    return HostDevices(n, False, "too late",
-                       f"jax already started with {have} device(s); set XLA_FLAGS="
-                       f"{_FLAG}={n} before importing jax to run {n} chains in parallel")
+    report = HostDevices(n, False, "too late",
+                         f"jax already started with {have} device(s); set XLA_FLAGS="
+                         f"{_FLAG}={n} before importing jax to run {n} chains in parallel")
+    warnings.warn(f"configure_host_devices({n}) came after jax started with {have} "
+                  "device(s): chains run one after another, not in parallel, and their "
+                  "draws differ from parallel chains' (valid, but not the same numbers as "
+                  "'calnet calibrate' gives for the same seed); call it before anything "
+                  "that imports jax", UserWarning, stacklevel=2)
+    return report
 
 
 def enable_compilation_cache() -> str | None:

@@ -20,11 +20,12 @@ they lie at x in [0.6, 0.8], the ok runs at x in [0, 0.4] (the surrogate extrapo
 
 from __future__ import annotations
 
-import re
 from collections import Counter
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
+
+from calnet.errors import alike
 
 if TYPE_CHECKING:
     from calnet.spec.models import Model
@@ -90,10 +91,10 @@ def store_failure_note(store: str | Path, model: Model, *,
 
 def common_failures(store: str | Path, most: int = 2) -> list[str]:
     """The ``most`` commonest messages of the runs in ``store`` that did not finish ok,
-    each as ``"N runs: status: message"``, commonest first (:func:`_alike`)."""
+    each as ``"N runs: status: message"``, commonest first (:func:`calnet.errors.alike`)."""
     bad = _not_ok(_rows(store))
     texts = [f"{r['status']}: {m}" for r, m in zip(bad, _messages(bad), strict=True)]
-    return [f"{n} run{'s' if n > 1 else ''}: {text}" for text, n in _alike(texts)[:most]]
+    return [f"{n} run{'s' if n > 1 else ''}: {text}" for text, n in alike(texts)[:most]]
 
 
 def commonest_failure(store: str | Path) -> str | None:
@@ -103,13 +104,13 @@ def commonest_failure(store: str | Path) -> str | None:
 
 def commonest_outcome(rows: Iterable[Mapping[str, Any]]) -> str | None:
     """The commonest outcome of the runs that did not finish ok, with the commonest
-    message among them (:func:`_alike`): ``"nonconverged (11 runs), e.g. Newton did not
+    message among them (:func:`calnet.errors.alike`): ``"nonconverged (11 runs), e.g. Newton did not
     converge: ..."``; None where every run is ok."""
     bad = _not_ok(rows)
     if not bad:
         return None
     status, n = Counter(r["status"] for r in bad).most_common(1)[0]
-    example = _alike(_messages([r for r in bad if r["status"] == status]))[0][0]
+    example = alike(_messages([r for r in bad if r["status"] == status]))[0][0]
     return f"{status} ({n} run{'s' if n > 1 else ''}), e.g. {example}"
 
 
@@ -129,17 +130,6 @@ def _messages(rows: Iterable[Mapping[str, Any]]) -> list[str]:
     from calnet.campaign.logs import without_where
 
     return [without_where(r.get("message") or "no message") for r in rows]
-
-
-def _alike(texts: list[str]) -> list[tuple[str, int]]:
-    """``(example, count)`` per kind of text, commonest first: texts that differ only in
-    their numbers (iterations, residuals, the input at which a run failed) are one kind,
-    shown by its first text."""
-    kinds = [_NUMBER.sub("#", t) for t in texts]
-    return [(texts[kinds.index(k)], n) for k, n in Counter(kinds).most_common()]
-
-
-_NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
 
 
 def _separating(bad: list, ok: list, columns: Sequence[str]) -> list[tuple[str, str]]:
