@@ -62,8 +62,10 @@ def test_spec_objects_are_frozen():
 def test_two_links_into_one_input_rejected():
     models = [_model("a", ["x"], ["y"]), _model("b", ["x"], ["y"]), _model("c", ["u"], ["z"])]
     links = [Link(**{"from": "a.y", "to": "c.u"}), Link(**{"from": "b.y", "to": "c.u"})]
-    with pytest.raises(ValueError, match="fed by 2 links"):
+    with pytest.raises(ValueError, match="fed by 2 links") as info:
         Network(models=models, links=links)
+    said = [line for line in str(info.value).splitlines() if "fed by" in line]
+    assert len(said) == 1 and "(links[0], links[1])" in said[0], said  # once, not per link
 
 
 def test_self_link_is_a_cycle():

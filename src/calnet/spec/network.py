@@ -128,10 +128,13 @@ class Network(Frozen):
                 f"{where}: unit mismatch, '{link.source}' is in '{src.unit}' but "
                 f"'{link.target}' expects '{dst.unit}'; declare both in the same unit"
             )
-        others = [ln for ln in self.links if ln.target == link.target]
+        others = [j for j, ln in enumerate(self.links) if ln.target == link.target]
         if len(others) > 1:
-            raise ValueError(f"{where}.to: '{link.target}' is fed by {len(others)} links; "
-                             "an input can be fed by one link only")
+            if i != others[0]:
+                return  # said once, with the first of them
+            raise ValueError(f"{where}.to: '{link.target}' is fed by {len(others)} links ("
+                             + ", ".join(f"links[{j}]" for j in others)
+                             + "); an input can be fed by one link only")
         twins = [ln.target for ln in self.links if ln.source == link.source
                  and ln.target_model == link.target_model and ln.target != link.target]
         if twins:
