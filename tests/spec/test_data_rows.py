@@ -75,3 +75,16 @@ def test_a_data_set_that_only_repeats_another_is_an_error(base_spec, write_spec,
     with pytest.raises(SpecError, match="every row of data set 'copy' repeats a measurement "
                        "of heat.W in data set 'width', so it adds nothing; remove it"):
         read_all(load_spec(path))
+
+
+def test_a_repeated_row_outside_the_bounds_is_counted_once(base_spec, write_spec):
+    """The bounds warning counts the rows that enter the calibration: a copy left out
+    is not a second point outside the bounds."""
+    width = ("id,power,speed,width,split\n1,300,0.5,90,train\n2,150,1.0,80,train\n"
+             "3,300,0.5,90,train\n4,200,1.5,85,test\n")
+    path = write_spec(base_spec, width=width)
+    with pytest.warns(SpecWarning) as caught:
+        data = read_all(load_spec(path))["width"]
+    said = [str(w.message) for w in caught]
+    assert any("1 of 3 point(s) lie outside the model's input bounds" in m for m in said), said
+    assert len(data.y) == 3

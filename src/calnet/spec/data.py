@@ -115,12 +115,13 @@ def read_dataset(network: Network, ds: Dataset) -> ExperimentalData:
                         "scale (transform: log); remove those rows or drop the transform",
                         file=str(path), field=f"{field}.columns")
     is_test = _split_mask(frame, ds, path, field)
-    _check_bounds(network, ds, wanted, x, path, field)
     labels = tuple(str(v) for v in frame.iloc[:, 0]) if len(frame.columns) else ()
     noise_sd = _noise_sd(frame, ds, path, field)
     data = ExperimentalData(ds.name, ds.observes, tuple(wanted), x, y, is_test, labels,
                             noise_sd)
-    return _once(data, _repeats(_rows(data)), f"{ds.path}: {field}")
+    data = _once(data, _repeats(_rows(data)), f"{ds.path}: {field}")
+    _check_bounds(network, ds, wanted, data.x, path, field)  # the rows that count
+    return data
 
 
 def repeated_header(path) -> str | None:
@@ -270,7 +271,8 @@ def _check_bounds(network: Network, ds: Dataset, keys: list[str], x: np.ndarray,
            f"({'; '.join(detail)}); widen the bounds so the simulations cover the experiments")
     if strict:
         raise SpecError(msg, file=str(path), field=field)
-    warnings.warn(f"{path}: {field}: {msg}", SpecWarning, stacklevel=3)
+    # the file as the spec names it, as the other warnings on its rows do
+    warnings.warn(f"{ds.path}: {field}: {msg}", SpecWarning, stacklevel=3)
 
 
 def read_all(network: Network) -> dict[str, ExperimentalData]:
