@@ -272,7 +272,7 @@ def _setup(network: Network, surrogates: Surrogates, posterior: NetworkPosterior
     spec = KOHModel(plan, (), (), (), (term.without_priors(),))
     thetas = draws_at(posterior.theta, plan, idx)
     hyper = hyper_at(posterior.hyper[dataset], idx, len(term.ell_priors))
-    log = network.model(ds.observed_model).output(ds.observed_output).transform == "log"
+    log = network.observed(ds).transform == "log"
     gps = {k: s.gp for k, s in surrogates.items.items()}
     return _Setup(spec, gps, tdata, thetas, hyper,
                   tuple(network.process_input_keys(ds.observed_model)), log)

@@ -74,7 +74,7 @@ def data_scale(network: Network, data: ExperimentalData) -> tuple[float, float]:
 def modelled(network: Network, data: ExperimentalData) -> np.ndarray:
     """Observations on the modelled scale (``ln y`` for ``transform: log``)."""
     ds = network.dataset(data.name)
-    out = network.model(ds.observed_model).output(ds.observed_output)
+    out = network.observed(ds)
     if out.transform == "log":
         if np.any(data.y <= 0):
             raise CalibrationError(f"data set {data.name}: output is modelled on the log "
@@ -89,7 +89,7 @@ def known_noise_var(network: Network, data: ExperimentalData) -> np.ndarray | No
     if data.noise_sd is None:
         return None
     ds = network.dataset(data.name)
-    log = network.model(ds.observed_model).output(ds.observed_output).transform == "log"
+    log = network.observed(ds).transform == "log"
     sd = data.noise_sd / data.y if log else data.noise_sd
     return np.asarray(sd, dtype=float) ** 2
 

@@ -107,7 +107,7 @@ def read_dataset(network: Network, ds: Dataset) -> ExperimentalData:
                         more=[e.reason for e in problems[1:]])
     x = np.column_stack([columns[k] for k in wanted]) if wanted else np.empty((len(frame), 0))
     y = columns[ds.observes]
-    out = network.model(ds.observed_model).output(ds.observed_output)
+    out = network.observed(ds)
     if out.transform == "log" and np.any(y <= 0):
         rows = (np.flatnonzero(y <= 0) + 2).tolist()
         raise SpecError(f"column '{resolved[ds.observes]}' has {len(rows)} value(s) <= 0 on "
