@@ -72,10 +72,14 @@ def test_same_seed_same_prediction_and_bad_requests():
     assert np.array_equal(one.samples, two.samples)
     other = predict_output(net, sur, post, "b.y", x, n_samples=500, seed=6)
     assert not np.array_equal(one.samples, other.samples)
-    with pytest.raises(CalnetError, match=r"no surrogate for 'b.z'; list it under "
-                                          r"settings.predict"):
+    with pytest.raises(CalnetError, match=r"'b.z' is not an output of the network"):
         predict_output(net, sur, post, "b.z", x)
-    with pytest.raises(CalnetError, match=r"expected 1 process inputs \['a.x'\], got 2"):
+    without = Surrogates({"a.u": sur.items["a.u"]})  # b.y's surrogate not fitted
+    with pytest.raises(CalnetError, match=r"no surrogate for 'b.y'; list it under "
+                                          r"settings.predict"):
+        predict_output(net, without, post, "b.y", x)
+    with pytest.raises(CalnetError, match=r"expected 1 process inputs \['a.x'\] as "
+                                          r"columns, got 2"):
         predict_output(net, sur, post, "b.y", np.ones((2, 2)))
 
 
@@ -145,3 +149,19 @@ def test_predict_from_python_checks_its_settings_and_names():
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # inside the bounds: nothing to say
         predict(net, sur, post, "d", x)
+    with pytest.raises(UsageError, match=r"predict: no settings given \(x has 0 rows\)"):
+        predict(net, sur, post, "d", np.zeros((0, 1)))
+    with pytest.raises(UsageError, match=r"expected 1 process inputs \['a.x'\] as columns, "
+                                         r"got 2 column\(s\)"):
+        predict(net, sur, post, "d", np.zeros((3, 2)))
+    # the same from predict_output (an output through the chain), and its names
+    with pytest.raises(UsageError, match=r"predict b.y: a.x = nan at row 0"):
+        predict_output(net, sur, post, "b.y", np.array([[np.nan]]))
+    with pytest.warns(UserWarning, match=r"predict b.y: a.x lies outside its bounds"):
+        predict_output(net, sur, post, "b.y", np.array([[3.0]]))
+    with pytest.raises(UsageError, match=r"no model named 'q'; the network's models: "
+                                         r"\['a', 'b'\]"):
+        predict_output(net, sur, post, "q.y", x)
+    with pytest.raises(UsageError, match=r"'b.w' is not an output of the network; 'b' has "
+                                         r"\['y'\]"):
+        predict_output(net, sur, post, "b.w", x)

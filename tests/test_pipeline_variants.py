@@ -108,10 +108,18 @@ def test_a_run_stopped_early_says_it_waits_for_the_variants_in_flight(context, m
     monkeypatch.setattr(calibrate_network, "calibrate", spec)
     monkeypatch.setattr(validation, "calibrate_variants", variants)
     monkeypatch.setattr(pipeline, "record_calibration", lambda *a, **k: "recorded")
-    notes = []
+    notes, hit = [], threading.Event()
+
+    def note(text):  # run_pipeline's: raises once Ctrl-C has arrived
+        if hit.is_set():
+            raise KeyboardInterrupt
+        notes.append(text)
+
+    context.say = notes.append  # and the lines that do not check
     with pytest.raises(KeyboardInterrupt), context.held:
-        context.calibration(notes.append)
+        context.calibration(note)
         assert started.wait(30)
+        hit.set()
         raise KeyboardInterrupt
     assert finished.is_set()
     assert any("stopping once the calibration of no_discrepancy in flight ends" in n

@@ -433,7 +433,8 @@ def calibrate(
                                progress=note)
     result = record_calibration(network, post, folder=out)
     summary = result.models
-    doc = {**summary, "surrogate_check": result.surrogate_check}
+    doc = {**summary, "surrogate_check": result.surrogate_check,
+           "seed": network.settings.seed if seed is None else seed}
     (out / "summary.json").write_text(json.dumps(doc, indent=1, default=_json_default))
     if not post.calibrated:
         kept = (f"the parameters of {', '.join(post.prior_only)} keep their priors "
@@ -544,9 +545,11 @@ def predict(
         notes += link_notes(network, sur, post, name, x)
         for note in dict.fromkeys(notes):
             warnings.warn(note, stacklevel=1)
-        pred = (predict_output(network, sur, post, name, x, seed=seed) if "." in name
+        # settings_matrix has warned of settings outside the bounds
+        pred = (predict_output(network, sur, post, name, x, seed=seed, warn_outside=False)
+                if "." in name
                 else run_predict(network, sur, post, name, x, n_draws=draws, seed=seed,
-                                   warn_outside=False))  # settings_matrix said so
+                                 warn_outside=False))
         results.append(pred.to_dict() | {"variance_share_per_point": shares_per_point(pred)})
         model, out_name = pred.observes.split(".")
         unit = network.model(model).output(out_name).unit

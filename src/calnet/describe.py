@@ -73,7 +73,16 @@ def describe_network(network: Network, console: Console) -> None:
 def settings_text(network: Network) -> str:
     """How the network is calibrated: mode, surrogate variance and sampler settings."""
     cal, smp = network.settings.calibration, network.settings.sampler
-    mode = (f"{cal.mode} (plug: {cal.plug})" if cal.mode == "segmented" else cal.mode)
+    mode = cal.mode
+    if cal.mode == "segmented":
+        from calnet.calibration.calibrate_network import segmented_stages
+
+        stages, prior = segmented_stages(network)
+        mode = (f"segmented (plug: {cal.plug}; stages: "
+                + ", then ".join(f"{'+'.join(models)} with {', '.join(data)}"
+                                 for models, data in stages)
+                + (f"; at their prior (no data depends on them): {', '.join(prior)}"
+                   if prior else "") + ")")
     return (f"calibration: {mode}, surrogate variance "
             f"{'in' if cal.emulator_variance else 'left out of'} the likelihood; sampler: "
             f"{_count(smp.chains, 'chain')} x ({smp.warmup} warm-up + {smp.draws} draws"

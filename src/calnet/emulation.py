@@ -23,8 +23,8 @@ from calnet._jax import FEW_CALLS
 from calnet.calibration.calibrate_network import NetworkPosterior
 from calnet.calibration.terms import draw_index, links_into
 from calnet.chain import ChainPlan
-from calnet.errors import CalnetError
-from calnet.predict import Prediction, point_normals
+from calnet.errors import CalnetError, UnknownName
+from calnet.predict import Prediction, check_settings, point_normals
 from calnet.spec import Network
 from calnet.surrogates.fit_network import Surrogates
 
@@ -63,7 +63,7 @@ def _thetas(network: Network, posterior: NetworkPosterior, plan: ChainPlan,
 
 def predict_output(network: Network, surrogates: Surrogates, posterior: NetworkPosterior,
                    output: str, x: np.ndarray, *, n_samples: int = 2000,
-                   seed: int = 0) -> Prediction:
+                   seed: int = 0, warn_outside: bool = True) -> Prediction:
     """Predictive distribution of the simulator output ``output`` through the chain.
 
     Parameters
@@ -80,6 +80,9 @@ def predict_output(network: Network, surrogates: Surrogates, posterior: NetworkP
     seed : int
         Seeds each point's GP draws (:func:`calnet.predict.point_normals`): a point's
         prediction depends on the seed and the point, not on the other rows of ``x``.
+    warn_outside : bool
+        Warn where a setting lies outside its input's bounds. A setting that is not a
+        finite number is an error either way.
 
     Returns
     -------
@@ -93,16 +96,17 @@ def predict_output(network: Network, surrogates: Surrogates, posterior: NetworkP
     --------
     >>> pred = predict_output(net, sur, post, "M3.y", np.array([[0.2], [0.8]]))  # doctest: +SKIP
     """
+    model, _, name = output.partition(".")
+    if name not in network.model(model).output_names:  # UnknownName for a model too
+        raise UnknownName(f"'{output}' is not an output of the network; '{model}' has "
+                          f"{list(network.model(model).output_names)}")
     if output not in surrogates:
         raise CalnetError(f"no surrogate for '{output}'; list it under settings.predict in "
                           "the spec and fit the surrogates again (calnet surrogates SPEC or "
                           "calnet run SPEC)")
-    model = output.split(".")[0]
     keys = tuple(network.process_input_keys(model))
     x = np.atleast_2d(np.asarray(x, dtype=float))
-    if x.shape[1] != len(keys):
-        raise CalnetError(f"predict {output}: expected {len(keys)} process inputs {list(keys)}, "
-                          f"got {x.shape[1]} columns")
+    check_settings(network, model, x, f"predict {output}", warn_outside)
     plan = ChainPlan.from_network(network)
     links = links_into(plan, model)
     gps = {k: s.gp for k, s in surrogates.items.items()}

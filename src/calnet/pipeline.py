@@ -109,6 +109,8 @@ def run_pipeline(spec: str | Path, *, out: Path, fresh: bool = False, quick: boo
             out = Path(out)
             for sub in ("figures", "posterior", "surrogates"):
                 (out / sub).mkdir(parents=True, exist_ok=True)
+            # calnet verify's check of an earlier posterior in this folder
+            (out / "verify.json").unlink(missing_ok=True)
             ctx = _Context(network, out, quick, fresh, loo_max if loo_max is not None
                            else (12 if quick else 15))
             if seed is not None:
@@ -130,6 +132,8 @@ def run_pipeline(spec: str | Path, *, out: Path, fresh: bool = False, quick: boo
         def note(text: str) -> None:
             interrupted()
             show.note(text)
+
+        ctx.say = show.note  # on the way out of an interrupted run: no interrupt check
 
         for i, stage in enumerate(STAGES):
             interrupted()
@@ -279,6 +283,7 @@ class _Context:
         self.variants: dict = {}  # settings.compare: {variant: (network, posterior)}
         self.pending = None  # Future of the variants, calibrated in a thread
         self.cv_pending = None  # Future of the surrogates' cross-validation
+        self.say = None  # progress lines that do not check for Ctrl-C (run_pipeline's)
         self.held = ExitStack()  # what the calibration sets for the rest of the run
         self.validated: dict = {}  # data set -> calnet.results.DatasetValidation
         self.comparison = None  # calnet.results.Comparison, with settings.compare
@@ -397,7 +402,7 @@ class _Context:
 
         if variants:
             self.held.enter_context(one_blas_thread())
-            self.held.callback(self._drain, variants, note)
+            self.held.callback(self._drain, variants, self.say or note)
             self.held.callback(failed.set)  # on the way out: what has not started, won't
             note("calibrating " + ", ".join(variants) + " beside the spec's model")
             pool = ThreadPoolExecutor(max_workers=1)

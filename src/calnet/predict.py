@@ -234,27 +234,34 @@ class _Setup:
     log: bool
 
 
-def _check_settings(network: Network, dataset: str, x: np.ndarray, warn_outside: bool
-                    ) -> None:
-    """A :class:`UsageError` for a process setting that is not a finite number (or not
-    positive on a log-scale input); a warning for settings outside the declared bounds,
-    where the surrogates extrapolate (as :func:`settings_matrix` says them)."""
-    model = network.dataset(dataset).observed_model
-    for j, (key, (m, i)) in enumerate(zip(network.process_input_keys(model),
-                                          network.process_inputs(model), strict=True)):
+def check_settings(network: Network, model: str, x: np.ndarray, what: str = "predict",
+                   warn_outside: bool = True) -> None:
+    """Process settings ``x`` (n, k) of ``model``'s chain as the Python predictions take
+    them: a :class:`UsageError` (message starting with ``what``) for a wrong shape, no
+    rows, or a setting that is not a finite number (or not positive on a log-scale
+    input); a warning for settings outside the declared bounds, where the surrogates
+    extrapolate (as :func:`settings_matrix` says them for the command line)."""
+    keys = network.process_input_keys(model)
+    if x.ndim != 2 or x.shape[1] != len(keys):
+        got = f"{x.shape[1]} column(s)" if x.ndim == 2 else f"an array of shape {x.shape}"
+        raise UsageError(f"{what}: expected {len(keys)} process inputs {list(keys)} as "
+                         f"columns, got {got}")
+    if not len(x):
+        raise UsageError(f"{what}: no settings given (x has 0 rows)")
+    for j, (key, (m, i)) in enumerate(zip(keys, network.process_inputs(model), strict=True)):
         var, v = network.model(m).variable(i), x[:, j]
         rows = np.flatnonzero(~np.isfinite(v))
         if rows.size:
-            raise UsageError(f"predict: {key} = {v[rows[0]]} at row {rows[0]} is not a finite "
+            raise UsageError(f"{what}: {key} = {v[rows[0]]} at row {rows[0]} is not a finite "
                              f"number ({rows.size} row(s)); give finite process inputs")
         if getattr(var, "scale", "linear") == "log" and (v <= 0).any():
             r = int(np.flatnonzero(v <= 0)[0])
-            raise UsageError(f"predict: {key} = {v[r]:g} at row {r} must be > 0 (its scale "
+            raise UsageError(f"{what}: {key} = {v[r]:g} at row {r} must be > 0 (its scale "
                              "is log)")
         rows = np.flatnonzero((v < var.lower) | (v > var.upper))
         if rows.size and warn_outside:
             unit = f" {var.unit}" if var.unit != "1" else ""
-            warnings.warn(f"predict: {key} lies outside its bounds [{var.lower:g}, "
+            warnings.warn(f"{what}: {key} lies outside its bounds [{var.lower:g}, "
                           f"{var.upper:g}]{unit} at {rows.size} of {len(v)} point(s) (row "
                           f"{rows[0]}: {v[rows[0]]:g}); the surrogates extrapolate there",
                           UserWarning, stacklevel=3)
@@ -435,10 +442,8 @@ def predict(network: Network, surrogates: Surrogates, posterior: NetworkPosterio
     # draws below still number n_draws (a posterior without parameters has 0 draws)
     idx = np.resize(draw_index(posterior.n_draws, n_draws), n_draws)
     st = _setup(network, surrogates, posterior, dataset, idx)
-    if x.ndim != 2 or x.shape[1] != len(st.keys):
-        raise UsageError(f"predict: expected {len(st.keys)} process inputs "
-                         f"{list(st.keys)}, got {x.shape[1:] or 'one'} column(s)")
-    _check_settings(network, dataset, x, warn_outside)
+    check_settings(network, network.dataset(dataset).observed_model, x, "predict",
+                   warn_outside)
     xp_new = {k: device_array(x[:, j]) for j, k in enumerate(st.keys)}
     # the surrogates upstream of the observed model: the others play no part
     links = links_into(st.spec.plan, network.dataset(dataset).observed_model)

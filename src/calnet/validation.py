@@ -23,7 +23,7 @@ from calnet.calibration.calibrate_network import (
 from calnet.calibration.diagnostics import import_arviz
 from calnet.calibration.terms import data_scale, known_noise_var, parameter_keys
 from calnet.chain import ChainPlan
-from calnet.errors import CalibrationWarning, alike
+from calnet.errors import CalibrationWarning, CalnetError, alike
 from calnet.predict import Prediction, loo_conditionals, metrics, predict
 from calnet.results import Comparison, DatasetValidation, VariantScore
 from calnet.spec import ExperimentalData, Network
@@ -113,6 +113,9 @@ def psis_loo(network: Network, surrogates: Surrogates, posterior: NetworkPosteri
     inputs) and ``method``.
     """
     az = import_arviz()
+    network.dataset(dataset)  # UnknownName, naming the data sets, for another name
+    if dataset not in posterior.data:
+        raise CalnetError(f"data set '{dataset}' was not calibrated; nothing to leave out")
     full = posterior.data[dataset]
     if posterior.n_draws < 2 or len(full.y) < 2:
         n_points = len(full.y)

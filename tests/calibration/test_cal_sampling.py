@@ -385,3 +385,49 @@ def test_a_chain_is_stuck_beyond_10_log_units_and_10_sds_below_the_best(gap, sd,
     lp = rng.normal(0.0, sd, (4, 500))
     lp[2] -= gap
     assert stuck_chains(lp) == stuck
+
+
+def test_a_chain_that_leaves_its_trap_late_is_stuck():
+    """68 % of its draws 21 log units down, then with the others: its mean is 14 below
+    theirs, its own sd (10) wide from the jump; the yardstick is the best chain's."""
+    rng = np.random.default_rng(1)
+    lp = rng.normal(29.0, 1.0, (4, 500))
+    lp[1, :340] -= 21.0
+    assert stuck_chains(lp) == [1]
+
+
+@pytest.mark.parametrize("lines", [False, True])
+def test_ctrl_c_while_the_chains_run_waits_for_them_then_stops(monkeypatch, capsys, lines):
+    """A running XLA program cannot be stopped, and a process that ends while one runs
+    can crash in its clean-up (exit 139): after Ctrl-C the sampler says so, waits for
+    the program, also through a second Ctrl-C, and then raises KeyboardInterrupt. With
+    progress lines that raise once Ctrl-C has arrived (calnet run's), it says so on
+    stderr."""
+    import jax
+
+    from calnet.progress import Lines
+
+    hit = []
+
+    def write(text):  # calnet run's notes: they raise once Ctrl-C has arrived
+        if hit:
+            raise KeyboardInterrupt
+
+    waits = []
+    real = jax.block_until_ready
+
+    def block(x):
+        waits.append(1)
+        if len(waits) <= 2:  # Ctrl-C, then Ctrl-C again while it waits
+            hit.append(1)
+            raise KeyboardInterrupt
+        return real(x)
+
+    monkeypatch.setattr(jax, "block_until_ready", block)
+    init = np.array([[0.05], [0.0]])
+    with pytest.raises(KeyboardInterrupt):
+        sample_nuts(_TwoModes(), seed=0, num_chains=2, num_warmup=20, num_draws=20,
+                    init=init, progress=Lines("two_modes", write) if lines else False)
+    assert len(waits) == 3  # waited until the program ended
+    err = capsys.readouterr().err
+    assert "two_modes: stopping once the chains in flight end" in err, err

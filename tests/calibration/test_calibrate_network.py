@@ -260,6 +260,7 @@ def test_calibrate_command_writes_posteriors_summary_and_plots(indep, tmp_path):
     summary = json.loads((out / "summary.json").read_text())
     row = summary["up"]["parameters"]["a"]
     assert row["lower"] == 0.5 and row["upper"] == 1.5 and row["q2.5"] < row["q97.5"]
+    assert summary["seed"] == network.settings.seed  # the chains' seed (--seed changes it)
     assert load_posterior(out, network).mode == "joint"
 
 
@@ -300,7 +301,9 @@ def test_segmented_calibrates_an_upstream_model_without_data_with_the_data_after
         np.testing.assert_array_equal(post.theta[m], joint.theta[m])
     said = [str(w.message) for w in caught]
     assert any(m.startswith("'up' has no data of its own: its parameters ['a'] are "
-                            "calibrated with the data of 'down' downstream") for m in said)
+                            "calibrated in stage 'up+down' with the data of 'down' "
+                            "downstream") for m in said), said
+    assert any(m.startswith("up+down: ") for m in said), said  # the stage's own warnings
     from calnet.calibration.summary import posterior_summary
 
     row = posterior_summary(network, post)["up"]
@@ -396,3 +399,18 @@ def test_each_data_set_s_noise_and_discrepancy_are_summarised(both, indep):
     # the discrepancy lives on the observed model's inputs
     assert list(out["ydata"]["length_scales"]) == ["x"]
     assert list(out["wdata"]["length_scales"]) == ["s"]
+
+
+def test_check_says_how_segmented_mode_splits_the_network(indep):
+    """``calnet check``'s settings line names the segmented stages and their data sets:
+    with data on 'down' only, 'up' is calibrated in the stage of 'down'."""
+    from calnet.describe import settings_text
+
+    network, _, _ = indep
+    seg = network.settings.model_copy(update={"calibration": network.settings.calibration
+                                              .model_copy(update={"mode": "segmented"})})
+    both = network.model_copy(update={"settings": seg})
+    assert "stages: up with ydata, then down with wdata)" in settings_text(both)
+    only_w = both.model_copy(update={"data": tuple(d for d in both.data
+                                                   if d.name == "wdata")})
+    assert "stages: up+down with wdata)" in settings_text(only_w)

@@ -381,6 +381,32 @@ def _owners(network: Network, data) -> dict[str, str]:
     return owners
 
 
+def _stage_models(network: Network, name: str, free) -> tuple[str, ...]:
+    """The models whose parameters the stage of ``name`` calibrates (segmented): the
+    upstream ones with a parameter in ``free`` (no data of their own; their parameters
+    act on this stage's data), then ``name``."""
+    return tuple(m for m in network.order if m == name or (
+        m in network.ancestors(name) and any(k in free for k in parameter_keys(network, m))))
+
+
+def segmented_stages(network: Network) -> tuple[list[tuple[tuple[str, ...], list[str]]],
+                                                 list[str]]:
+    """How segmented mode splits ``network`` with all its data sets: ``(stages, prior)``,
+    each stage ``(models, data sets)`` in the order calibrated, and the keys of the
+    parameters that keep their prior (no data set depends on them)."""
+    data = {d.name: None for d in network.data}
+    owners = _owners(network, data)
+    stages = []
+    for name in network.order:
+        own = [d.name for d in network.data if d.observed_model == name]
+        if own:
+            free = [k for k in _needed_keys(network, name) if owners.get(k) == name]
+            stages.append((_stage_models(network, name, free), own))
+    prior = list(dict.fromkeys(k for m in network.order for k in parameter_keys(network, m)
+                               if k not in owners))
+    return stages, prior
+
+
 def _needed_keys(network: Network, model: str) -> list[str]:
     """The parameter keys of ``model`` and of the models upstream of it, in topological
     order (a shared parameter once)."""
@@ -402,12 +428,14 @@ def _segmented(network, surrogates, data, plan, seed, sampler, emu, plug, progre
             new = [k for k in keys if k not in draws and k not in owners]
             for k in new:
                 draws[k] = _prior_draws(network, k, n, seed)
-            if new:
+            if new and not any(k in owners for k in keys):
                 prior_only.append(name)
             continue
         needed = _needed_keys(network, name)
         free = [k for k in needed if owners.get(k) == name and k not in draws]
         fixed_keys = [k for k in needed if k not in free]
+        models = _stage_models(network, name, free)
+        stage_name = "+".join(models)
         for k in fixed_keys:
             if k not in draws:  # used upstream of its owner: its prior stands in
                 draws[k] = _prior_draws(network, k, n, seed)
@@ -415,9 +443,9 @@ def _segmented(network, surrogates, data, plan, seed, sampler, emu, plug, progre
                 plug_at[k] = (kde_mode(draws[k]) if plug == "mode"
                               else float(np.mean(draws[k])))
         if progress:
-            progress(f"segmented: {name}")
+            progress(f"segmented: {stage_name}")
         ld = build_koh(network, surrogates, free=free, datasets=own, emulator_variance=emu,
-                       fixed={k: plug_at[k] for k in fixed_keys}, name=name, plan=plan)
+                       fixed={k: plug_at[k] for k in fixed_keys}, name=stage_name, plan=plan)
         if ld.dim == 0:  # no parameters, known noise, no discrepancy: nothing to sample
             continue
         idata = _sample(ld, sampler, seed + i, progress, compiled)
@@ -431,27 +459,25 @@ def _segmented(network, surrogates, data, plan, seed, sampler, emu, plug, progre
             moved = []
         # the diagnostics stay the sampler's (those its warnings gave), also for draws moved
         # by upstream draws: R-hat and ESS of moved draws mix in the upstream stages' draws
-        # the models whose parameters this stage calibrates: upstream ones without data
-        # of their own (their parameters act on this stage's data), then this one
-        models = tuple(m for m in network.order if m == name or (
-            m in network.ancestors(name)
-            and any(k in free for k in parameter_keys(network, m))))
         stage = StageResult(models, tuple(own), idata, ld, diagnostics, tuple(moved))
         stages.append(stage)
         draws.update(key_draws(stage))
         for k in free:
             if "." not in k:
                 users = [m for m in network.order if k in parameter_keys(network, m)]
-                notes.append(f"shared parameter '{k}' is calibrated with the data of "
-                             f"'{name}' (the first model with data that it acts on) and "
-                             f"held fixed in {[u for u in users if u != name]} "
-                             "(segmented mode)")
+                fixed_in = [u for u in users if u not in models]
+                notes.append(f"shared parameter '{k}' is calibrated in stage "
+                             f"'{stage_name}' with the data of '{name}' (the first model "
+                             "with data that it acts on)"
+                             + (f" and held fixed in {fixed_in}" if fixed_in else "")
+                             + " (segmented mode)")
         for m in models[:-1]:
             keys_m = [k for k in parameter_keys(network, m) if k in free and "." in k]
             if keys_m:
                 notes.append(f"'{m}' has no data of its own: its parameters "
-                             f"{[k.split('.', 1)[1] for k in keys_m]} are calibrated with "
-                             f"the data of '{name}' downstream (segmented mode)")
+                             f"{[k.split('.', 1)[1] for k in keys_m]} are calibrated in "
+                             f"stage '{stage_name}' with the data of '{name}' downstream "
+                             "(segmented mode)")
     plugged = {m: np.array([plug_at.get(k, np.nan) for k in parameter_keys(network, m)])
                for m in network.order if any(k in plug_at for k in parameter_keys(network, m))}
     return _posterior(network, "segmented", plug, tuple(stages), draws, data,

@@ -229,8 +229,9 @@ STUCK_SDS = 10.0
 def stuck_chains(lp) -> list[int]:
     """Chains stuck in a local mode far below the best chain's: their mean log density
     lies below the best chain's by more than :data:`STUCK_GAP` and by more than
-    :data:`STUCK_SDS` times the larger of the two chains' standard deviations of the log
-    density. ``lp`` is (chains, draws).
+    :data:`STUCK_SDS` times the best chain's standard deviation of the log density (the
+    stuck chain's own is no yardstick: one that leaves the trap part-way has a wide one).
+    ``lp`` is (chains, draws).
 
     Chains of one mode differ in mean log density by about its standard deviation over
     the square root of the effective sample size; a gap of 10 log units is a density
@@ -244,7 +245,7 @@ def stuck_chains(lp) -> list[int]:
         return []
     mean, sd = lp.mean(axis=1), lp.std(axis=1)
     best = int(np.argmax(mean))
-    bar = np.maximum(STUCK_GAP, STUCK_SDS * np.maximum(sd, sd[best]))
+    bar = max(STUCK_GAP, STUCK_SDS * sd[best])
     return [int(c) for c in np.flatnonzero(mean[best] - mean > bar)]
 
 

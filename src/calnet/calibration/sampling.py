@@ -275,6 +275,31 @@ def _run_chain(cfg: _Config, data, key, u0, chain):
     return (*out, state0.logdensity, ok)
 
 
+def _finished(pending, name: str, progress):
+    """``pending`` (the chains' outputs, computing) once computed. Ctrl-C cannot stop a
+    running XLA program: after one, this says so, waits for the program to end (a
+    process that ends with the program still running can crash in its clean-up) and
+    raises KeyboardInterrupt then."""
+    try:
+        return jax.block_until_ready(pending)
+    except KeyboardInterrupt:
+        text = (f"{name}: stopping once the chains in flight end (a running program cannot "
+                "be interrupted; Ctrl-\\ ends the process at once)")
+        try:
+            if not isinstance(progress, Lines):
+                raise KeyboardInterrupt
+            progress.note(text)
+        except KeyboardInterrupt:  # progress lines that stop at Ctrl-C (calnet run's)
+            print(text, file=sys.stderr, flush=True)
+        while True:
+            try:
+                jax.block_until_ready(pending)
+                break
+            except KeyboardInterrupt:
+                continue  # a second Ctrl-C: still the same program to wait for
+        raise
+
+
 def _chains(index: list[int], n: int) -> str:
     """``[1]`` -> ``"chain 2 of 4"``, ``[0, 2]`` -> ``"chains 1 and 3 of 4"`` (1-based)."""
     one = [str(i + 1) for i in index]
@@ -496,7 +521,7 @@ def sample_nuts(
                                              num_draws, 0.0 if again else t_compile)
         try:
             with running, one_blas_thread():  # XLA's LAPACK calls go to OpenBLAS
-                out = jax.block_until_ready(exe(*args))
+                out = _finished(exe(*args), ld.name, progress)
         finally:
             _PROGRESS["fn"] = None
         if method == "parallel":  # back to (chains, ...)

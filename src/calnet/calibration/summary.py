@@ -83,8 +83,12 @@ def posterior_summary(network: Network, post: NetworkPosterior) -> dict:
                    "mean": float(x.mean()), "sd": float(x.std()),
                    "q2.5": float(np.percentile(x, 2.5)),
                    "q97.5": float(np.percentile(x, 97.5))}
-            if found is None:  # held at a plugged value or prior draws in this model
-                row["plugged"] = True
+            if found is None:  # held at a plugged value, or at its prior (no data)
+                plugs = post.plugged.get(model)
+                if plugs is not None and np.isfinite(plugs[j]):
+                    row["plugged"] = True
+                else:
+                    row["prior"] = True
             else:
                 stage, var, sel = found
                 if stage not in stages:

@@ -90,6 +90,8 @@ def _parameter_table(summary: Mapping[str, Any]) -> Table:
                 label += " (shared)"
             if r.get("plugged"):
                 label += " (plugged in)"
+            elif r.get("prior"):
+                label += " (its prior: no data depends on it)"
             rows.append([label, r["mean"], f"[{fmt(r['q2.5'])}, {fmt(r['q97.5'])}]",
                          unit_text(r.get("unit"))])
     return Table("Calibrated parameters", ["parameter", "posterior mean", "95 % interval",
@@ -149,7 +151,11 @@ def _lines(results: RunResults) -> list[str]:
     else:
         calibrated = [m for m, s in summary.items() if not s.get("prior_only")]
         prior = [m for m, s in summary.items() if s.get("prior_only")]
-        lines = [f"Calibration: {cal.mode}, {len(calibrated)} model(s) with data"
+        where = {s["stage"]: s.get("datasets", ()) for m, s in summary.items()
+                 if not s.get("prior_only") and "stage" in s}
+        lines = [f"Calibration: {cal.mode}, {len(calibrated)} model(s) calibrated"
+                 + (" (" + "; ".join(st + (f" with {', '.join(ds)}" if ds else "")
+                                     for st, ds in where.items()) + ")" if where else "")
                  + (f"; at their prior (no data): {', '.join(prior)}" if prior else "")
                  + "." + (" Quick run: fewer draws, restarts and folds." if results.quick
                           else "")]

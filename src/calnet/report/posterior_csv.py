@@ -22,7 +22,7 @@ from calnet.files import make_folder, replacing
 DRAWS_FILE, SUMMARY_FILE = "posterior_draws.csv", "posterior_summary.csv"
 SUMMARY_COLUMNS = ("model", "parameter", "unit", "lower", "upper", "mode", "mean", "sd",
                    "q2.5", "q97.5", "mcse_mean", "mcse_sd", "mcse_q2.5", "mcse_q97.5", "rhat",
-                   "ess_bulk", "ess_tail", "shared", "plugged")
+                   "ess_bulk", "ess_tail", "shared", "plugged", "prior")
 
 
 def _write(path: Path, header: list[str], rows: Any) -> Path:
