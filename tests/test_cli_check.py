@@ -158,8 +158,8 @@ def test_check_reads_the_campaign_import_tables(spec, table, strict, said):
               "discrepancy orthogonal to the model's parameters, sd prior half-normal",
               "calibration: segmented (plug: posterior; stages: M with "
               "a_data_set_with_a_rather_long_name_that_fills_the_role_column), surrogate "
-              "variance in the likelihood; sampler: 4 chains x (1000 warm-up + 1000 draws), target_accept "
-              "0.9, diagonal mass matrix"]),
+              "variance in the likelihood; sampler: 4 chains x (1000 warm-up + 1000 "
+              "draws), target_accept 0.9, diagonal mass matrix"]),
     (", noise: {sd: 0.05}, discrepancy: none",
      "  sampler: {chains: 2, warmup: 300, draws: 200, thin: 2, dense_mass: true}\n"
      "  calibration: {mode: joint, emulator_variance: false}\n",

@@ -139,7 +139,8 @@ def test_predict_from_python_checks_its_settings_and_names():
                                              r"finite number \(1 row\(s\)\)"):
             predict(net, sur, post, "d", np.array([[0.5], [bad]]))
     with pytest.raises(UsageError, match=r"^no data set named 'b.y'; the network's data "
-                                         r"sets: \['d'\]$"):
+                                         r"sets: \['d'\] \('b.y' names a model's output: "
+                                         r"calnet.emulation.predict_output predicts one\)$"):
         predict(net, sur, post, "b.y", x)
     with pytest.raises(KeyError):  # and still a KeyError for code that looks names up
         net.dataset("nope")

@@ -333,8 +333,10 @@ class Network(Frozen):
         for d in self.data:
             if d.name == name:
                 return d
+        hint = (f" ('{name}' names a model's output: calnet.emulation.predict_output "
+                "predicts one)" if "." in str(name) else "")
         raise UnknownName(f"no data set named '{name}'; the network's data sets: "
-                          f"{[d.name for d in self.data]}")
+                          f"{[d.name for d in self.data]}{hint}")
 
     def observed(self, ds: Dataset) -> Output:
         """The output that data set ``ds`` observes."""
