@@ -111,7 +111,7 @@ def test_data_without_parameters_or_anything_to_sample_predicts():
     assert np.all(pred.lower < mean) and np.all(mean < pred.upper)
 
 
-def test_predict_from_python_checks_its_settings_and_names():
+def test_predict_from_python_checks_its_settings_and_names(monkeypatch):
     """The Python ``predict`` says what the command line says: a setting that is not a
     finite number or a data set the network does not have is a one-line UsageError (not
     a plausible number, not a bare KeyError); a setting outside the bounds is warned of."""
@@ -158,8 +158,22 @@ def test_predict_from_python_checks_its_settings_and_names():
     # the same from predict_output (an output through the chain), and its names
     with pytest.raises(UsageError, match=r"predict b.y: a.x = nan at row 0"):
         predict_output(net, sur, post, "b.y", np.array([[np.nan]]))
-    with pytest.warns(UserWarning, match=r"predict b.y: a.x lies outside its bounds"):
+    with pytest.warns(UserWarning) as caught:
         predict_output(net, sur, post, "b.y", np.array([[3.0]]))
+    said = [str(w.message) for w in caught]
+    assert any(m.startswith("predict b.y: a.x lies outside its bounds") for m in said), said
+    # and the linked inputs that leave their bounds, as the command line says them
+    # (calnet.predict.link_notes, tested with the command)
+    import calnet.emulation
+    import calnet.predict
+
+    note = "point 1: b.u = 1.3 (from a.u) lies outside its bounds [-0.2, 1.2]"
+    for module in (calnet.emulation, calnet.predict):
+        monkeypatch.setattr(module, "link_notes", lambda *a: [note])
+    with pytest.warns(UserWarning, match=r"^predict b.y: point 1: b.u = 1.3 \(from a.u\)"):
+        predict_output(net, sur, post, "b.y", x)
+    with pytest.warns(UserWarning, match=r"^predict: point 1: b.u = 1.3 \(from a.u\)"):
+        predict(net, sur, post, "d", x)
     with pytest.raises(UsageError, match=r"no model named 'q'; the network's models: "
                                          r"\['a', 'b'\]"):
         predict_output(net, sur, post, "q.y", x)

@@ -444,6 +444,9 @@ def predict(network: Network, surrogates: Surrogates, posterior: NetworkPosterio
     st = _setup(network, surrogates, posterior, dataset, idx)
     check_settings(network, network.dataset(dataset).observed_model, x, "predict",
                    warn_outside)
+    if warn_outside:  # and the linked inputs that the settings take outside theirs
+        for note in link_notes(network, surrogates, posterior, dataset, x):
+            warnings.warn(f"predict: {note}", UserWarning, stacklevel=2)
     xp_new = {k: device_array(x[:, j]) for j, k in enumerate(st.keys)}
     # the surrogates upstream of the observed model: the others play no part
     links = links_into(st.spec.plan, network.dataset(dataset).observed_model)
