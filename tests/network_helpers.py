@@ -40,3 +40,22 @@ def fitted_network(root: Path, *, seed: int = 1):
     for m in network.order:
         run_campaign(network, m, executor="in-process", progress=False)
     return network, fit_surrogates(network, seed=seed, cv=False)
+
+
+def one_model_campaign(folder, monkeypatch, module: str, returns: str, model: str):
+    """A model ``m`` (input x, output y) whose Python simulator ``module:f`` (a name of
+    its own: modules stay imported) returns ``{'y': returns}``, one data point, ``model``
+    extra YAML of the model; its campaign run, the network back."""
+    from calnet.campaign import run_campaign
+    from calnet.spec import load_spec
+
+    (folder / f"{module}.py").write_text(f"def f(inputs):\n    return {{'y': {returns}}}\n")
+    (folder / "d.csv").write_text("x,y\n0.5,1.5\n")
+    (folder / "network.yaml").write_text(
+        f"models:\n  m: {{simulator: 'python:{module}:f', inputs: {{x: {{lower: 0, upper: 1}}}},\n"
+        f"      outputs: {{y: {{measurable: true}}}}, {model}}}\n"
+        "data:\n  d: {path: d.csv, observes: m.y, columns: {x: x, y: y}}\n")
+    monkeypatch.syspath_prepend(str(folder))
+    net = load_spec(folder)
+    run_campaign(net, "m", executor="in-process", progress=False)
+    return net

@@ -34,6 +34,18 @@ def _two_model_chain() -> tuple[Network, Surrogates]:
     return net, sur
 
 
+def _observed_chain() -> tuple[Network, Surrogates]:
+    """:func:`_two_model_chain` with b.y observed by data set ``d`` (known noise sd 0.05,
+    no discrepancy)."""
+    net, sur = _two_model_chain()
+    raw = net.model_dump(by_alias=True)
+    raw["models"][1]["outputs"][0]["measurable"] = True
+    raw["data"] = [{"name": "d", "path": "d.csv", "observes": "b.y",
+                    "columns": {"x": "x", "y": "y"}, "noise": {"sd": 0.05},
+                    "discrepancy": "none"}]
+    return Network(**raw), sur
+
+
 def _quadrature(sur: Surrogates, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Mean and variance of b.y at x: u ~ N(m_a, v_a), y | u ~ N(m_b(u), v_b(u))."""
     t, w = np.polynomial.hermite.hermgauss(80)
@@ -89,13 +101,7 @@ def test_data_without_parameters_or_anything_to_sample_predicts():
     from calnet.predict import predict
     from calnet.spec import ExperimentalData
 
-    net, sur = _two_model_chain()
-    raw = net.model_dump(by_alias=True)
-    raw["models"][1]["outputs"][0]["measurable"] = True
-    raw["data"] = [{"name": "d", "path": "d.csv", "observes": "b.y",
-                    "columns": {"x": "x", "y": "y"}, "noise": {"sd": 0.05},
-                    "discrepancy": "none"}]
-    net = Network(**raw)
+    net, sur = _observed_chain()
     x = np.array([[0.2], [0.5], [0.9]])
     y = np.sin(2 * x[:, 0]) ** 2 + np.sin(2 * x[:, 0])
     data = {"d": ExperimentalData("d", "b.y", ("a.x",), x, y, np.zeros(3, bool),
@@ -121,13 +127,7 @@ def test_predict_from_python_checks_its_settings_and_names(monkeypatch):
     from calnet.predict import predict
     from calnet.spec import ExperimentalData
 
-    net, sur = _two_model_chain()
-    raw = net.model_dump(by_alias=True)
-    raw["models"][1]["outputs"][0]["measurable"] = True
-    raw["data"] = [{"name": "d", "path": "d.csv", "observes": "b.y",
-                    "columns": {"x": "x", "y": "y"}, "noise": {"sd": 0.05},
-                    "discrepancy": "none"}]
-    net = Network(**raw)
+    net, sur = _observed_chain()
     x = np.array([[0.2], [0.5], [0.9]])
     data = {"d": ExperimentalData("d", "b.y", ("a.x",), x, np.sin(2 * x[:, 0]),
                                   np.zeros(3, bool), ("1", "2", "3"), np.full(3, 0.05))}

@@ -6,34 +6,23 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from network_helpers import one_model_campaign
 
-from calnet.campaign import run_campaign
 from calnet.errors import SurrogateError
-from calnet.spec import load_spec
 from calnet.surrogates import fit_network as sn
 
 
 def _network(folder, monkeypatch, module: str, body: str, runs: int, cv_folds: int):
-    """A model ``m`` (input x, parameter a, output y) whose simulator ``module:f`` (a name
-    of its own: modules stay imported) returns ``{'y': body}``; its campaign run."""
-    (folder / f"{module}.py").write_text(
-        f"import math\ndef f(inputs):\n    return {{'y': {body}}}\n")
-    (folder / "d.csv").write_text("x,y\n0.5,1.5\n0.2,1.1\n")
-    (folder / "network.yaml").write_text(
-        f"models:\n  m: {{simulator: 'python:{module}:f', inputs: {{x: {{lower: 0, upper: 1}}}},"
-        "\n      parameters: {a: {lower: 0, upper: 2}},\n"
-        "      outputs: {y: {measurable: true}},\n"
-        f"      campaign: {{runs: {runs}}}, surrogate: {{cv_folds: {cv_folds}, restarts: 1}}}}\n"
-        "data:\n  d: {path: d.csv, observes: m.y, columns: {x: x, y: y}}\n")
-    monkeypatch.syspath_prepend(str(folder))
-    net = load_spec(folder)
-    run_campaign(net, "m", executor="in-process", progress=False)
-    return net
+    """Model ``m`` (input x, parameter a, output y = ``body``), its campaign run."""
+    return one_model_campaign(folder, monkeypatch, module, body,
+                              f"parameters: {{a: {{lower: 0, upper: 2}}}}, campaign: "
+                              f"{{runs: {runs}}}, surrogate: {{cv_folds: {cv_folds}, "
+                              "restarts: 1}")
 
 
 def test_cross_validation_after_the_fits_matches_the_fits_with_it(tmp_path, monkeypatch):
-    net = _network(tmp_path, monkeypatch, "later_sin",
-                   "math.sin(3 * inputs['x']) + inputs['a'] * inputs['x']", 16, 4)
+    net = _network(tmp_path, monkeypatch, "later_cubic",
+                   "inputs['x'] ** 3 - inputs['x'] + inputs['a'] * inputs['x']", 16, 4)
     together = sn.fit_surrogates(net, seed=3)
     fitted = sn.fit_surrogates(net, seed=3, cv=False)
     assert fitted.items["m.y"].cv is None

@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from network_helpers import one_model_campaign
 
 from calnet.errors import CalnetError, SurrogateError, SurrogateWarning
 from calnet.surrogates import cross_validate, fit_gp, load_gp
@@ -109,29 +110,10 @@ def test_load_errors(tmp_path):
         load_gp(tmp_path / "bad.npz")
 
 
-def _one_model_campaign(folder, monkeypatch, module: str, returns: str, model: str):
-    """A model ``m`` (input x, output y) whose Python simulator ``module:f`` (a name of
-    its own: modules stay imported) returns ``{'y': returns}``, one data point, ``model``
-    extra YAML of the model; its campaign run, the network back."""
-    from calnet.campaign import run_campaign
-    from calnet.spec import load_spec
-
-    (folder / f"{module}.py").write_text(f"def f(inputs):\n    return {{'y': {returns}}}\n")
-    (folder / "d.csv").write_text("x,y\n0.5,1.5\n")
-    (folder / "network.yaml").write_text(
-        f"models:\n  m: {{simulator: 'python:{module}:f', inputs: {{x: {{lower: 0, upper: 1}}}},\n"
-        f"      outputs: {{y: {{measurable: true}}}}, {model}}}\n"
-        "data:\n  d: {path: d.csv, observes: m.y, columns: {x: x, y: y}}\n")
-    monkeypatch.syspath_prepend(str(folder))
-    net = load_spec(folder)
-    run_campaign(net, "m", executor="in-process", progress=False)
-    return net
-
-
 def test_a_campaign_without_an_ok_run_says_how_to_run_it_again(tmp_path, monkeypatch):
     from calnet.surrogates.fit_network import fit_surrogates
 
-    net = _one_model_campaign(tmp_path, monkeypatch, "nan_sims", "float('nan')",
+    net = one_model_campaign(tmp_path, monkeypatch, "nan_sims", "float('nan')",
                               "campaign: {runs: 3}")
     with pytest.raises(SurrogateError, match="m.y: all 3 runs failed") as info:
         fit_surrogates(net, cv=False)
@@ -143,7 +125,7 @@ def test_caps_never_raise_the_spec_settings(tmp_path, monkeypatch):
     that asks for less work keeps its own numbers."""
     from calnet.surrogates import fit_network as sn
 
-    net = _one_model_campaign(tmp_path, monkeypatch, "lin_sims", "1 + inputs['x']",
+    net = one_model_campaign(tmp_path, monkeypatch, "lin_sims", "1 + inputs['x']",
                               "campaign: {runs: 12}, surrogate: {cv_folds: 3, restarts: 1}")
     seen = []
     fit = sn.fit_gp
