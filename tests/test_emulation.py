@@ -180,3 +180,40 @@ def test_predict_from_python_checks_its_settings_and_names(monkeypatch):
     with pytest.raises(UsageError, match=r"'b.w' is not an output of the network; 'b' has "
                                          r"\['y'\]"):
         predict_output(net, sur, post, "b.w", x)
+
+
+def test_a_linear_output_into_a_log_scale_input_is_warned_of_twice():
+    """An output modelled on its own scale feeding an input on the log scale: calnet check
+    (load_spec) warns of it, and a prediction whose upstream draws go <= 0 there says
+    which points came out not a number instead of passing the NaN on silently."""
+    import warnings
+
+    from calnet.errors import SpecWarning
+    from calnet.spec.load import check_log_links
+
+    net = Network(
+        models=[Model(name="a", simulator=SIM, inputs=[Input(name="x", lower=0, upper=1)],
+                      outputs=[Output(name="u")]),
+                Model(name="b", simulator=SIM,
+                      inputs=[Input(name="u", lower=0.05, upper=1.2, scale="log")],
+                      outputs=[Output(name="y")])],
+        links=[Link(**{"from": "a.u", "to": "b.u"})], settings={"predict": ["b.y"]})
+    with pytest.warns(SpecWarning, match=r"links\[0\]: b.u is on the log scale but a.u is "
+                                         r"modelled on its own.*declare 'transform: log' "
+                                         r"on a.u"):
+        check_log_links(net)
+    xa = np.linspace(0, 1, 4)[:, None]
+    ub = np.linspace(0.05, 1.2, 8)[:, None]
+    gp_a = fit_gp(xa, np.sin(2 * xa[:, 0]), lower=[0.0], upper=[1.0], seed=0)
+    gp_b = fit_gp(np.log(ub), np.log(ub[:, 0]), lower=[np.log(0.05)], upper=[np.log(1.2)],
+                  seed=0)
+    sur = Surrogates({"a.u": OutputSurrogate("a", "u", gp_a, None, 4, 0),
+                      "b.y": OutputSurrogate("b", "y", gp_b, None, 8, 0)})
+    post = calibrate(net, sur)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        pred = predict_output(net, sur, post, "b.y", np.array([[0.0], [0.5]]))
+    said = [str(w.message) for w in caught]
+    assert not np.isfinite(pred.mean[0]) and np.isfinite(pred.mean[1])  # u = sin 0 = 0
+    assert any(m.startswith("b.y: 1 of 2 point(s) have no finite prediction (row(s) [0])")
+               for m in said), said

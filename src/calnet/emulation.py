@@ -25,7 +25,13 @@ from calnet.calibration.calibrate_network import NetworkPosterior
 from calnet.calibration.terms import draw_index, links_into
 from calnet.chain import ChainPlan
 from calnet.errors import CalnetError, UnknownName
-from calnet.predict import Prediction, check_settings, link_notes, point_normals
+from calnet.predict import (
+    Prediction,
+    check_settings,
+    link_notes,
+    point_normals,
+    warn_not_finite,
+)
 from calnet.spec import Network
 from calnet.surrogates.fit_network import Surrogates
 
@@ -138,6 +144,7 @@ def predict_output(network: Network, surrogates: Surrogates, posterior: NetworkP
     if surrogates[output].transform == "log":
         samples = np.exp(samples)
     lo, hi = np.percentile(samples, [2.5, 97.5], axis=0)
+    warn_not_finite(output, samples)
     return Prediction(None, output, keys, x, samples.mean(axis=0), lo, hi, budget, None,
                       samples)
 

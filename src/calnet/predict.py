@@ -234,6 +234,20 @@ class _Setup:
     log: bool
 
 
+def warn_not_finite(what: str, samples: np.ndarray) -> None:
+    """Warn where a prediction (predictive samples (m, n) of n points) is not a number at
+    some points: a surrogate upstream gave values the input it feeds cannot take."""
+    bad = ~np.all(np.isfinite(samples), axis=0)
+    if bad.any():
+        rows = np.flatnonzero(bad)
+        warnings.warn(f"{what}: {rows.size} of {bad.size} point(s) have no finite prediction "
+                      f"(row(s) {rows[:5].tolist()}{', ...' if rows.size > 5 else ''}): a "
+                      "surrogate upstream gives values there that the input it feeds "
+                      "cannot take (<= 0 into an input on the log scale, for instance); "
+                      "declare 'transform: log' on such an output (calnet check warns of "
+                      "one)", UserWarning, stacklevel=3)
+
+
 def check_settings(network: Network, model: str, x: np.ndarray, what: str = "predict",
                    warn_outside: bool = True) -> None:
     """Process settings ``x`` (n, k) of ``model``'s chain as the Python predictions take
@@ -485,6 +499,7 @@ def predict(network: Network, surrogates: Surrogates, posterior: NetworkPosterio
     if st.log:
         samples = np.exp(samples)
     lo, hi = np.percentile(samples, [2.5, 97.5], axis=0)
+    warn_not_finite(dataset, samples)
     prob = None
     if within is not None:
         ok = np.ones(samples.shape, dtype=bool)

@@ -76,3 +76,5 @@ def test_quick_run_report_of_two_data_sets_and_a_variant(tmp_path, monkeypatch):
         for q in (d["noise_sd"], d["discrepancy_sd"], d["length_scales"]["x"]):
             assert 0 < q["q2.5"] < q["mean"] < q["q97.5"], d
     assert "Noise and discrepancy per data set" in report_text(out)
+    # the sampler's diagnostics per stage, which is what they are computed for
+    assert "Sampler diagnostics per calibration stage" in report_text(out)

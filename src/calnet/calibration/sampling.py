@@ -283,14 +283,14 @@ def _finished(pending, name: str, progress):
     try:
         return jax.block_until_ready(pending)
     except KeyboardInterrupt:
-        text = (f"{name}: stopping once the chains in flight end (a running program cannot "
-                "be interrupted; Ctrl-\\ ends the process at once)")
+        text = ("stopping once the chains in flight end (a running program cannot be "
+                "interrupted; Ctrl-\\ ends the process at once)")
         try:
             if not isinstance(progress, Lines):
                 raise KeyboardInterrupt
-            progress.note(text)
+            progress.note(text)  # Lines say the stage's name
         except KeyboardInterrupt:  # progress lines that stop at Ctrl-C (calnet run's)
-            print(text, file=sys.stderr, flush=True)
+            print(f"{name}: {text}", file=sys.stderr, flush=True)
         while True:
             try:
                 jax.block_until_ready(pending)

@@ -259,20 +259,25 @@ def _sections(ctx, results: RunResults) -> list[Section]:
                          fmt(r["mean"]), f"[{fmt(r['q2.5'])}, {fmt(r['q97.5'])}]",
                          unit_text(r["unit"]), _rhat(r.get("rhat"), cal.rhat_max),
                          fmt(r.get("ess_bulk"))])
-    diag = [[k, s.get("divergences", ""), _rhat(s.get("max_rhat"), cal.rhat_max),
-             fmt(s.get("min_ess_bulk"))] for k, s in summary.items()]
+    stages: dict = {}  # one row per calibration stage: its diagnostics are the stage's
+    for s in summary.values():
+        if not s.get("prior_only") and "stage" in s:
+            stages.setdefault(s["stage"], s)
+    diag = [[st, ", ".join(s.get("datasets", ())), s.get("divergences", ""),
+             _rhat(s.get("max_rhat"), cal.rhat_max), fmt(s.get("min_ess_bulk"))]
+            for st, s in stages.items()]
     terms = _terms_table(cal)
     units = _units(ctx)
     ref = reference_rows(results, units)  # only with a reference.json
     cal = Section("Calibration", paragraphs=[
-        "Estimates are posterior modes (KDE)"
+        "The table gives each parameter's posterior mode (KDE"
         + (", as the reference study reports" if ref else "")
-        + "; intervals are central 95 %."], tables=[
+        + ") and mean (the summary box gives means); intervals are central 95 %."], tables=[
         Table("Posterior summary", ["model", "parameter", "range", "mode", "mean", "95% interval",
                                     "unit", "R-hat", "bulk ESS"], rows),
         *terms,
-        Table("Sampler diagnostics (all sampled variables)",
-              ["model", "divergences", "max R-hat", "min bulk ESS"], diag)],
+        Table("Sampler diagnostics per calibration stage (all its sampled variables)",
+              ["stage", "data sets", "divergences", "max R-hat", "min bulk ESS"], diag)],
         figures=pick("posterior "))
     vrows, lrows, loo_notes = [], [], []
 

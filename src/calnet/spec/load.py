@@ -59,6 +59,7 @@ def load_spec(spec: str | Path, *, read_data: bool = True) -> Network:
     check_simulators(network)
     check_priors(network)
     check_sampler(network)
+    check_log_links(network)
     if read_data:
         read_all(network)
     return network
@@ -255,6 +256,24 @@ def check_sampler(network: Network) -> None:
                       "then compares the two halves of one chain, which cannot show a mode "
                       "that chain never left; run several chains (4, the default)",
                       SpecWarning, stacklevel=3)
+
+
+def check_log_links(network: Network) -> None:
+    """Warn of a link from an output modelled on its own scale into an input on the log
+    scale: the output's surrogate can give values <= 0 there (its draws, far from its
+    runs), whose logarithm the next model's surrogate cannot take, so predictions
+    through the link come out not a number."""
+    for i, link in enumerate(network.links):
+        src = network.model(link.source_model)
+        dst = network.model(link.target_model).variable(link.target_var)
+        if (getattr(dst, "scale", "linear") == "log" and link.source_var in src.output_names
+                and src.output(link.source_var).transform != "log"):
+            where = Path(network.source).name if network.source else "spec"
+            warnings.warn(f"{where}: links[{i}]: {link.target} is on the "
+                          f"log scale but {link.source} is modelled on its own: its "
+                          "surrogate can give values <= 0, whose logarithm does not exist, "
+                          "and predictions through the link are then not a number; declare "
+                          f"'transform: log' on {link.source}", SpecWarning, stacklevel=3)
 
 
 #: a parameter prior with less than this share of its mass within the bounds is named
