@@ -164,12 +164,10 @@ def test_predict_from_python_checks_its_settings_and_names(monkeypatch):
     assert any(m.startswith("predict b.y: a.x lies outside its bounds") for m in said), said
     # and the linked inputs that leave their bounds, as the command line says them
     # (calnet.predict.link_notes, tested with the command)
-    import calnet.emulation
     import calnet.predict
 
     note = "point 1: b.u = 1.3 (from a.u) lies outside its bounds [-0.2, 1.2]"
-    for module in (calnet.emulation, calnet.predict):
-        monkeypatch.setattr(module, "link_notes", lambda *a: [note])
+    monkeypatch.setattr(calnet.predict, "link_notes", lambda *a: [note])
     with pytest.warns(UserWarning, match=r"^predict b.y: point 1: b.u = 1.3 \(from a.u\)"):
         predict_output(net, sur, post, "b.y", x)
     with pytest.warns(UserWarning, match=r"^predict: point 1: b.u = 1.3 \(from a.u\)"):

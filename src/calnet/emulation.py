@@ -12,7 +12,6 @@ composite. This is the simulator's output, not a measurement: no discrepancy, no
 
 from __future__ import annotations
 
-import warnings
 from dataclasses import dataclass, field
 from functools import partial
 
@@ -25,13 +24,7 @@ from calnet.calibration.calibrate_network import NetworkPosterior
 from calnet.calibration.terms import draw_index, links_into
 from calnet.chain import ChainPlan
 from calnet.errors import CalnetError, UnknownName
-from calnet.predict import (
-    Prediction,
-    check_settings,
-    link_notes,
-    point_normals,
-    warn_not_finite,
-)
+from calnet.predict import Prediction, check_settings, point_normals, warn_not_finite
 from calnet.spec import Network
 from calnet.surrogates.fit_network import Surrogates
 
@@ -113,10 +106,8 @@ def predict_output(network: Network, surrogates: Surrogates, posterior: NetworkP
                           "calnet run SPEC)")
     keys = tuple(network.process_input_keys(model))
     x = np.atleast_2d(np.asarray(x, dtype=float))
-    check_settings(network, model, x, f"predict {output}", warn_outside)
-    if warn_outside:  # and the linked inputs that the settings take outside theirs
-        for note in link_notes(network, surrogates, posterior, output, x):
-            warnings.warn(f"predict {output}: {note}", UserWarning, stacklevel=2)
+    check_settings(network, surrogates, posterior, output, x, f"predict {output}",
+                   warn_outside)
     plan = ChainPlan.from_network(network)
     links = links_into(plan, model)
     gps = {k: s.gp for k, s in surrogates.items.items()}

@@ -170,8 +170,8 @@ def surrogate_stage(network: Network, *, folder: Path, figures: Path, **fit) -> 
         Surrogates, dict[str, Path]]:
     """Fit the network's surrogates (:func:`calnet.surrogates.fit_network.fit_surrogates`
     with the keywords ``fit``), write them to ``folder`` and their parity plots to
-    ``figures``: ``(surrogates, {model.output: plot})``. ``calnet run`` and ``calnet
-    surrogates`` both call it."""
+    ``figures``: ``(surrogates, {model.output: plot})``, as ``calnet surrogates`` does
+    (``calnet run`` cross-validates beside the calibration: :meth:`_Context.surrogates`)."""
     sur = fit_surrogates(network, **fit)
     sur.save(folder)
     return sur, parity_plots(network, sur, figures)

@@ -248,13 +248,17 @@ def warn_not_finite(what: str, samples: np.ndarray) -> None:
                       "one)", UserWarning, stacklevel=3)
 
 
-def check_settings(network: Network, model: str, x: np.ndarray, what: str = "predict",
+def check_settings(network: Network, surrogates: Surrogates, posterior: NetworkPosterior,
+                   target: str, x: np.ndarray, what: str = "predict",
                    warn_outside: bool = True) -> None:
-    """Process settings ``x`` (n, k) of ``model``'s chain as the Python predictions take
-    them: a :class:`UsageError` (message starting with ``what``) for a wrong shape, no
-    rows, or a setting that is not a finite number (or not positive on a log-scale
-    input); a warning for settings outside the declared bounds, where the surrogates
-    extrapolate (as :func:`settings_matrix` says them for the command line)."""
+    """Process settings ``x`` (n, k) for predicting ``target`` (a data set or
+    ``model.output``) as the Python predictions take them: a :class:`UsageError`
+    (message starting with ``what``) for a wrong shape, no rows, or a setting that is
+    not a finite number (or not positive on a log-scale input); with ``warn_outside``, a
+    warning for settings outside the declared bounds and for linked inputs they take
+    outside theirs (:func:`link_notes`), where the surrogates extrapolate (as
+    :func:`settings_matrix` and the command line say them)."""
+    model = target_model(network, target)
     keys = network.process_input_keys(model)
     if x.ndim != 2 or x.shape[1] != len(keys):
         got = f"{x.shape[1]} column(s)" if x.ndim == 2 else f"an array of shape {x.shape}"
@@ -279,6 +283,9 @@ def check_settings(network: Network, model: str, x: np.ndarray, what: str = "pre
                           f"{var.upper:g}]{unit} at {rows.size} of {len(v)} point(s) (row "
                           f"{rows[0]}: {v[rows[0]]:g}); the surrogates extrapolate there",
                           UserWarning, stacklevel=3)
+    if warn_outside:
+        for note in link_notes(network, surrogates, posterior, target, x):
+            warnings.warn(f"{what}: {note}", UserWarning, stacklevel=3)
 
 
 def _setup(network: Network, surrogates: Surrogates, posterior: NetworkPosterior,
@@ -456,11 +463,7 @@ def predict(network: Network, surrogates: Surrogates, posterior: NetworkPosterio
     # draws below still number n_draws (a posterior without parameters has 0 draws)
     idx = np.resize(draw_index(posterior.n_draws, n_draws), n_draws)
     st = _setup(network, surrogates, posterior, dataset, idx)
-    check_settings(network, network.dataset(dataset).observed_model, x, "predict",
-                   warn_outside)
-    if warn_outside:  # and the linked inputs that the settings take outside theirs
-        for note in link_notes(network, surrogates, posterior, dataset, x):
-            warnings.warn(f"predict: {note}", UserWarning, stacklevel=2)
+    check_settings(network, surrogates, posterior, dataset, x, "predict", warn_outside)
     xp_new = {k: device_array(x[:, j]) for j, k in enumerate(st.keys)}
     # the surrogates upstream of the observed model: the others play no part
     links = links_into(st.spec.plan, network.dataset(dataset).observed_model)

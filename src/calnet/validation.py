@@ -18,6 +18,7 @@ from calnet.calibration.calibrate_network import (
     _sample,
     build_koh,
     calibrate,
+    stage_keys,
     with_stage,
 )
 from calnet.calibration.diagnostics import import_arviz
@@ -452,11 +453,7 @@ class _Refitter:
         self.plan = ChainPlan.from_network(network)
         # the parameters that segmented mode calibrates with this model's data: its own,
         # and those of the models upstream without data of their own
-        owners = _owners(network, posterior.data)
-        self.own = [k for k in parameter_keys(network, self.model)
-                    if owners.get(k) == self.model] + [
-            k for k, m in owners.items()
-            if m == self.model and k not in parameter_keys(network, self.model)]
+        self.own = stage_keys(network, _owners(network, posterior.data), self.model)[1]
         self.fixed = {}
         for m, draws in posterior.theta.items():
             for j, k in enumerate(parameter_keys(network, m)):

@@ -381,12 +381,18 @@ def _owners(network: Network, data) -> dict[str, str]:
     return owners
 
 
-def _stage_models(network: Network, name: str, free) -> tuple[str, ...]:
-    """The models whose parameters the stage of ``name`` calibrates (segmented): the
-    upstream ones with a parameter in ``free`` (no data of their own; their parameters
-    act on this stage's data), then ``name``."""
-    return tuple(m for m in network.order if m == name or (
+def stage_keys(network: Network, owners: Mapping[str, str], name: str
+               ) -> tuple[list[str], list[str], tuple[str, ...]]:
+    """The stage of model ``name`` in segmented mode, with ``owners`` from :func:`_owners`:
+    ``(needed, free, models)``, the keys of ``name``'s and its upstream models'
+    parameters, those this stage samples, and the models whose parameters it samples
+    (upstream ones without data of their own, whose parameters act on this stage's data,
+    then ``name``)."""
+    needed = _needed_keys(network, name)
+    free = [k for k in needed if owners.get(k) == name]
+    models = tuple(m for m in network.order if m == name or (
         m in network.ancestors(name) and any(k in free for k in parameter_keys(network, m))))
+    return needed, free, models
 
 
 def segmented_stages(network: Network) -> tuple[list[tuple[tuple[str, ...], list[str]]],
@@ -400,8 +406,7 @@ def segmented_stages(network: Network) -> tuple[list[tuple[tuple[str, ...], list
     for name in network.order:
         own = [d.name for d in network.data if d.observed_model == name]
         if own:
-            free = [k for k in _needed_keys(network, name) if owners.get(k) == name]
-            stages.append((_stage_models(network, name, free), own))
+            stages.append((stage_keys(network, owners, name)[2], own))
     prior = list(dict.fromkeys(k for m in network.order for k in parameter_keys(network, m)
                                if k not in owners))
     return stages, prior
@@ -431,14 +436,12 @@ def _segmented(network, surrogates, data, plan, seed, sampler, emu, plug, progre
             if new and not any(k in owners for k in keys):
                 prior_only.append(name)
             continue
-        needed = _needed_keys(network, name)
-        free = [k for k in needed if owners.get(k) == name and k not in draws]
+        # a key is owned by the first stage with data that needs it: the keys this stage
+        # holds fixed were sampled by earlier stages
+        needed, free, models = stage_keys(network, owners, name)
         fixed_keys = [k for k in needed if k not in free]
-        models = _stage_models(network, name, free)
         stage_name = "+".join(models)
         for k in fixed_keys:
-            if k not in draws:  # used upstream of its owner: its prior stands in
-                draws[k] = _prior_draws(network, k, n, seed)
             if k not in plug_at:
                 plug_at[k] = (kde_mode(draws[k]) if plug == "mode"
                               else float(np.mean(draws[k])))

@@ -30,7 +30,7 @@ import time
 import warnings
 from collections import OrderedDict
 from collections.abc import Callable, Hashable, Iterator
-from contextlib import contextmanager, nullcontext
+from contextlib import contextmanager, nullcontext, suppress
 from dataclasses import dataclass
 from functools import partial
 from typing import Any, NamedTuple
@@ -285,11 +285,12 @@ def _finished(pending, name: str, progress):
     except KeyboardInterrupt:
         text = ("stopping once the chains in flight end (a running program cannot be "
                 "interrupted; Ctrl-\\ ends the process at once)")
-        try:
-            if not isinstance(progress, Lines):
-                raise KeyboardInterrupt
-            progress.note(text)  # Lines say the stage's name
-        except KeyboardInterrupt:  # progress lines that stop at Ctrl-C (calnet run's)
+        said = False
+        if isinstance(progress, Lines):  # they say the stage's name
+            with suppress(KeyboardInterrupt):  # calnet run's lines stop at Ctrl-C
+                progress.note(text)
+                said = True
+        if not said:
             print(f"{name}: {text}", file=sys.stderr, flush=True)
         while True:
             try:
