@@ -55,6 +55,12 @@ def test_metrics_scores_against_closed_forms():
     assert missed["interval_score95"] == pytest.approx(0.5 + (2 / 0.05) * 0.5 / 2)
     assert missed["mape"] is None  # a zero observation: percentages are meaningless
     assert metrics(np.array([-0.2, 1.0]), np.array([0.0, 1.0]))["mape"] is None
+    # positive data over two decades: near zero on their own range, but modelled on the
+    # log scale their errors are relative, and the MAPE is what a user reads
+    wide, off = np.array([0.5, 5.0, 50.0]), np.array([0.55, 4.5, 55.0])
+    assert metrics(wide, off)["mape"] is None
+    assert metrics(wide, off, relative=True)["mape"] == pytest.approx(10.0)
+    assert metrics(np.array([-0.2, 1.0]), np.array([0.0, 1.0]), relative=True)["mape"] is None
     # the NRMSE of a split on the whole data set's range: one point has one too
     assert metrics(np.array([2.0]), np.array([2.5]), y_range=4.0)["nrmse"] == 0.125
     assert metrics(np.array([2.0]), np.array([2.5]))["nrmse"] is None
@@ -72,5 +78,15 @@ def test_the_baselines_score_the_test_points_on_the_data_sets_range():
     box = {"P": (50.0, 300.0), "v": (0.1, 2.5)}
     model = SimpleNamespace(variable=lambda n: SimpleNamespace(lower=box[n][0],
                                                                upper=box[n][1]))
-    got = baselines(SimpleNamespace(model=lambda m: model), train, test)["training_mean"]
+    def network(transform=None):
+        return SimpleNamespace(model=lambda m: model, dataset=lambda name: name,
+                               observed=lambda ds: SimpleNamespace(transform=transform))
+
+    got = baselines(network(), train, test)["training_mean"]
     assert got["rmse"] == pytest.approx(1.0) and got["nrmse"] == pytest.approx(1.0 / 8.0)
+    # measurements over two decades: no MAPE on the linear scale, a MAPE where the data
+    # set is modelled on the log scale (its errors are relative)
+    train, test = _data(x[:2], [0.5, 50.0]), _data(x[2:], [0.4, 40.0])
+    assert baselines(network(), train, test)["training_mean"]["mape"] is None
+    rel = baselines(network("log"), train, test)["training_mean"]["mape"]
+    assert rel == pytest.approx(50 * (abs(0.4 - 25.25) / 0.4 + abs(40.0 - 25.25) / 40.0))

@@ -81,3 +81,23 @@ def test_a_run_stopped_before_the_calibration_ends_starts_no_further_fold(contex
     assert ctx.cv_pending is None and 0 < n < 100  # drained on the way out
     threading.Event().wait(0.2)
     assert len(folds) == n
+
+
+def test_a_rerun_stopped_early_leaves_no_earlier_report(tmp_path, monkeypatch):
+    """A rerun into a finished run's folder that stops in its first stage leaves neither
+    the earlier report nor its metrics to be read as its own, and says it did not finish."""
+    from calnet.errors import CalnetError
+    from calnet.files import INCOMPLETE
+
+    for name in pipeline.PREVIOUS_RESULTS:
+        (tmp_path / name).write_text("{}")
+    (tmp_path / "keep.txt").write_text("a user's file")
+
+    def stop(self, note):
+        raise CalnetError("stopped")
+
+    monkeypatch.setattr(pipeline._Context, "campaign", stop)
+    with pytest.raises(CalnetError, match="stopped"):
+        pipeline.run_pipeline(NINB, out=tmp_path, quick=True)
+    assert not [n for n in pipeline.PREVIOUS_RESULTS if (tmp_path / n).exists()]
+    assert (tmp_path / INCOMPLETE).is_file() and (tmp_path / "keep.txt").is_file()

@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # calnet run examples/ninb with a cold compilation cache, three times each for BASE_COMMIT
-# (a detached worktree) and the checkout, interleaved so that both see the same machine.
+# (a detached worktree, with its own examples/ninb) and the checkout, interleaved so that both
+# see the same machine.
 # One line per run: code, run, wall s, user s, sys s, peak RSS KB, then from run_info.json
 # surrogates, calibration, sampler compile, sampling, prediction, validation, report, total.
 # Usage (repository root): benchmarks/calibration/ninb_pairs.sh BASE_COMMIT [RUNS]
@@ -13,10 +14,11 @@ git worktree add --detach "$wt" "$base" >/dev/null 2>&1
 trap 'git worktree remove --force "$wt"' EXIT
 for i in $(seq 1 "$runs"); do
     for who in base current; do
-        src=$([ "$who" = base ] && echo "$wt/src" || echo "$PWD/src")
+        root=$([ "$who" = base ] && echo "$wt" || echo "$PWD")
         out=$(mktemp -d)/ninb
-        CALNET_JAX_CACHE=off PYTHONPATH=$src /usr/bin/time -f "%e %U %S %M" -o "$out.time" \
-            .venv/bin/python -m calnet run examples/ninb --out "$out" >/dev/null 2>&1
+        CALNET_JAX_CACHE=off PYTHONPATH=$root/src /usr/bin/time -f "%e %U %S %M" \
+            -o "$out.time" .venv/bin/python -m calnet run "$root/examples/ninb" --out "$out" \
+            >/dev/null 2>&1
         stages=$(.venv/bin/python - "$out/run_info.json" <<'PY'
 import json, sys
 d = json.load(open(sys.argv[1]))

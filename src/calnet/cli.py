@@ -386,10 +386,14 @@ def surrogates(
     with _working("fitting surrogates") as note:
         sur, _ = surrogate_stage(network, folder=out, figures=out, cv=not no_cv,
                                  progress=note)
-    table = Table("output", "runs", "excluded", "k", "MAPE %", "RMSE", "95% coverage")
+    from calnet.report.build import surrogate_label
+
+    table = Table("output (unit)", "runs", "excluded", "k", "MAPE %", "RMSE (output's unit)",
+                  "95% coverage")
     for key, s in sur.items.items():
         cv = s.cv.metrics() if s.cv else {}
-        table.add_row(key, str(s.n_runs), str(s.n_excluded), str(cv.get("k", "-")),
+        table.add_row(surrogate_label(network, key, s.gp.transform), str(s.n_runs),
+                      str(s.n_excluded), str(cv.get("k", "-")),
                       *(f"{cv[k]:.4g}" if cv.get(k) is not None else "-"
                         for k in ("mape", "rmse", "coverage95")))
     console.print(table)
@@ -666,12 +670,14 @@ def verify(
         table.add_row(label, str(p.point), f"{p.simulator:.4g}", f"{p.mean:.4g} ± {p.sd:.2g}",
                       f"[red]{z}[/]" if abs(p.z) > Z_LIMIT else z)
     console.print(table)
-    summary = Table("surrogate", "n", "failed", "RMSE", "max |z|", f"|z| > {Z_LIMIT:g}")
+    summary = Table("surrogate", "n", "failed", "RMSE (modelled scale)", "max |z|",
+                    f"|z| > {Z_LIMIT:g}")
     for c in result.checks.values():
+        label = c.surrogate + (" (ln)" if c.transform == "log" else "")
         if not c.n:  # nothing to measure: no simulator run finished
-            summary.add_row(c.surrogate, "0", str(c.n_failed), "-", "-", "-")
+            summary.add_row(label, "0", str(c.n_failed), "-", "-", "-")
             continue
-        summary.add_row(c.surrogate, str(c.n), str(c.n_failed), f"{c.rmse:.3g}",
+        summary.add_row(label, str(c.n), str(c.n_failed), f"{c.rmse:.3g}",
                         f"{c.max_abs_z:.2f}", f"{c.share_beyond:.0%}")
     console.print(summary)
     for c in result.checks.values():

@@ -62,11 +62,18 @@ def _quick_sampler(s: SamplerSettings) -> SamplerSettings:
                                 "thin": 1})
 
 
+#: a finished run's files that describe it as a whole, removed when another run starts in
+#: its folder
+PREVIOUS_RESULTS = ("report.html", "metrics.json", "run_info.json", "verify.json")
+
+
 def run_pipeline(spec: str | Path, *, out: Path, fresh: bool = False, quick: bool = False,
                  console: Console | None = None, loo_max: int | None = None,
                  seed: int | None = None) -> dict:
     """Run every stage on ``spec`` and write ``out/report.html``, ``out/metrics.json`` and
-    ``out/run_info.json``.
+    ``out/run_info.json``. An earlier run's in ``out`` (and its ``verify.json``) are
+    removed when the run starts, so that a run stopped early leaves none to be mistaken
+    for its own.
 
     ``metrics.json`` holds the results only, so that two runs with the same seed write
     the same bytes; ``run_info.json`` holds how this run went (stage timings, compile
@@ -109,8 +116,11 @@ def run_pipeline(spec: str | Path, *, out: Path, fresh: bool = False, quick: boo
             out = Path(out)
             for sub in ("figures", "posterior", "surrogates"):
                 (out / sub).mkdir(parents=True, exist_ok=True)
-            # calnet verify's check of an earlier posterior in this folder
-            (out / "verify.json").unlink(missing_ok=True)
+            # an earlier run's results in this folder: this run writes its own at the
+            # end, and one stopped before then must not leave the old ones to be read as
+            # its own (calnet verify's check of the earlier posterior included)
+            for name in PREVIOUS_RESULTS:
+                (out / name).unlink(missing_ok=True)
             ctx = _Context(network, out, quick, fresh, loo_max if loo_max is not None
                            else (12 if quick else 15))
             if seed is not None:

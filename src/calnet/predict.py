@@ -544,12 +544,13 @@ def interval_score(y: np.ndarray, lower: np.ndarray, upper: np.ndarray,
 
 def metrics(y: np.ndarray, mean: np.ndarray, lower: np.ndarray | None = None,
             upper: np.ndarray | None = None, *, samples: np.ndarray | None = None,
-            pit: np.ndarray | None = None,
-            y_range: float | None = None) -> dict[str, float | None]:
+            pit: np.ndarray | None = None, y_range: float | None = None,
+            relative: bool = False) -> dict[str, float | None]:
     """Errors of predictions of ``y``: RMSE (the reference study's SE_pred, method.md
     section 5), NRMSE (RMSE / ``y_range``, default the range of y: pass the whole data
     set's so that its splits share one scale), MAPE (%, None where
-    :func:`mape_meaningful` says no); with a 95 % band its coverage and mean interval
+    :func:`mape_meaningful` says no; ``relative`` for data modelled on the log scale,
+    see there); with a 95 % band its coverage and mean interval
     score; with predictive samples (k, n) the mean CRPS; with PIT values (n,) the
     coverage of the central 50, 80 and 95 % intervals."""
     y, mean = np.asarray(y, float), np.asarray(mean, float)
@@ -560,7 +561,7 @@ def metrics(y: np.ndarray, mean: np.ndarray, lower: np.ndarray | None = None,
         "n": int(len(y)), "rmse": rmse,
         "nrmse": rmse / spread if spread > 0 else None,
         "mape": (float(np.mean(np.abs(y - mean) / np.abs(y)) * 100)
-                 if mape_meaningful(y) else None)}
+                 if mape_meaningful(y, relative=relative) else None)}
     if lower is not None and upper is not None:
         out["coverage95"] = float(np.mean((y >= lower) & (y <= upper)))
         out["interval_score95"] = float(np.mean(interval_score(y, lower, upper)))

@@ -38,9 +38,10 @@ def baselines(network: Network, train: ExperimentalData, test: ExperimentalData,
     """Metrics of two naive predictors of ``test``: the training mean, and a GP fitted
     directly to process inputs -> output on the training points."""
     span = float(np.ptp(np.r_[train.y, test.y]))  # the data set's range: one NRMSE scale
+    rel = relative_errors(network, train.name)
     out = {"training_mean": metrics(test.y, np.full(len(test.y), train.y.mean()),
-                                    y_range=span)}
-    power = _power_law(train, test, span)
+                                    y_range=span, relative=rel)}
+    power = _power_law(train, test, span, relative=rel)
     if power is not None:
         out["power_law"] = power
     keys = train.input_keys
@@ -55,14 +56,20 @@ def baselines(network: Network, train: ExperimentalData, test: ExperimentalData,
         mean, var = (np.asarray(a) for a in gp.to_natural(mean, var))
         sd = np.sqrt(var)
         out["direct_gp"] = metrics(test.y, mean, mean - 1.96 * sd, mean + 1.96 * sd,
-                                   y_range=span)
+                                   y_range=span, relative=rel)
     except Exception as err:  # too few points for a GP is a result, not a failure
         out["direct_gp"] = {"error": str(err)}
     return out
 
 
+def relative_errors(network: Network, dataset: str) -> bool:
+    """Whether data set ``dataset`` is modelled on the log scale: its errors are relative,
+    so its MAPE is given whatever range its values span (:func:`calnet.predict.metrics`)."""
+    return network.observed(network.dataset(dataset)).transform == "log"
+
+
 def _power_law(train: ExperimentalData, test: ExperimentalData,
-               span: float | None = None) -> dict | None:
+               span: float | None = None, *, relative: bool = False) -> dict | None:
     """``y = c prod_j x_j^b_j`` by least squares on the logs (only for positive data); the
     reference study's second naive baseline (method.md section 7)."""
     if (train.x <= 0).any() or (test.x <= 0).any() or (train.y <= 0).any():
@@ -72,7 +79,8 @@ def _power_law(train: ExperimentalData, test: ExperimentalData,
         return None
     coef, *_ = np.linalg.lstsq(A, np.log(train.y), rcond=None)
     pred = np.exp(np.column_stack([np.ones(len(test.y)), np.log(test.x)]) @ coef)
-    return {**metrics(test.y, pred, y_range=span), "exponents": coef[1:].tolist()}
+    return {**metrics(test.y, pred, y_range=span, relative=relative),
+            "exponents": coef[1:].tolist()}
 
 
 K_HAT_MAX = 0.7  # Pareto k above which PSIS is unreliable (Vehtari et al. 2024)
@@ -182,8 +190,9 @@ def psis_loo(network: Network, surrogates: Surrogates, posterior: NetworkPosteri
                    for i in ranked]
     return {"method": "psis",
             "calnet": metrics(full.y, mean, lo, hi, samples=samples, pit=pit,
-                              y_range=y_range),
-            "training_mean": metrics(full.y, naive, y_range=y_range),
+                              y_range=y_range, relative=bool(cond.log)),
+            "training_mean": metrics(full.y, naive, y_range=y_range,
+                                     relative=bool(cond.log)),
             "mean": mean.tolist(), "lower95": lo.tolist(), "upper95": hi.tolist(),
             "pit": pit.tolist(), "pit_check": pit_check(dataset, pit),
             "elpd_loo": float(loo["elpd_loo"]), "elpd_se": float(loo["se"]),
@@ -389,13 +398,15 @@ def validate_dataset(network: Network, surrogates: Surrogates, posterior: Networ
     pred, train = prediction, ~data.is_test
     pit = pred.pit(data.y)  # posterior predictive check: uniform if calibrated
     span = float(np.ptp(data.y))  # every split's NRMSE on the whole data set's range
+    rel = relative_errors(network, data.name)
     errors = metrics(data.y[train], pred.mean[train], pred.lower[train], pred.upper[train],
-                     samples=pred.samples[:, train], pit=pit[train], y_range=span)
+                     samples=pred.samples[:, train], pit=pit[train], y_range=span,
+                     relative=rel)
     test = None
     if data.is_test.any():
         test = metrics(data.test.y, pred.mean[data.is_test], pred.lower[data.is_test],
                        pred.upper[data.is_test], samples=pred.samples[:, data.is_test],
-                       pit=pit[data.is_test], y_range=span)
+                       pit=pit[data.is_test], y_range=span, relative=rel)
     # PSIS on the posterior; a point with Pareto k > 0.7 re-samples the observing model's
     # stage without it
     loo_sampler = secondary_sampler(sampler)

@@ -169,3 +169,16 @@ def test_a_shared_parameter_is_one_parameter(tmp_path, mode):
     else:
         assert not noted
         assert post.stages[0].idata.posterior["theta_shared"].shape[-1] == 1
+
+
+def test_the_check_says_what_its_sds_are_in():
+    """A log-modelled data set's sds are of ln y, a linear one's in the output's unit."""
+    from calnet.calibration.guard import SurrogateCheck
+
+    def check(scale):
+        return SurrogateCheck("d", {"m.y": 0.3}, 0.2, {"m.y": 10}, {"m.y": 40}, scale=scale)
+
+    assert "(0.3 on the ln scale) is 1.5 x" in check("ln").message()
+    assert "noise and discrepancy sd (0.2 um)" in check("um").message()
+    assert "(0.3) is 1.5 x" in check("").message() and check("1").to_dict()["scale"] == "1"
+    assert "(0.3) is" in check("1").message()

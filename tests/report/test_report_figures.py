@@ -50,6 +50,20 @@ def test_predictive_vs_observed(tmp_path):
     assert _is_png(out)
 
 
+def test_a_log_output_over_decades_gets_log_axes(tmp_path, monkeypatch):
+    """A log-modelled output spanning three decades is drawn on log axes; over less than
+    a decade, or modelled linearly, it keeps linear ones."""
+    saved = []
+    save = F._save
+    monkeypatch.setattr(F, "_save", lambda fig, path: saved.append(fig) or save(fig, path))
+    wide, narrow = np.array([0.01, 0.1, 1.0, 10.0]), np.array([0.3, 0.35, 0.4, 0.33])
+    for y, log in ((wide, True), (wide, False), (narrow, True)):
+        assert _is_png(F.predictive_vs_observed(y, 1.1 * y, 0.8 * y, 1.3 * y, [False] * 4,
+                                                tmp_path / "p.png", "d", "um", log=log))
+    scales = [(f.axes[0].get_xscale(), f.axes[0].get_yscale()) for f in saved]
+    assert scales == [("log", "log"), ("linear", "linear"), ("linear", "linear")]
+
+
 def test_maps(tmp_path):
     Pg, vg = np.linspace(65, 260, 6), np.linspace(0.04, 2.4, 5)
     z = Pg[None, :] / 100 + vg[:, None]

@@ -57,6 +57,9 @@ class SurrogateCheck:
         Data points outside the network's input bounds, where the surrogates extrapolate.
     outside_share : float
         Their share of the summed surrogate variance.
+    scale : str
+        What the sds are in: ``"ln"`` for data modelled on the log scale (the sds of
+        ``ln y``), else the observed output's unit (empty for none).
     """
 
     dataset: str
@@ -66,6 +69,7 @@ class SurrogateCheck:
     needed: dict[str, int]
     outside: int = 0
     outside_share: float = 0.0
+    scale: str = ""
 
     @property
     def ratio(self) -> float:
@@ -88,9 +92,11 @@ class SurrogateCheck:
         k = self.dominant
         model = k.split(".")[0]
         total = math.sqrt(sum(v**2 for v in self.surrogate_sd.values()))
+        unit = (" on the ln scale" if self.scale == "ln"
+                else f" {self.scale}" if self.scale not in ("", "1") else "")
         head = (f"{self.dataset}: the surrogate, not the data, sets the answer: the surrogate "
-                f"sd at the posterior ({total:.3g}) is {self.ratio:.2g} x the data's noise and "
-                f"discrepancy sd ({self.data_sd:.3g}), mostly from {k}")
+                f"sd at the posterior ({total:.3g}{unit}) is {self.ratio:.2g} x the data's "
+                f"noise and discrepancy sd ({self.data_sd:.3g}{unit}), mostly from {k}")
         if self.extrapolating:
             return (f"{head}, at the {self.outside} data point(s) outside the input bounds "
                     f"({self.outside_share:.0%} of it), where the surrogate extrapolates: "
@@ -104,7 +110,7 @@ class SurrogateCheck:
         return {"surrogate_sd": self.surrogate_sd, "data_sd": self.data_sd,
                 "ratio": self.ratio, "runs": self.runs, "runs_needed": self.needed,
                 "outside_bounds": self.outside, "outside_share": self.outside_share,
-                "extrapolating": self.extrapolating,
+                "extrapolating": self.extrapolating, "scale": self.scale,
                 "warning": self.message()}
 
 
@@ -172,7 +178,10 @@ def check_surrogates(network, surrogates, posterior, *, n_draws: int = 50
             dim = int(surrogates[k].gp.n_inputs)
             factor = (ratio / RATIO_TARGET) ** 2
             needed[k] = int(math.ceil(min(1e6, runs[k] * max(factor, 1.0) ** (dim / 3.0))))
-        out.append(SurrogateCheck(ds, sds, data_sd, runs, needed, int(outside.sum()), share))
+        observed = network.observed(network.dataset(ds))
+        scale = "ln" if observed.transform == "log" else (observed.unit or "")
+        out.append(SurrogateCheck(ds, sds, data_sd, runs, needed, int(outside.sum()), share,
+                                  scale))
     return out
 
 

@@ -91,10 +91,10 @@ def write_outputs(ctx, results: RunResults) -> None:
                 posterior_figures(results.calibration, out / "figures").items()})
     for name, d in ctx.data.items():
         p = results.predictions[name]
-        unit = net.model(d.observes.split(".")[0]).output(d.observes.split(".")[1]).unit
+        observed = net.model(d.observes.split(".")[0]).output(d.observes.split(".")[1])
         fig[f"predictive {name}"] = figures.predictive_vs_observed(
             d.y, p.mean, p.lower, p.upper, d.is_test, out / "figures" / f"predictive_{name}.png",
-            d.observes, unit)
+            d.observes, observed.unit, log=observed.transform == "log")
         v = results.validation.get(name)
         if v is not None:
             fig[f"pit {name}"] = figures.pit_histogram(
@@ -128,6 +128,13 @@ def _units(ctx) -> dict[str, str]:
 def _output_unit(network, key: str) -> str:
     model, output = key.split(".")
     return network.model(model).output(output).unit
+
+
+def surrogate_label(network, key: str, transform: str | None) -> str:
+    """``"melt_pool.W (um), GP on ln"``: a surrogate's output with its unit, and the scale
+    its GP models where that is not the output's own (its errors are on the output's)."""
+    label = with_unit(key, _output_unit(network, key))
+    return label + (", GP on ln" if transform == "log" else "")
 
 
 def _predicted_units(ctx, results: RunResults) -> dict[str, str]:
@@ -241,10 +248,11 @@ def _sections(ctx, results: RunResults) -> list[Section]:
         figures=pick("network") + pick("data"))
     sur = Section("Surrogates (k-fold cross-validation)", tables=[Table(
         "GP surrogates (simulator runs per output)",
-        ["output", "training runs", "runs left out (not ok or non-finite)", "CV folds k",
-         "CV MAPE %", "CV RMSE", "CV 95% coverage"],
-        [[k, s.n_runs, s.n_excluded, *_cv_cells(s.cv)]
-         for k, s in results.surrogates.items.items()])], figures=pick("cv "))
+        ["output (unit)", "training runs", "runs left out (not ok or non-finite)",
+         "CV folds k", "CV MAPE %", "CV RMSE (output's unit)", "CV 95% coverage"],
+        [[surrogate_label(net, k, s.gp.transform), s.n_runs, s.n_excluded,
+          *_cv_cells(s.cv)] for k, s in results.surrogates.items.items()])],
+        figures=pick("cv "))
     rows = []
     for model, s in summary.items():
         if s.get("prior_only"):
@@ -317,7 +325,8 @@ def _sections(ctx, results: RunResults) -> list[Section]:
     tables = [
         Table("Predictive accuracy (NRMSE = RMSE / range of the data set's measurements, "
               "every split on the same range; MAPE only "
-              "where the measurements stay away from zero; CRPS in the output's unit)",
+              "where the measurements stay away from zero or are modelled on the log scale; "
+              "RMSE and CRPS in the output's unit)",
               ["data set", "predictor", "RMSE", "NRMSE", "MAPE %", "CRPS", "95% coverage"],
               vrows)]
     if lrows:
@@ -330,8 +339,13 @@ def _sections(ctx, results: RunResults) -> list[Section]:
     variant_notes = comparison_verdicts(results.comparison or {}) + variant_notes
     tables += comparison
     tables.append(Table(
-        "Uncertainty budget (share of predictive variance, averaged over points; the "
-        "discrepancy's share is what the model itself does not explain)",
+        "Uncertainty budget (share of the predictive variance at the data set's own "
+        "settings, averaged over points; the discrepancy's share is what the model itself "
+        "does not explain, counted after conditioning on the measurements: at measured "
+        "settings they pin the discrepancy down, and with an orthogonal discrepancy it "
+        "also leaves out what the parameters can absorb, so its share there can be far "
+        "smaller than its sd in the calibration table suggests; away from the data it "
+        "grows back toward that sd)",
         ["data set", "source", "share"], brows))
     val = Section("Prediction and validation", paragraphs=loo_notes + variant_notes,
                   tables=tables,

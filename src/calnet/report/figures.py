@@ -254,7 +254,8 @@ def prior_posterior_grid(params: Sequence[Mapping[str, Any]], path: str | Path, 
 
 
 def predictive_vs_observed(y_obs: Any, mean: Any, lo: Any, hi: Any, is_test: Any,
-                           path: str | Path, label: str, unit: str) -> Path:
+                           path: str | Path, label: str, unit: str, *,
+                           log: bool = False) -> Path:
     """Posterior predictive mean with 95 % intervals against the observations.
 
     Parameters
@@ -267,6 +268,10 @@ def predictive_vs_observed(y_obs: Any, mean: Any, lo: Any, hi: Any, is_test: Any
         Destination PNG.
     label, unit : str
         Output name and unit for the axes.
+    log : bool
+        The output is modelled on the log scale: both axes are logarithmic where its
+        values (all positive) span more than a decade, where linear axes would crowd the
+        small values into a corner.
 
     Returns
     -------
@@ -280,9 +285,14 @@ def predictive_vs_observed(y_obs: Any, mean: Any, lo: Any, hi: Any, is_test: Any
     allv = np.concatenate([y_obs, lo, hi])
     allv = allv[np.isfinite(allv)]
     span = (allv.min(), allv.max()) if allv.size else (0.0, 1.0)
-    pad = 0.05 * (span[1] - span[0] or 1.0)
-    ax.plot([span[0] - pad, span[1] + pad], [span[0] - pad, span[1] + pad], color="0.5",
-            lw=1, ls="--", label="1:1")
+    logs = bool(log and allv.size and span[0] > 0 and span[1] > 10 * span[0])
+    if logs:
+        ax.set(xscale="log", yscale="log")
+        ends = [span[0] / 1.2, span[1] * 1.2]
+    else:
+        pad = 0.05 * (span[1] - span[0] or 1.0)
+        ends = [span[0] - pad, span[1] + pad]
+    ax.plot(ends, ends, color="0.5", lw=1, ls="--", label="1:1")
     for mask, name, color, face in ((~test, "train", TRAIN_COLOR, TRAIN_COLOR),
                                     (test, "test", TEST_COLOR, "white")):
         if mask.any():

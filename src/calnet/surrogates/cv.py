@@ -111,13 +111,17 @@ def _away_from_zero(y: np.ndarray) -> bool:
     return bool(len(y)) and (np.all(y > 0) or np.all(y < 0)) and a.min() >= 0.01 * a.max()
 
 
-def mape_meaningful(y) -> bool:
+def mape_meaningful(y, *, relative: bool = False) -> bool:
     """Whether a percentage error is meaningful for observations ``y``: all of one sign
     and every |y| at least a tenth of their spread away from zero (else a near-zero
-    value turns a small error into hundreds of percent)."""
+    value turns a small error into hundreds of percent). With ``relative`` (a positive
+    quantity modelled on the log scale, whose errors are relative by declaration) every
+    ``y > 0`` is enough, however many decades they span."""
     y = np.asarray(y, float)
     if not len(y) or not (np.all(y > 0) or np.all(y < 0)):
         return False
+    if relative:
+        return bool(np.all(y > 0))
     return float(np.abs(y).min()) >= 0.1 * float(np.ptp(y))
 
 
