@@ -182,3 +182,54 @@ def test_the_check_says_what_its_sds_are_in():
     assert "noise and discrepancy sd (0.2 um)" in check("um").message()
     assert "(0.3) is 1.5 x" in check("").message() and check("1").to_dict()["scale"] == "1"
     assert "(0.3) is" in check("1").message()
+
+
+def _latent_var(gp, points):
+    """Mean latent variance of ``gp`` at ``points`` (unit cube), from its public predict,
+    in standardised units (so that GPs on other runs of one function compare)."""
+    import jax.numpy as jnp
+    lower, upper = np.asarray(gp.lower), np.asarray(gp.upper)
+    z = lower + points * (upper - lower)
+    return float(np.mean(np.asarray(gp.predict(jnp.asarray(z))[1])) / float(gp.y_std) ** 2)
+
+
+def test_the_runs_named_do_divide_the_variance_as_asked():
+    """The runs-needed estimate extrapolates the GP's own learning curve: conditioning
+    the same GP (same hyperparameters) on that many space-filling runs divides its mean
+    variance over the box by the factor asked for, within a factor 1.6."""
+    from scipy.stats import qmc
+
+    from calnet.calibration.guard import runs_for, variance_rate
+    from calnet.surrogates.gp import condition
+
+    def gp_on(n):
+        x = qmc.Halton(2, seed=3).random(n)
+        y = np.sin(3 * x[:, 0]) + x[:, 1] ** 2
+        return condition(x, y, lower=np.zeros(2), upper=np.ones(2),
+                         lengthscales=np.array([0.3, 0.5]), signal_var=1.0, nugget=1e-6)
+
+    points = np.random.default_rng(0).uniform(size=(400, 2))
+    n0, factor = 64, 8.0
+    gp0 = gp_on(n0)
+    rate = variance_rate(gp0)
+    assert 3 / 2 * 0.7 < rate < 6, rate  # at least about Matern 3/2's n^(-3/d), d = 2
+    n1 = runs_for(n0, factor, rate)
+    got = _latent_var(gp0, points) / _latent_var(gp_on(n1), points)
+    assert factor / 1.6 < got < factor * 1.6, (n1, got)
+    # the rate of a GP whose length scales are far below the runs' spacing: ~0
+    rough = condition(qmc.Halton(2, seed=3).random(64), np.zeros(64), lower=np.zeros(2),
+                      upper=np.ones(2), lengthscales=np.array([1e-3, 1e-3]),
+                      signal_var=1.0, nugget=1e-6)
+    assert variance_rate(rough) < 0.05 and runs_for(64, 4.0, 0.0) == 1_000_000
+    assert runs_for(64, 0.5, rate) == 64  # already below the target
+
+
+def test_a_rough_surrogate_is_not_given_a_run_count():
+    from calnet.calibration.guard import SurrogateCheck
+
+    check = SurrogateCheck("d", {"m.y": 0.3}, 0.2, {"m.y": 50}, {"m.y": 1_000_000},
+                           rates={"m.y": 0.01})
+    assert "more runs of 'm' (now 50) would barely lower it" in check.message()
+    fine = SurrogateCheck("d", {"m.y": 0.3}, 0.2, {"m.y": 50}, {"m.y": 120},
+                          rates={"m.y": 1.5})
+    assert "about 120 runs of 'm' (now 50)" in fine.message() and "n^-1.5" in fine.message()

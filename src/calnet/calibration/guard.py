@@ -7,19 +7,21 @@ the noise variance plus the discrepancy variance at the data (after the orthogon
 discrepancy's projection, which removes what the parameters can explain). Where the
 surrogate's share is large the posterior reflects the emulator's error, not the
 experiments (even with clean sampler diagnostics), and more simulator runs are the
-remedy: their number is estimated from the Matern-3/2 rate, GP variance ~ n^(-3/d) in d
-inputs.
+remedy: their number is estimated from how fast the surrogate's GP variance falls with
+its runs, measured by conditioning it on half of them (:func:`variance_rate`).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from collections import OrderedDict
+from dataclasses import dataclass, field
 from functools import partial
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from scipy.linalg import solve_triangular
 
 from calnet._jax import FEW_CALLS
 from calnet.calibration.koh import KOHModel
@@ -52,7 +54,7 @@ class SurrogateCheck:
         Campaign runs behind each surrogate.
     needed : dict of ``model.output`` -> int
         Rough number of runs that would bring that surrogate's sd to RATIO_TARGET of
-        the data's sd.
+        the data's sd (:func:`runs_for` at ``rates``), where the check warns.
     outside : int
         Data points outside the network's input bounds, where the surrogates extrapolate.
     outside_share : float
@@ -60,6 +62,8 @@ class SurrogateCheck:
     scale : str
         What the sds are in: ``"ln"`` for data modelled on the log scale (the sds of
         ``ln y``), else the observed output's unit (empty for none).
+    rates : dict of ``model.output`` -> float
+        :func:`variance_rate` of each surrogate: its variance falls as ``n^-rate``.
     """
 
     dataset: str
@@ -70,6 +74,7 @@ class SurrogateCheck:
     outside: int = 0
     outside_share: float = 0.0
     scale: str = ""
+    rates: dict[str, float] = field(default_factory=dict)
 
     @property
     def ratio(self) -> float:
@@ -102,15 +107,24 @@ class SurrogateCheck:
                     f"({self.outside_share:.0%} of it), where the surrogate extrapolates: "
                     "more runs inside the bounds will not help; widen the bounds and extend "
                     "the campaign over those points, or leave them out")
-        return (f"{head}; at most about {self.needed[k]} runs of '{model}' (now "
-                f"{self.runs[k]}) would bring it to {RATIO_TARGET:g} x (a worst-case rate: a "
-                "smooth model needs fewer); check with 'calnet verify'")
+        rate = self.rates.get(k)
+        if rate is not None and rate < RATE_MIN:
+            return (f"{head}; more runs of '{model}' (now {self.runs[k]}) would barely lower "
+                    "it: its GP's variance hardly falls when half of its runs are left out "
+                    "(length scales short against the runs' spacing: a rough or "
+                    "discontinuous output); check its cross-validation and 'calnet verify'")
+        how = (f"at the rate its GP's variance falls with runs, n^-{rate:.2g}"
+               if rate is not None else "a rough estimate")
+        return (f"{head}; about {self.needed[k]} runs of '{model}' (now {self.runs[k]}) "
+                f"would bring it to {RATIO_TARGET:g} x ({how}); check with 'calnet verify'")
 
     def to_dict(self) -> dict:
         return {"surrogate_sd": self.surrogate_sd, "data_sd": self.data_sd,
                 "ratio": self.ratio, "runs": self.runs, "runs_needed": self.needed,
                 "outside_bounds": self.outside, "outside_share": self.outside_share,
                 "extrapolating": self.extrapolating, "scale": self.scale,
+                "variance_rates": self.rates, "target_ratio": RATIO_TARGET,
+                "runs_gain_little": [k for k, r in self.rates.items() if r < RATE_MIN],
                 "warning": self.message()}
 
 
@@ -153,7 +167,7 @@ def check_surrogates(network, surrogates, posterior, *, n_draws: int = 50
     gps = {k: s.gp for k, s in surrogates.items.items()}
     idx = draw_index(posterior.n_draws, n_draws)
     thetas = draws_at(posterior.theta, plan, idx)
-    out = []
+    out, rates = [], {}
     for ds, hyper in posterior.hyper.items():
         d = posterior.data[ds]
         term, tdata = make_term(network, d, emulator_variance=True, plan=plan)
@@ -175,14 +189,101 @@ def check_surrogates(network, surrogates, posterior, *, n_draws: int = 50
         needed = {}
         for k in keys:
             ratio = sds[k] / data_sd if data_sd > 0 else math.inf
-            dim = int(surrogates[k].gp.n_inputs)
             factor = (ratio / RATIO_TARGET) ** 2
-            needed[k] = int(math.ceil(min(1e6, runs[k] * max(factor, 1.0) ** (dim / 3.0))))
+            total = math.sqrt(sum(v**2 for v in sds.values()))
+            if (total / data_sd if data_sd > 0 else math.inf) <= RATIO_WARN:
+                continue  # no warning to give (SurrogateCheck.ratio): no runs to count
+            if k not in rates:
+                rates[k] = _cached_rate(surrogates[k].gp)
+            needed[k] = runs_for(runs[k], factor, rates[k])
         observed = network.observed(network.dataset(ds))
         scale = "ln" if observed.transform == "log" else (observed.unit or "")
         out.append(SurrogateCheck(ds, sds, data_sd, runs, needed, int(outside.sum()), share,
-                                  scale))
+                                  scale, {k: rates[k] for k in keys if k in rates}))
     return out
+
+
+#: the slowest rate of a surrogate's variance with its runs (var ~ n^-rate) that the
+#: runs-needed estimate uses; a GP whose variance falls slower than this is said to gain
+#: little from more runs
+RATE_MIN = 0.05
+#: most runs a surrogate check's estimate names
+RUNS_MAX = 1_000_000
+
+
+def runs_for(n: int, factor: float, rate: float) -> int:
+    """Runs that divide a surrogate's variance by ``factor`` from ``n`` runs when it falls
+    as ``n^-rate`` (at most :data:`RUNS_MAX`)."""
+    if factor <= 1.0:
+        return int(n)
+    if rate < RATE_MIN:
+        return RUNS_MAX
+    return int(math.ceil(min(RUNS_MAX, n * factor ** (1.0 / rate))))
+
+
+_RATES: OrderedDict = OrderedDict()  # id(gp) -> (gp, rate): the refits check the same GPs
+
+
+def _cached_rate(gp) -> float:
+    hit = _RATES.get(id(gp))
+    if hit is not None and hit[0] is gp:
+        _RATES.move_to_end(id(gp))
+        return hit[1]
+    rate = variance_rate(gp)
+    _RATES[id(gp)] = (gp, rate)
+    while len(_RATES) > 16:
+        _RATES.popitem(last=False)
+    return rate
+
+
+def variance_rate(gp, *, seed: int = 0, most: int = 800, repeats: int = 4) -> float:
+    """How fast ``gp``'s variance falls with its runs: ``r`` in ``var ~ n^-r``.
+
+    A quarter of the training runs is held out; the GP, its hyperparameters fixed, is
+    conditioned on the other runs and on random halves of them, and ``r`` compares its
+    mean latent variance (the nugget left out) at the held-out runs: ``log(v_half /
+    v_all) / log 2``. The held-out runs sit where the campaign put runs, so the rate is
+    that of the design's own region. Matern 3/2 with space-filling runs falls as
+    ``n^(-3/d)`` in ``d`` inputs at worst; a smooth response or inactive inputs (long
+    length scales) fall faster. At most ``most`` runs are used (a random subset).
+    Returns 0 where the variance does not fall (length scales short against the runs'
+    spacing) or with fewer than 8 runs.
+    """
+    x = np.asarray(gp.x_train, float)
+    n = len(x)
+    if n < 8:
+        return 0.0
+    rng = np.random.default_rng(seed)
+    if n > most:
+        x = x[rng.choice(n, most, replace=False)]
+        n = most
+    ell = np.asarray(gp.lengthscales, float)
+    s2, nug = float(gp.signal_var), float(gp.nugget)
+    order = rng.permutation(n)
+    held, rest = x[order[: n // 4]], x[order[n // 4:]]
+
+    def corr(a, b):
+        r2 = np.zeros((len(a), len(b)))
+        for j in range(a.shape[1]):  # one input at a time: (m, n) arrays, not (m, n, d)
+            r2 += ((a[:, j, None] - b[None, :, j]) / ell[j]) ** 2
+        r = np.sqrt(3.0 * r2)
+        return (1.0 + r) * np.exp(-r)
+
+    def mean_var(train):
+        k = s2 * corr(train, train) + nug * np.eye(len(train))
+        chol = np.linalg.cholesky(k)
+        v = solve_triangular(chol, s2 * corr(train, held), lower=True)
+        return float(np.mean(np.maximum(s2 - np.sum(v**2, axis=0), 0.0)))
+
+    try:
+        full = mean_var(rest)
+        half = np.mean([mean_var(rest[rng.choice(len(rest), len(rest) // 2, replace=False)])
+                        for _ in range(repeats)])
+    except np.linalg.LinAlgError:
+        return 0.0
+    if not full > 0 or not half > full:
+        return 0.0
+    return float(np.log(half / full) / np.log(len(rest) / (len(rest) // 2)))
 
 
 #: a posterior median within this fraction of the range from a bound ...

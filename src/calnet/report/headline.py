@@ -181,8 +181,11 @@ def _surrogate_warning(name: str, check: Mapping[str, Any]) -> str:
         return (f"{head}, at the {check['outside_bounds']} data point(s) outside the input "
                 "bounds, where it extrapolates: widen the bounds and the campaign, or leave "
                 "those points out.")
-    return (f"{head}; at most about {check['runs_needed'][worst]} runs of '{model}' (now "
-            f"{check['runs'][worst]}) would fix that.")
+    if worst in check.get("runs_gain_little", ()):
+        return (f"{head}; more runs of '{model}' would barely lower it (its GP's variance "
+                "hardly falls with runs).")
+    return (f"{head}; about {check['runs_needed'][worst]} runs of '{model}' (now "
+            f"{check['runs'][worst]}) would bring it to {check.get('target_ratio', 0.25):g} x.")
 
 
 def _sampler_warning(stage: str, s: Mapping[str, Any], cal: CalibrationResult) -> str | None:
