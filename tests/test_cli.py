@@ -276,3 +276,54 @@ def test_seed_reaches_the_stages_after_the_campaign(monkeypatch, tmp_path):
                                       str(tmp_path / "p"), "--seed", "3"])
     assert isinstance(result.exception, Stop) or seen.get("calibrate") == 3, result.output
     assert seen["calibrate"] == 3
+
+
+_HOLD = """
+import contextlib, sys, time
+import typer
+from calnet.campaign.interrupt import sigterm_exit
+from calnet.interrupts import program_running
+try:
+    with sigterm_exit("run"):
+        with ({hold}):
+            print("ready", flush=True)
+            time.sleep(60)
+except typer.Exit as done:  # as the command line ends
+    sys.exit(done.exit_code)
+"""
+
+
+@pytest.mark.parametrize("in_flight", [True, False])
+def test_sigterm_while_a_compiled_program_runs_ends_at_once(in_flight):
+    """A batch system's SIGTERM while the sampler's program runs (which nothing can stop)
+    ends calnet run at once with 143 and one line, instead of waiting for the program;
+    elsewhere it unwinds as Ctrl-C does, with the same code."""
+    import signal
+    import time
+
+    hold = "program_running()" if in_flight else "contextlib.nullcontext()"
+    proc = subprocess.Popen([sys.executable, "-c", _HOLD.format(hold=hold)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().strip() == "ready"
+        t0 = time.monotonic()
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=30)
+    finally:
+        proc.kill()
+    assert proc.returncode == 143 and time.monotonic() - t0 < 10, err
+    text = " ".join(err.split())
+    said = "ended at once" in text
+    assert said == in_flight and "finished simulation runs are kept" in text, text
+    assert "Traceback" not in err
+
+
+def test_the_sampler_marks_its_program_in_flight(monkeypatch):
+    import calnet.calibration.sampling as sampling
+    from calnet.interrupts import program_in_flight
+
+    seen = []
+    monkeypatch.setattr(sampling.jax, "block_until_ready",
+                        lambda x: seen.append(program_in_flight()) or x)
+    assert sampling._finished("out", "joint", None) == "out"
+    assert seen == [True] and not program_in_flight()

@@ -15,9 +15,30 @@ import threading
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
-__all__ = ["latch"]
+__all__ = ["latch", "program_running", "program_in_flight"]
 
 _hit = threading.Event()
+_running = [0]  # compiled programs being waited for, in any thread
+_running_lock = threading.Lock()
+
+
+@contextmanager
+def program_running() -> Iterator[None]:
+    """Mark the block as waiting for a long compiled (XLA) program, which no signal can
+    stop: a handler that must end the process soon (SIGTERM from a batch system) can ask
+    :func:`program_in_flight` and end it at once rather than unwind and wait."""
+    with _running_lock:
+        _running[0] += 1
+    try:
+        yield
+    finally:
+        with _running_lock:
+            _running[0] -= 1
+
+
+def program_in_flight() -> bool:
+    """Whether some thread waits for a program inside :func:`program_running`."""
+    return _running[0] > 0
 
 
 def _handler(signum, frame) -> None:

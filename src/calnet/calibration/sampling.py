@@ -47,6 +47,7 @@ from calnet._jax import FEW_CALLS, device_array
 from calnet.calibration.diagnostics import import_arviz, stuck_chains
 from calnet.calibration.koh import initial_point_message
 from calnet.errors import CalibrationError, CalibrationWarning
+from calnet.interrupts import program_running
 from calnet.parallel import one_blas_thread
 from calnet.progress import Lines
 
@@ -279,7 +280,13 @@ def _finished(pending, name: str, progress):
     """``pending`` (the chains' outputs, computing) once computed. Ctrl-C cannot stop a
     running XLA program: after one, this says so, waits for the program to end (a
     process that ends with the program still running can crash in its clean-up) and
-    raises KeyboardInterrupt then."""
+    raises KeyboardInterrupt then. Under ``calnet run`` SIGTERM does not wait: the
+    process ends at once (:func:`calnet.interrupts.program_running`)."""
+    with program_running():
+        return _wait(pending, name, progress)
+
+
+def _wait(pending, name: str, progress):
     try:
         return jax.block_until_ready(pending)
     except KeyboardInterrupt:
