@@ -61,6 +61,11 @@ def test_metrics_scores_against_closed_forms():
     assert metrics(wide, off)["mape"] is None
     assert metrics(wide, off, relative=True)["mape"] == pytest.approx(10.0)
     assert metrics(np.array([-0.2, 1.0]), np.array([0.0, 1.0]), relative=True)["mape"] is None
+    # a split's MAPE follows the whole data set's: three positive test points of a data
+    # set that crosses zero get none
+    pos, near = np.array([2.0, 3.0]), np.array([2.2, 3.0])
+    assert metrics(pos, near)["mape"] == pytest.approx(5.0)
+    assert metrics(pos, near, mape_y=np.r_[pos, -1.0, 0.5])["mape"] is None
     # the NRMSE of a split on the whole data set's range: one point has one too
     assert metrics(np.array([2.0]), np.array([2.5]), y_range=4.0)["nrmse"] == 0.125
     assert metrics(np.array([2.0]), np.array([2.5]))["nrmse"] is None

@@ -327,3 +327,25 @@ def test_the_sampler_marks_its_program_in_flight(monkeypatch):
                         lambda x: seen.append(program_in_flight()) or x)
     assert sampling._finished("out", "joint", None) == "out"
     assert seen == [True] and not program_in_flight()
+
+
+def test_a_warning_or_error_with_brackets_is_printed_whole():
+    """Text such as 'settings.compare: [reference]' is not taken for console markup."""
+    import warnings as w
+
+    from calnet.cli import user_errors
+    from calnet.errors import CalnetError
+
+    def warns() -> None:
+        w.warn("try settings.compare: [reference]", UserWarning, stacklevel=1)
+
+    def fails() -> None:
+        raise CalnetError("give [bold] or [reference]")
+
+    cmd = typer.Typer()
+    cmd.command("warns")(user_errors(warns))
+    cmd.command("fails")(user_errors(fails))
+    said = CliRunner().invoke(cmd, ["warns"])
+    assert "settings.compare: [reference]" in said.stderr, said.stderr
+    failed = CliRunner().invoke(cmd, ["fails"])
+    assert failed.exit_code == 1 and "give [bold] or [reference]" in failed.stderr

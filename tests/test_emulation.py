@@ -135,8 +135,8 @@ def test_predict_from_python_checks_its_settings_and_names(monkeypatch):
         warnings.simplefilter("ignore", CalibrationWarning)
         post = calibrate(net, sur, data=data)
     for bad in (np.nan, np.inf):
-        with pytest.raises(UsageError, match=r"predict: a.x = (nan|inf) at row 1 is not a "
-                                             r"finite number \(1 row\(s\)\)"):
+        with pytest.raises(UsageError, match=r"predict: a.x = (nan|inf) at point 2 is not a "
+                                             r"finite number \(1 point\(s\)\)"):
             predict(net, sur, post, "d", np.array([[0.5], [bad]]))
     with pytest.raises(UsageError, match=r"^no data set named 'b.y'; the network's data "
                                          r"sets: \['d'\] \('b.y' names a model's output: "
@@ -145,18 +145,21 @@ def test_predict_from_python_checks_its_settings_and_names(monkeypatch):
     with pytest.raises(KeyError):  # and still a KeyError for code that looks names up
         net.dataset("nope")
     with pytest.warns(UserWarning, match=r"predict: a.x lies outside its bounds \[0, 1\] "
-                                         r"at 1 of 2 point\(s\) \(row 1: 1.5\)"):
+                                         r"at 1 of 2 point\(s\) \(point 2: 1.5\)"):
         predict(net, sur, post, "d", np.array([[0.5], [1.5]]))
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # inside the bounds: nothing to say
-        predict(net, sur, post, "d", x)
+        two = predict(net, sur, post, "d", x)
+    # one process input: a 1-D array is that many points
+    flat = predict(net, sur, post, "d", x[:, 0])
+    np.testing.assert_array_equal(flat.mean, two.mean)
     with pytest.raises(UsageError, match=r"predict: no settings given \(x has 0 rows\)"):
         predict(net, sur, post, "d", np.zeros((0, 1)))
     with pytest.raises(UsageError, match=r"expected 1 process inputs \['a.x'\] as columns, "
                                          r"got 2 column\(s\)"):
         predict(net, sur, post, "d", np.zeros((3, 2)))
     # the same from predict_output (an output through the chain), and its names
-    with pytest.raises(UsageError, match=r"predict b.y: a.x = nan at row 0"):
+    with pytest.raises(UsageError, match=r"predict b.y: a.x = nan at point 1"):
         predict_output(net, sur, post, "b.y", np.array([[np.nan]]))
     with pytest.warns(UserWarning) as caught:
         predict_output(net, sur, post, "b.y", np.array([[3.0]]))

@@ -147,7 +147,7 @@ def user_errors(func: Callable[..., Any]) -> Callable[..., Any]:
                     interrupted()  # a Ctrl-C that Python dropped still ends in 130
             except SpecError as err:
                 _show_warnings(caught)
-                err_console.print(f"[bold red]error:[/] {err}", soft_wrap=True)
+                err_console.print(f"[bold red]error:[/] {escape(str(err))}", soft_wrap=True)
                 for line in err.more:  # the spec's other problems, one line each
                     err_console.print(f"[bold red]error:[/] {escape(f'{err.file}: {line}')}",
                                       soft_wrap=True)
@@ -158,7 +158,7 @@ def user_errors(func: Callable[..., Any]) -> Callable[..., Any]:
                 raise typer.Exit(2) from None
             except CalnetError as err:
                 _show_warnings(caught)
-                err_console.print(f"[bold red]error:[/] {err}", soft_wrap=True)
+                err_console.print(f"[bold red]error:[/] {escape(str(err))}", soft_wrap=True)
                 raise typer.Exit(1) from None
             except typer.Exit:
                 _show_warnings(caught)
@@ -183,11 +183,12 @@ def user_errors(func: Callable[..., Any]) -> Callable[..., Any]:
                     cause = write_cause(err)
                     err_console.print(
                         f"[bold red]error:[/] {escape(f'cannot write {err.filename!r}: {cause}')}"
-                        if cause else f"[bold red]error:[/] {err}; check the paths given "
-                        "(--out, --output, ...): folders where folders are expected, "
+                        if cause else f"[bold red]error:[/] {escape(str(err))}; check the paths "
+                        "given (--out, --output, ...): folders where folders are expected, "
                         "writable", soft_wrap=True)
                     raise typer.Exit(1) from None
-                err_console.print(f"[bold red]internal error:[/] {type(err).__name__}: {err}\n"
+                err_console.print(f"[bold red]internal error:[/] {type(err).__name__}: "
+                                  f"{escape(str(err))}\n"
                                   "This is a bug in calnet; set CALNET_DEBUG=1 for the "
                                   "traceback and report it.", soft_wrap=True)
                 raise typer.Exit(3) from None
@@ -222,7 +223,7 @@ def _show_warnings(caught: list[warnings.WarningMessage]) -> None:
         if text in seen or issubclass(w.category, DeprecationWarning):
             continue
         seen.add(text)
-        err_console.print(f"[yellow]warning:[/] {text}", soft_wrap=True)
+        err_console.print(f"[yellow]warning:[/] {escape(text)}", soft_wrap=True)
 
 
 @app.command()

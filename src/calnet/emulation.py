@@ -24,7 +24,13 @@ from calnet.calibration.calibrate_network import NetworkPosterior
 from calnet.calibration.terms import draw_index, links_into
 from calnet.chain import ChainPlan
 from calnet.errors import CalnetError, UnknownName
-from calnet.predict import Prediction, check_settings, point_normals, warn_not_finite
+from calnet.predict import (
+    Prediction,
+    as_settings,
+    check_settings,
+    point_normals,
+    warn_not_finite,
+)
 from calnet.spec import Network
 from calnet.surrogates.fit_network import Surrogates
 
@@ -73,6 +79,7 @@ def predict_output(network: Network, surrogates: Surrogates, posterior: NetworkP
         ``settings.predict``).
     x : array (n, k)
         Process inputs, columns in the order of ``network.process_inputs(model)``.
+        A 1-D array is n points of a target with one process input.
     posterior : NetworkPosterior
         Parameter draws; an empty posterior (a network without parameters) is fine.
     n_samples : int
@@ -105,7 +112,7 @@ def predict_output(network: Network, surrogates: Surrogates, posterior: NetworkP
                           "the spec and fit the surrogates again (calnet surrogates SPEC or "
                           "calnet run SPEC)")
     keys = tuple(network.process_input_keys(model))
-    x = np.atleast_2d(np.asarray(x, dtype=float))
+    x = as_settings(network, output, x)
     check_settings(network, surrogates, posterior, output, x, f"predict {output}",
                    warn_outside)
     plan = ChainPlan.from_network(network)

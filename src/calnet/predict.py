@@ -248,6 +248,16 @@ def warn_not_finite(what: str, samples: np.ndarray) -> None:
                       "one)", UserWarning, stacklevel=3)
 
 
+def as_settings(network: Network, target: str, x) -> np.ndarray:
+    """Process settings ``x`` for ``target`` as an array (n, k): a 1-D array is n points
+    of a target with one process input, else one point."""
+    x = np.asarray(x, dtype=float)
+    if x.ndim == 1:
+        one = len(network.process_input_keys(target_model(network, target))) == 1
+        x = x[:, None] if one else x[None, :]
+    return x
+
+
 def check_settings(network: Network, surrogates: Surrogates, posterior: NetworkPosterior,
                    target: str, x: np.ndarray, what: str = "predict",
                    warn_outside: bool = True) -> None:
@@ -270,18 +280,19 @@ def check_settings(network: Network, surrogates: Surrogates, posterior: NetworkP
         var, v = network.model(m).variable(i), x[:, j]
         rows = np.flatnonzero(~np.isfinite(v))
         if rows.size:
-            raise UsageError(f"{what}: {key} = {v[rows[0]]} at row {rows[0]} is not a finite "
-                             f"number ({rows.size} row(s)); give finite process inputs")
+            raise UsageError(f"{what}: {key} = {v[rows[0]]} at point {rows[0] + 1} is not a "
+                             f"finite number ({rows.size} point(s)); give finite process "
+                             "inputs")
         if getattr(var, "scale", "linear") == "log" and (v <= 0).any():
             r = int(np.flatnonzero(v <= 0)[0])
-            raise UsageError(f"{what}: {key} = {v[r]:g} at row {r} must be > 0 (its scale "
-                             "is log)")
+            raise UsageError(f"{what}: {key} = {v[r]:g} at point {r + 1} must be > 0 (its "
+                             "scale is log)")
         rows = np.flatnonzero((v < var.lower) | (v > var.upper))
         if rows.size and warn_outside:
             unit = f" {var.unit}" if var.unit != "1" else ""
             warnings.warn(f"{what}: {key} lies outside its bounds [{var.lower:g}, "
-                          f"{var.upper:g}]{unit} at {rows.size} of {len(v)} point(s) (row "
-                          f"{rows[0]}: {v[rows[0]]:g}); the surrogates extrapolate there",
+                          f"{var.upper:g}]{unit} at {rows.size} of {len(v)} point(s) (point "
+                          f"{rows[0] + 1}: {v[rows[0]]:g}); the surrogates extrapolate there",
                           UserWarning, stacklevel=3)
     if warn_outside:
         for note in link_notes(network, surrogates, posterior, target, x):
@@ -439,6 +450,7 @@ def predict(network: Network, surrogates: Surrogates, posterior: NetworkPosterio
     ----------
     x : array (n, k)
         Process inputs, columns in the order of ``network.process_inputs(model)``.
+        A 1-D array is n points of a target with one process input.
     n_draws : int
         Posterior draws used (thinned evenly from the posterior; repeated where it holds
         fewer), each with its own draw of the upstream surrogates.
@@ -458,11 +470,11 @@ def predict(network: Network, surrogates: Surrogates, posterior: NetworkPosterio
         Warn where a setting lies outside its input's bounds (the surrogates extrapolate
         there). A setting that is not a finite number is an error either way.
     """
-    x = np.atleast_2d(np.asarray(x, dtype=float))
     # n_draws rows even from fewer draws (repeated), so that the upstream surrogates'
     # draws below still number n_draws (a posterior without parameters has 0 draws)
     idx = np.resize(draw_index(posterior.n_draws, n_draws), n_draws)
     st = _setup(network, surrogates, posterior, dataset, idx)
+    x = as_settings(network, dataset, x)
     check_settings(network, surrogates, posterior, dataset, x, "predict", warn_outside)
     xp_new = {k: device_array(x[:, j]) for j, k in enumerate(st.keys)}
     # the surrogates upstream of the observed model: the others play no part
@@ -545,12 +557,14 @@ def interval_score(y: np.ndarray, lower: np.ndarray, upper: np.ndarray,
 def metrics(y: np.ndarray, mean: np.ndarray, lower: np.ndarray | None = None,
             upper: np.ndarray | None = None, *, samples: np.ndarray | None = None,
             pit: np.ndarray | None = None, y_range: float | None = None,
-            relative: bool = False) -> dict[str, float | None]:
+            relative: bool = False, mape_y: np.ndarray | None = None
+            ) -> dict[str, float | None]:
     """Errors of predictions of ``y``: RMSE (the reference study's SE_pred, method.md
     section 5), NRMSE (RMSE / ``y_range``, default the range of y: pass the whole data
     set's so that its splits share one scale), MAPE (%, None where
-    :func:`mape_meaningful` says no; ``relative`` for data modelled on the log scale,
-    see there); with a 95 % band its coverage and mean interval
+    :func:`mape_meaningful` says no for ``mape_y``, default y: pass the whole data set's
+    so that its splits agree; ``relative`` for data modelled on the log scale, see
+    there); with a 95 % band its coverage and mean interval
     score; with predictive samples (k, n) the mean CRPS; with PIT values (n,) the
     coverage of the central 50, 80 and 95 % intervals."""
     y, mean = np.asarray(y, float), np.asarray(mean, float)
@@ -561,7 +575,8 @@ def metrics(y: np.ndarray, mean: np.ndarray, lower: np.ndarray | None = None,
         "n": int(len(y)), "rmse": rmse,
         "nrmse": rmse / spread if spread > 0 else None,
         "mape": (float(np.mean(np.abs(y - mean) / np.abs(y)) * 100)
-                 if mape_meaningful(y, relative=relative) else None)}
+                 if mape_meaningful(y if mape_y is None else mape_y, relative=relative)
+                 else None)}
     if lower is not None and upper is not None:
         out["coverage95"] = float(np.mean((y >= lower) & (y <= upper)))
         out["interval_score95"] = float(np.mean(interval_score(y, lower, upper)))

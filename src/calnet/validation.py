@@ -37,11 +37,11 @@ def baselines(network: Network, train: ExperimentalData, test: ExperimentalData,
               *, seed: int = 0) -> dict[str, dict[str, float]]:
     """Metrics of two naive predictors of ``test``: the training mean, and a GP fitted
     directly to process inputs -> output on the training points."""
-    span = float(np.ptp(np.r_[train.y, test.y]))  # the data set's range: one NRMSE scale
-    rel = relative_errors(network, train.name)
+    every = np.r_[train.y, test.y]  # the data set's: one NRMSE scale, one MAPE rule
+    span, rel = float(np.ptp(every)), relative_errors(network, train.name)
     out = {"training_mean": metrics(test.y, np.full(len(test.y), train.y.mean()),
-                                    y_range=span, relative=rel)}
-    power = _power_law(train, test, span, relative=rel)
+                                    y_range=span, relative=rel, mape_y=every)}
+    power = _power_law(train, test, span, relative=rel, mape_y=every)
     if power is not None:
         out["power_law"] = power
     keys = train.input_keys
@@ -56,7 +56,7 @@ def baselines(network: Network, train: ExperimentalData, test: ExperimentalData,
         mean, var = (np.asarray(a) for a in gp.to_natural(mean, var))
         sd = np.sqrt(var)
         out["direct_gp"] = metrics(test.y, mean, mean - 1.96 * sd, mean + 1.96 * sd,
-                                   y_range=span, relative=rel)
+                                   y_range=span, relative=rel, mape_y=every)
     except Exception as err:  # too few points for a GP is a result, not a failure
         out["direct_gp"] = {"error": str(err)}
     return out
@@ -69,7 +69,8 @@ def relative_errors(network: Network, dataset: str) -> bool:
 
 
 def _power_law(train: ExperimentalData, test: ExperimentalData,
-               span: float | None = None, *, relative: bool = False) -> dict | None:
+               span: float | None = None, *, relative: bool = False,
+               mape_y: np.ndarray | None = None) -> dict | None:
     """``y = c prod_j x_j^b_j`` by least squares on the logs (only for positive data); the
     reference study's second naive baseline (method.md section 7)."""
     if (train.x <= 0).any() or (test.x <= 0).any() or (train.y <= 0).any():
@@ -79,7 +80,7 @@ def _power_law(train: ExperimentalData, test: ExperimentalData,
         return None
     coef, *_ = np.linalg.lstsq(A, np.log(train.y), rcond=None)
     pred = np.exp(np.column_stack([np.ones(len(test.y)), np.log(test.x)]) @ coef)
-    return {**metrics(test.y, pred, y_range=span, relative=relative),
+    return {**metrics(test.y, pred, y_range=span, relative=relative, mape_y=mape_y),
             "exponents": coef[1:].tolist()}
 
 
@@ -97,7 +98,8 @@ def _quiet_pareto():
 def psis_loo(network: Network, surrogates: Surrogates, posterior: NetworkPosterior,
              dataset: str, *, sampler: SamplerSettings | None = None, seed: int = 0,
              k_max: float = K_HAT_MAX, refit_max: int | None = None, n_samples: int = 4000,
-             progress=None, y_range: float | None = None) -> dict:
+             progress=None, y_range: float | None = None,
+             mape_y: np.ndarray | None = None) -> dict:
     """Leave-one-out predictive of every calibration point of ``dataset`` by
     Pareto-smoothed importance sampling of the posterior (ArviZ's ``loo``/``psislw``).
 
@@ -112,7 +114,8 @@ def psis_loo(network: Network, surrogates: Surrogates, posterior: NetworkPosteri
 
     Returns a dict: ``calnet`` (metrics of the LOO predictive), ``training_mean``
     (the mean of the other points), ``mean``/``lower95``/``upper95`` per point,
-    ``y_range`` scales the NRMSE (default: the range of the calibration points).
+    ``y_range`` scales the NRMSE and ``mape_y`` decides whether a MAPE is given (default:
+    the calibration points; pass the whole data set's).
     ``elpd_loo``, ``elpd_se``, ``p_loo`` and ``elpd_pointwise`` (modelled scale; a
     refitted point counts with the log density of its refit's predictive, a mixture
     over the refit's draws, or where few draws carry it (a far outlier) the Gaussian of
@@ -190,9 +193,9 @@ def psis_loo(network: Network, surrogates: Surrogates, posterior: NetworkPosteri
                    for i in ranked]
     return {"method": "psis",
             "calnet": metrics(full.y, mean, lo, hi, samples=samples, pit=pit,
-                              y_range=y_range, relative=bool(cond.log)),
+                              y_range=y_range, relative=bool(cond.log), mape_y=mape_y),
             "training_mean": metrics(full.y, naive, y_range=y_range,
-                                     relative=bool(cond.log)),
+                                     relative=bool(cond.log), mape_y=mape_y),
             "mean": mean.tolist(), "lower95": lo.tolist(), "upper95": hi.tolist(),
             "pit": pit.tolist(), "pit_check": pit_check(dataset, pit),
             "elpd_loo": float(loo["elpd_loo"]), "elpd_se": float(loo["se"]),
@@ -229,6 +232,39 @@ def pit_check(name: str, pit) -> dict:
                    "discrepancy or its noise does not describe these data")
     return {"ks_pvalue": p_ks, "outside95": outside, "outside_pvalue": p_out,
             "flagged": flagged, "message": message}
+
+
+def fit_check(name: str, pit) -> dict:
+    """Whether the posterior predictive covers its own calibration points: a binomial
+    test of the number outside its central 95 % band. A well-specified model's in-sample
+    band covers at least 95 % (it has seen the points), so too many outside is strong
+    evidence of misfit, also where leave-one-out looks better (a surrogate's variance in
+    the likelihood, correlated across the points, lets a left-out point be predicted
+    from its neighbours' misfit). Returns ``dict(outside95, n, outside_pvalue, flagged,
+    message)``."""
+    pit = np.asarray(pit, float)
+    n = len(pit)
+    outside = int(np.sum((pit < 0.025) | (pit > 0.975)))
+    p_out = float(stats.binom.sf(outside - 1, n, 0.05)) if n else float("nan")
+    flagged = bool(p_out < PIT_P_MIN)
+    message = (f"{name}: the posterior predictive misses its own calibration points "
+               f"({outside} of {n} outside its 95 % band where at most {0.05 * n:.1f} are "
+               f"expected, p = {p_out:.2g}); the model, its discrepancy or its noise does "
+               "not describe these data") if flagged else ""
+    return {"outside95": outside, "n": n, "outside_pvalue": p_out, "flagged": flagged,
+            "message": message}
+
+
+def misfit_hint(network: Network, name: str, surrogate_warned: bool) -> str:
+    """What to try when data set ``name``'s predictive checks flag a misfit."""
+    hints = []
+    if not network.dataset(name).discrepancy.enabled:
+        hints.append("its spec sets discrepancy: none; the default discrepancy (or "
+                     "settings.compare: [reference]) would show whether one is needed")
+    if surrogate_warned:
+        hints.append("the surrogate check warns for it too: misfit counted as surrogate "
+                     "error makes leave-one-out look better than the fit")
+    return "".join(f"; {h}" for h in hints)
 
 
 VARIANTS = ("no_discrepancy", "non_orthogonal", "reference")
@@ -401,21 +437,30 @@ def validate_dataset(network: Network, surrogates: Surrogates, posterior: Networ
     rel = relative_errors(network, data.name)
     errors = metrics(data.y[train], pred.mean[train], pred.lower[train], pred.upper[train],
                      samples=pred.samples[:, train], pit=pit[train], y_range=span,
-                     relative=rel)
+                     relative=rel, mape_y=data.y)
     test = None
     if data.is_test.any():
         test = metrics(data.test.y, pred.mean[data.is_test], pred.lower[data.is_test],
                        pred.upper[data.is_test], samples=pred.samples[:, data.is_test],
-                       pit=pit[data.is_test], y_range=span, relative=rel)
+                       pit=pit[data.is_test], y_range=span, relative=rel, mape_y=data.y)
     # PSIS on the posterior; a point with Pareto k > 0.7 re-samples the observing model's
     # stage without it
     loo_sampler = secondary_sampler(sampler)
     loo = psis_loo(network, surrogates, posterior, data.name, sampler=loo_sampler, seed=seed,
-                   refit_max=loo_max, y_range=span,
+                   refit_max=loo_max, y_range=span, mape_y=data.y,
                    progress=(lambda i, n: progress(f"LOO refit {data.name} {i + 1}/{n}"))
                    if progress else None)
-    if loo.get("pit_check", {}).get("flagged"):
-        warnings.warn(loo["pit_check"]["message"], CalibrationWarning, stacklevel=2)
+    loo["fit_check"] = fit = fit_check(data.name, pit[train])
+    check = loo.get("pit_check", {})
+    said = check.get("message") if check.get("flagged") else fit["message"]
+    if said and check.get("flagged") and fit["flagged"]:  # the stronger evidence too
+        said += (f"; in-sample {fit['outside95']} of {fit['n']} calibration points fall "
+                 f"outside the posterior predictive's 95 % band (p = "
+                 f"{fit['outside_pvalue']:.2g})")
+    if said:
+        warned = any(c.dataset == data.name and c.message() for c in posterior.checks)
+        said += misfit_hint(network, data.name, warned)
+        warnings.warn(said, CalibrationWarning, stacklevel=2)
     loo["sampler"] = {"chains": loo_sampler.chains, "warmup": loo_sampler.warmup,
                       "draws": loo_sampler.draws}
     return DatasetValidation(train=errors, pit=pit, loo=loo, variance_shares=pred.shares(),

@@ -341,6 +341,20 @@ def test_a_chain_stuck_in_a_far_lower_mode_runs_again_from_the_others():
     assert summary.n_chains == 4 and summary.max_r_hat < 1.01
 
 
+def test_without_warn_a_stuck_chain_is_noted_not_warned():
+    """A calibration in a thread (a compared variant) keeps the stuck-chain message for
+    its own notes: warned, it would be read as the spec's own calibration's."""
+    import warnings
+
+    init = np.array([[0.05], [10.0], [-0.05], [0.0]])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", CalibrationWarning)
+        idata = sample_nuts(_TwoModes(), seed=0, num_chains=4, num_warmup=200,
+                            num_draws=300, init=init, warn=False)
+    note = idata.posterior.attrs["stuck_note"]
+    assert note.startswith("two_modes: chain 2 of 4 stuck in a local mode"), note
+
+
 def test_chains_of_one_mode_are_not_run_again(oracle_run):
     assert oracle_run[3].posterior.sizes["chain"] == 4
     assert oracle_run[3].posterior.attrs["chains_restarted"] == ""

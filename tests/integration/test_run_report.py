@@ -78,3 +78,30 @@ def test_quick_run_report_of_two_data_sets_and_a_variant(tmp_path, monkeypatch):
     assert "Noise and discrepancy per data set" in report_text(out)
     # the sampler's diagnostics per stage, which is what they are computed for
     assert "Sampler diagnostics per calibration stage" in report_text(out)
+
+
+WRONG = Path(__file__).parent / "wrongmodel"
+
+
+@pytest.mark.integration
+@pytest.mark.slow
+def test_a_known_wrong_model_without_discrepancy_is_flagged(tmp_path, monkeypatch):
+    """A linear model of quadratic data (y = 1 + 2x + 3x^2, noise sd 0.05 declared),
+    `discrepancy: none`: the surrogate's variance in the likelihood lets leave-one-out
+    predict a point from its neighbours' misfit, but the posterior predictive misses
+    most of its own calibration points, and the warning says so and points to the
+    discrepancy the spec switched off."""
+    work = tmp_path / "wrong"
+    shutil.copytree(WRONG, work, ignore=shutil.ignore_patterns("campaigns", "__pycache__"))
+    monkeypatch.syspath_prepend(str(work))
+    monkeypatch.setenv("PYTHONPATH", str(work))
+    out = tmp_path / "out"
+    result = CliRunner().invoke(app, ["run", str(work), "--out", str(out), "--quick"])
+    assert result.exit_code == 0, result.output
+    metrics = json.loads((out / "metrics.json").read_text())
+    fit = metrics["validation"]["quad"]["loo"]["fit_check"]
+    assert fit["flagged"] and fit["outside95"] >= 6 and fit["n"] == 16, fit
+    said = [w for w in metrics["warnings"] if w.startswith("quad: the ")
+            and "does not describe these data" in w]
+    assert len(said) == 1 and "its spec sets discrepancy: none" in said[0], said
+    assert "flagged" in report_text(out)

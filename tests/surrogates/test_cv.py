@@ -78,3 +78,20 @@ def test_parity_plot_writes_a_png(linear_cv, tmp_path):
     cv, _, _ = linear_cv
     path = parity_plot(cv, tmp_path / "figs" / "W.png", title="W parity", units="um")
     assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_the_parity_plot_of_a_log_gp_over_decades_has_log_axes(tmp_path, monkeypatch):
+    from matplotlib.figure import Figure
+
+    saved = []
+    save = Figure.savefig
+    monkeypatch.setattr(Figure, "savefig", lambda fig, *a, **k: saved.append(fig)
+                        or save(fig, *a, **k))
+    rng = np.random.default_rng(5)
+    x = rng.random((30, 1))
+    cv = cross_validate(x, np.exp(5.0 * x[:, 0]), k=5, lower=[0], upper=[1],
+                        transform="log", n_restarts=1, seed=2)
+    parity_plot(cv, tmp_path / "log.png", units="MPa")
+    ax = saved[-1].axes[0]
+    assert (ax.get_xscale(), ax.get_yscale()) == ("log", "log")
+    assert ax.get_title().endswith("5-fold CV, GP on ln") and "(MPa)" in ax.get_xlabel()

@@ -237,14 +237,16 @@ def key_draws(stage: StageResult) -> dict[str, np.ndarray]:
 # ----------------------------------------------------------------------------- sampling
 def _sample(ld: KOHDensity, sampler: SamplerSettings, seed: int,
             progress: Callable[[str], None] | None = None,
-            compiled: Callable[[], None] | None = None):
-    """NUTS on ``ld``; ``progress`` gets plain progress lines (:class:`Lines`)."""
+            compiled: Callable[[], None] | None = None, warn: bool = True):
+    """NUTS on ``ld``; ``progress`` gets plain progress lines (:class:`Lines`); without
+    ``warn`` a stuck-chain message goes to the attribute ``stuck_note`` (see
+    :func:`_convergence`)."""
     return sample_nuts(ld, seed=seed, num_chains=sampler.chains, num_warmup=sampler.warmup,
                        num_draws=sampler.draws, thin=sampler.thin,
                        target_accept=sampler.target_accept, dense_mass=sampler.dense_mass,
                        chain_method=sampler.chain_method,
                        progress=Lines(ld.name, progress) if progress else False,
-                       compiled=compiled)
+                       compiled=compiled, warn=warn)
 
 
 def calibrate(network: Network, surrogates: Surrogates, *, data=None, mode: str | None = None,
@@ -345,7 +347,8 @@ def _convergence(idata, warn: bool) -> tuple[list[str], PosteriorSummary]:
     summary = summarize(idata, warn=False)
     problems = convergence_problems(summary)
     if not warn:
-        return problems, summary
+        stuck = idata.posterior.attrs.get("stuck_note")
+        return ([stuck] if stuck else []) + problems, summary
     for message in problems:
         warnings.warn(message, CalibrationWarning, stacklevel=4)
     return [], summary
@@ -361,7 +364,7 @@ def _joint(network, surrogates, data, plan, seed, sampler, emu, progress,
                    name="joint", plan=plan)
     if ld.dim == 0:  # no parameters, known noise, no discrepancy: nothing to sample
         return _posterior(network, "joint", "-", (), {}, data, (), {}, ())
-    idata = _sample(ld, sampler, seed, progress, compiled)
+    idata = _sample(ld, sampler, seed, progress, compiled, warn)
     problems, diagnostics = _convergence(idata, warn)
     stage = StageResult(models, tuple(data), idata, ld, diagnostics)
     return _posterior(network, "joint", "-", (stage,), key_draws(stage), data, (), {},
@@ -451,7 +454,7 @@ def _segmented(network, surrogates, data, plan, seed, sampler, emu, plug, progre
                        fixed={k: plug_at[k] for k in fixed_keys}, name=stage_name, plan=plan)
         if ld.dim == 0:  # no parameters, known noise, no discrepancy: nothing to sample
             continue
-        idata = _sample(ld, sampler, seed + i, progress, compiled)
+        idata = _sample(ld, sampler, seed + i, progress, compiled, warn)
         problems, diagnostics = _convergence(idata, warn)
         notes += problems
         moved = [k for k in fixed_keys if np.ptp(draws[k]) > 0]

@@ -445,6 +445,7 @@ def sample_nuts(
     chain_method: str = "auto",
     progress: bool | Callable[[int, int, int], None] = False,
     compiled: Callable[[], None] | None = None,
+    warn: bool = True,
 ):
     """Sample a calibration log-density with NUTS; return an ArviZ ``InferenceData``.
 
@@ -479,6 +480,10 @@ def sample_nuts(
     compiled : callable, optional
         Called with no argument once the program is compiled (or found in the cache),
         just before the chains run.
+    warn : bool, default True
+        Warn of chains stuck in a local mode (run again); without it the message goes
+        to the attribute ``stuck_note`` instead (for calibrations in a thread, whose
+        warnings would mix with another's).
 
     Returns
     -------
@@ -557,7 +562,7 @@ def sample_nuts(
             (host(chain_keys(2)), host(restart), host(ids), ld.data), again=True)
         still = stuck_chains(stats["lp"]) if ok.all() else list(range(num_chains))
         at = "; ".join(f"chain {c + 1} at {where[c]}" for c in stuck)
-        warnings.warn(
+        stuck_note = (
             f"{ld.name}: {_chains(stuck, num_chains)} stuck in a local mode of the "
             f"posterior (mean log density {', '.join(f'{g:.0f}' for g in gap)} below the "
             f"best chain's; {at}, against {where[best]} for chain {best + 1}); every chain "
@@ -567,8 +572,9 @@ def sample_nuts(
             "far worse fit of the data: the model or its surrogate may be poor there (with "
             "the surrogate's variance in the likelihood, a worse fit costs less where the "
             "surrogate is uncertain, often at the edges of the campaign's box: more runs "
-            "there remove such a mode)",
-            CalibrationWarning, stacklevel=2)
+            "there remove such a mode)")
+        if warn:
+            warnings.warn(stuck_note, CalibrationWarning, stacklevel=2)
         if not ok.all():
             raise CalibrationError(initial_point_message(ld.name, lp0, ~ok))
     t_sample = time.perf_counter() - t0
@@ -586,6 +592,7 @@ def sample_nuts(
              "target_accept": target_accept, "max_tree_depth": max_tree_depth,
              "dense_mass": int(dense_mass), "chain_method": method,
              "chains_restarted": ",".join(map(str, stuck)),
+             "stuck_note": "" if warn or not stuck else stuck_note,
              "compile_time": t_compile, "sampling_time": t_sample}
     idata = az.from_dict(posterior=posterior, sample_stats=stats,
                          observed_data={"y": np.asarray(ld.data["y"])},

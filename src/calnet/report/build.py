@@ -218,7 +218,10 @@ def _terms_table(cal) -> list[Table]:
                          f"[{fmt(q['q2.5'])}, {fmt(q['q97.5'])}]", "(unit box)"])
     if not rows:
         return []
-    return [Table("Noise and discrepancy per data set (on the output's modelled scale)",
+    return [Table("Noise and discrepancy per data set (sds on the output's modelled scale, "
+                  "ln for a log output, as the unit column says; a known noise sd is in "
+                  "the spec's unit, and on a log output it enters as sd / y at each "
+                  "point; length scales on the unit box)",
                   ["data set", "quantity", "mean", "95% interval", "unit"], rows)]
 
 
@@ -309,7 +312,7 @@ def _sections(ctx, results: RunResults) -> list[Section]:
             loo_notes.append(influential_note(name, loo, unit_text(units.get(name))))
         if "elpd_loo" in loo:
             k = np.asarray(loo["pareto_k"])
-            check = loo["pit_check"]
+            check, fit = loo["pit_check"], loo.get("fit_check", {})
             c = loo["calnet"]
             lrows.append([
                 name, len(k), f"{fmt(loo['elpd_loo'])} ± {fmt(loo['elpd_se'])}",
@@ -317,9 +320,11 @@ def _sections(ctx, results: RunResults) -> list[Section]:
                 f"{int(np.sum(k > loo['k_threshold']))} / {len(loo['refit'])} / "
                 f"{loo['n_unreliable']}",
                 " / ".join(fmt(c.get(f"pit_coverage{q}")) for q in (50, 80, 95)),
-                ("flagged" if check["flagged"] else "ok")
+                ("flagged" if check["flagged"] or fit.get("flagged") else "ok")
                 + f" (outside the band p = {_p(check['outside_pvalue'])}, uniformity "
-                f"p = {_p(check['ks_pvalue'], 'too few points')})"])
+                f"p = {_p(check['ks_pvalue'], 'too few points')}"
+                + (f"; in-sample {fit['outside95']} of {fit['n']} outside, "
+                   f"p = {_p(fit['outside_pvalue'])}" if fit.get("flagged") else "") + ")"])
     brows = [[name, src, fmt(share)] for name, v in results.validation.items()
              for src, share in v.variance_shares.items()]
     tables = [

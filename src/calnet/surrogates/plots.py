@@ -35,7 +35,8 @@ def parity_plot(
     path : str or Path
         Output file; the format follows the suffix (``.png``, ``.pdf``, ``.svg``).
     title : str, optional
-        Defaults to ``"<name>: <k>-fold CV"``.
+        Defaults to ``"<name>: <k>-fold CV"`` (``", GP on ln"`` added for a log GP,
+        whose axes are logarithmic where its values span more than a decade).
     units : str
         Appended to the axis labels, e.g. ``"um"``.
     dpi : int, default 150
@@ -59,18 +60,26 @@ def parity_plot(
              f"95 % coverage {100 * cv.coverage95:.0f} % (n = {cv.n})")
     ax.errorbar(cv.y, cv.mean, yerr=yerr, fmt="o", ms=3, lw=0.8, capsize=2,
                 color="C0", ecolor="C0", alpha=0.8, label=label)
-    lo = float(min(cv.y.min(), cv.lower95.min()))
-    hi = float(max(cv.y.max(), cv.upper95.max()))
-    pad = 0.03 * (hi - lo if hi > lo else 1.0)
-    ax.plot([lo - pad, hi + pad], [lo - pad, hi + pad], "k--", lw=0.8, label="y = ŷ")
-    ax.set_xlim(lo - pad, hi + pad)
-    ax.set_ylim(lo - pad, hi + pad)
+    finite = np.concatenate([cv.y, cv.lower95, cv.upper95])
+    finite = finite[np.isfinite(finite)]
+    lo, hi = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 1.0)
+    logs = cv.transform == "log" and lo > 0 and hi > 10 * lo  # a log GP over decades
+    if logs:
+        ax.set(xscale="log", yscale="log")
+        ends = (lo / 1.2, hi * 1.2)
+    else:
+        pad = 0.03 * (hi - lo if hi > lo else 1.0)
+        ends = (lo - pad, hi + pad)
+    ax.plot(ends, ends, "k--", lw=0.8, label="y = ŷ")
+    ax.set_xlim(*ends)
+    ax.set_ylim(*ends)
     ax.set_aspect("equal")
     name = cv.name or "output"
-    suffix = f" ({units})" if units else ""
+    suffix = f" ({units})" if units and units != "1" else ""
     ax.set_xlabel(f"simulated {name}{suffix}")
     ax.set_ylabel(f"GP prediction {name}{suffix}")
-    ax.set_title(title if title is not None else f"{name}: {cv.k}-fold CV")
+    gp = ", GP on ln" if cv.transform == "log" else ""
+    ax.set_title(title if title is not None else f"{name}: {cv.k}-fold CV{gp}")
     ax.legend(loc="upper left", fontsize=8)
     fig.tight_layout()
     with replacing(path) as tmp:
