@@ -94,13 +94,18 @@ class Exploration:
 def process_box(data: ExperimentalData, network: Network | None = None) -> np.ndarray:
     """Bounds (n_inputs, 2) of a data set's process inputs over its data (the working
     region), widened by 2 % of the span on each side (of the log span for an input
-    declared ``scale: log``) and kept within the inputs' declared bounds (``network``)."""
+    declared ``scale: log``) and kept within the inputs' declared bounds (``network``).
+    An input that the data never vary takes its declared bounds: a box of zero width
+    would give indices of nothing."""
     lo, hi = data.x.min(axis=0), data.x.max(axis=0)
     inputs = ([network.model(m).variable(v) for m, v in (k.split(".", 1)
                                                           for k in data.input_keys)]
               if network is not None else [None] * len(lo))
     box = np.empty((len(lo), 2))
     for j, var in enumerate(inputs):
+        if var is not None and hi[j] == lo[j]:
+            box[j] = var.lower, var.upper
+            continue
         log = var is not None and getattr(var, "scale", "linear") == "log" and lo[j] > 0
         a, b = (np.log(lo[j]), np.log(hi[j])) if log else (lo[j], hi[j])
         span = b - a if b > a else abs(b) * 0.1 + 1e-9

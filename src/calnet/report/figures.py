@@ -151,10 +151,15 @@ def _draw_prior_posterior(ax: Any, p: Mapping[str, Any], *, legend: bool = True)
     samples = np.asarray(p["posterior_samples"], float).ravel()
     samples = samples[np.isfinite(samples)]
     inside = samples[(samples >= lower) & (samples <= upper)]
-    ax.hist(inside, bins=np.linspace(lower, upper, 31), density=True, color="#9ecae1",
-            edgecolor="white", label="posterior")
+    bins = np.linspace(lower, upper, 31)
+    if inside.size > 1 and 0 < np.ptp(inside) < 0.5 * (upper - lower):
+        # a narrow posterior: bins over its own range, so that it is not two bars
+        bins = np.linspace(inside.min(), inside.max(), 21)
+    ax.hist(inside, bins=bins, density=True, color="#9ecae1", edgecolor="white",
+            label="posterior")
     if inside.size > 1 and np.ptp(inside) > 0:
-        xs = np.linspace(lower, upper, 200)
+        xs = np.union1d(np.linspace(lower, upper, 200),
+                        np.linspace(inside.min(), inside.max(), 200))
         ax.plot(xs, reflected_kde(inside, lower, upper, xs), color="#08519c", lw=1.5,
                 label="posterior KDE")
     ax.plot(np.asarray(p["prior_pdf_x"], float), np.asarray(p["prior_pdf_y"], float),
@@ -246,8 +251,9 @@ def prior_posterior_grid(params: Sequence[Mapping[str, Any]], path: str | Path, 
     for ax in axes[:len(params)]:  # one shared legend with every artist kind used
         for h, lab in zip(*ax.get_legend_handles_labels(), strict=True):
             handles.setdefault(lab, h)
+    # at most as many legend columns as fit the figure's width (about 1.5 in each)
     fig.legend(list(handles.values()), list(handles), loc="outside lower center",
-               ncols=len(handles), fontsize=8)
+               ncols=max(1, min(len(handles), int(4.0 * ncols / 1.5))), fontsize=8)
     if title:
         fig.suptitle(title)
     return _save(fig, path)

@@ -121,7 +121,22 @@ def read_dataset(network: Network, ds: Dataset) -> ExperimentalData:
                             noise_sd)
     data = _once(data, _repeats(_rows(data)), f"{ds.path}: {field}")
     _check_bounds(network, ds, wanted, data.x, path, field)  # the rows that count
+    _check_spread(ds, wanted, data.x, field)
     return data
+
+
+def _check_spread(ds: Dataset, keys: list[str], x: np.ndarray, field: str) -> None:
+    """Warn of a process input that the data set's points never vary: the data then see
+    the model at one value of it, and what acts through that input cannot be told apart
+    from what does not (the sensitivity takes the input's declared bounds instead)."""
+    if len(x) < 2:
+        return
+    same = [f"{key} = {x[0, j]:g}" for j, key in enumerate(keys) if np.all(x[:, j] == x[0, j])]
+    if same:
+        warnings.warn(f"{ds.path}: {field}: all {len(x)} points have {', '.join(same)}: the "
+                      "data inform the model at that setting only, so parameters that act "
+                      "through it cannot be told apart there; vary it across the experiments "
+                      "if it matters", SpecWarning, stacklevel=3)
 
 
 def repeated_header(path) -> str | None:
