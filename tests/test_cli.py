@@ -349,3 +349,28 @@ def test_a_warning_or_error_with_brackets_is_printed_whole():
     assert "settings.compare: [reference]" in said.stderr, said.stderr
     failed = CliRunner().invoke(cmd, ["fails"])
     assert failed.exit_code == 1 and "give [bold] or [reference]" in failed.stderr
+
+
+def test_a_ctrl_c_after_the_run_finished_says_its_results_are_complete(tmp_path, monkeypatch):
+    """Ctrl-C as calnet run ends (its folder complete) still exits 130, but does not say
+    that later stages start again."""
+    import signal
+    import time
+
+    import calnet.pipeline as pipeline
+    from calnet.cli import app
+
+    def finished(*args, **kwargs):
+        try:
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(1)
+        except KeyboardInterrupt:
+            pass  # dropped, as in a clean-up; the latch still has it
+        return {}
+
+    monkeypatch.setattr(pipeline, "run_pipeline", finished)
+    result = CliRunner().invoke(app, ["run", "examples/ninb", "--out", str(tmp_path)])
+    assert result.exit_code == 130, result.output
+    text = " ".join(result.stderr.split())
+    assert text == f"interrupted after the run had finished: its results in '{tmp_path}' are " \
+                   "complete", text

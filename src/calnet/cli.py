@@ -134,6 +134,9 @@ def _main(
     enable_compilation_cache()  # compiled samplers and predictors reused across runs
 
 
+_FINISHED: list[Path] = []  # calnet run's folder once its run has finished
+
+
 def user_errors(func: Callable[..., Any]) -> Callable[..., Any]:
     """Turn calnet errors into one-line messages with exit codes; show warnings briefly."""
 
@@ -169,7 +172,10 @@ def user_errors(func: Callable[..., Any]) -> Callable[..., Any]:
 
                 kept = (": " + resume_note(func.__name__, bool(kwargs.get("fresh")))
                         if func.__name__ in ("run", "campaign") else "")
-                err_console.print(f"[bold red]interrupted[/]{kept}")
+                if func.__name__ == "run" and _FINISHED:
+                    kept = (f" after the run had finished: its results in '{_FINISHED[-1]}' "
+                            "are complete")
+                err_console.print(f"[bold red]interrupted[/]{escape(kept)}")
                 raise typer.Exit(130) from None
             except Exception as err:
                 if os.environ.get("CALNET_DEBUG"):  # the traceback; the same exit code
@@ -728,8 +734,10 @@ def run(
     from calnet.campaign.interrupt import sigterm_exit
     from calnet.pipeline import run_pipeline
 
+    _FINISHED.clear()
     with sigterm_exit("run", fresh):
         run_pipeline(spec, out=out, fresh=fresh, quick=quick, console=console, seed=seed)
+        _FINISHED.append(out)  # a Ctrl-C from here on comes after a complete run
 
 
 def main() -> None:  # pragma: no cover - console script entry
