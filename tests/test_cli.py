@@ -374,3 +374,39 @@ def test_a_ctrl_c_after_the_run_finished_says_its_results_are_complete(tmp_path,
     text = " ".join(result.stderr.split())
     assert text == f"interrupted after the run had finished: its results in '{tmp_path}' are " \
                    "complete", text
+
+
+_TWICE = """
+import time
+import calnet.calibration.sampling as sampling
+from calnet.interrupts import ending_allowed
+sampling.jax.block_until_ready = lambda pending: time.sleep(60)  # chains that run on
+with ending_allowed("kept"):
+    print("ready", flush=True)
+    sampling._finished("out", "joint", None)
+"""
+
+
+def test_a_second_ctrl_c_while_the_chains_run_ends_a_command_at_once():
+    """The first Ctrl-C waits for the chains in flight and says that a second ends the
+    process; the second does, with 130 and one line."""
+    import signal
+    import time
+
+    proc = subprocess.Popen([sys.executable, "-c", _TWICE], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().strip() == "ready"
+        proc.send_signal(signal.SIGINT)
+        time.sleep(1.5)
+        t0 = time.monotonic()
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=30)
+    finally:
+        proc.kill()
+    assert proc.returncode == 130 and time.monotonic() - t0 < 10, err
+    lines = err.strip().splitlines()
+    assert lines[0] == ("joint: stopping once the chains in flight end (a running program "
+                        "cannot be interrupted; Ctrl-C again ends the process at once)"), err
+    assert lines[-1] == ("interrupted (Ctrl-C again while the chains ran): ended at once; "
+                         "kept"), err

@@ -32,7 +32,7 @@ from calnet import __version__
 from calnet.calibration.devices import configure_host_devices, enable_compilation_cache
 from calnet.errors import CalnetError, SpecError, UsageError
 from calnet.files import make_folder, replacing
-from calnet.interrupts import latch
+from calnet.interrupts import ending_allowed, latch
 
 
 def _reflow(text: str | None) -> str | None:
@@ -145,7 +145,7 @@ def user_errors(func: Callable[..., Any]) -> Callable[..., Any]:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             try:
-                with latch() as interrupted:
+                with latch() as interrupted, ending_allowed():
                     result = func(*args, **kwargs)
                     interrupted()  # a Ctrl-C that Python dropped still ends in 130
             except SpecError as err:

@@ -10,12 +10,15 @@ between steps, and a command calls it when it ends.
 
 from __future__ import annotations
 
+import os
 import signal
+import sys
 import threading
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
-__all__ = ["latch", "program_running", "program_in_flight"]
+__all__ = ["latch", "program_running", "program_in_flight", "ending_allowed", "end_now",
+           "may_end_now"]
 
 _hit = threading.Event()
 _running = [0]  # compiled programs being waited for, in any thread
@@ -39,6 +42,40 @@ def program_running() -> Iterator[None]:
 def program_in_flight() -> bool:
     """Whether some thread waits for a program inside :func:`program_running`."""
     return _running[0] > 0
+
+
+_NOTES: list[str] = []  # what a command says of its kept work when it ends at once
+
+
+@contextmanager
+def ending_allowed(note: str = "") -> Iterator[None]:
+    """Within the block (a command of the command line), :func:`end_now` may end the
+    process; ``note`` says what is kept (e.g. the finished campaign runs). Library
+    code outside such a block (a notebook's kernel) is never ended."""
+    _NOTES.append(note)
+    try:
+        yield
+    finally:
+        _NOTES.pop()
+
+
+def may_end_now() -> bool:
+    """Whether :func:`end_now` would end the process."""
+    return bool(_NOTES)
+
+
+def end_now(code: int, why: str) -> None:
+    """Inside :func:`ending_allowed`, end the process at once with ``code`` after one
+    line on stderr (``why``, then the command's note); else return. For a compiled
+    program that nothing can stop: what is finished is on disk already, and ending
+    without Python's clean-up avoids the crash of a normal exit with the program still
+    running."""
+    if not _NOTES:
+        return
+    sys.stdout.flush()
+    print(f"interrupted ({why}): ended at once" + (f"; {_NOTES[-1]}" if _NOTES[-1] else ""),
+          file=sys.stderr, flush=True)
+    os._exit(code)
 
 
 def _handler(signum, frame) -> None:

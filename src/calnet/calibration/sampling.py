@@ -47,7 +47,7 @@ from calnet._jax import FEW_CALLS, device_array
 from calnet.calibration.diagnostics import import_arviz, stuck_chains
 from calnet.calibration.koh import initial_point_message
 from calnet.errors import CalibrationError, CalibrationWarning
-from calnet.interrupts import program_running
+from calnet.interrupts import end_now, may_end_now, program_running
 from calnet.parallel import one_blas_thread
 from calnet.progress import Lines
 
@@ -291,7 +291,8 @@ def _wait(pending, name: str, progress):
         return jax.block_until_ready(pending)
     except KeyboardInterrupt:
         text = ("stopping once the chains in flight end (a running program cannot be "
-                "interrupted; Ctrl-\\ ends the process at once)")
+                "interrupted; " + ("Ctrl-C again" if may_end_now() else "Ctrl-\\")
+                + " ends the process at once)")
         said = False
         if isinstance(progress, Lines):  # they say the stage's name
             with suppress(KeyboardInterrupt):  # calnet run's lines stop at Ctrl-C
@@ -303,8 +304,9 @@ def _wait(pending, name: str, progress):
             try:
                 jax.block_until_ready(pending)
                 break
-            except KeyboardInterrupt:
-                continue  # a second Ctrl-C: still the same program to wait for
+            except KeyboardInterrupt:  # a second Ctrl-C: a command ends at once,
+                end_now(130, "Ctrl-C again while the chains ran")
+                continue  # library code still waits for the same program
         raise
 
 

@@ -14,9 +14,7 @@ ends the process at once with that code and one line, instead of waiting for it.
 from __future__ import annotations
 
 import functools
-import os
 import signal
-import sys
 import threading
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -24,7 +22,7 @@ from typing import Any
 
 import typer
 
-from calnet.interrupts import program_in_flight
+from calnet.interrupts import end_now, ending_allowed, program_in_flight
 
 TERMINATED_EXIT = 143
 """Exit code after SIGTERM: 128 + 15, as a shell reports a process SIGTERM ended
@@ -58,20 +56,15 @@ def sigterm_as_interrupt() -> Iterator[None]:
         signal.signal(signal.SIGTERM, previous)
 
 
-_AT_ONCE: list[str] = []  # the line sigterm_exit prints when it ends the process at once
-
-
 def _raise(signum: int, frame: Any) -> None:
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
-    if _AT_ONCE and program_in_flight():
+    if program_in_flight():
         # a compiled program (the sampler's chains) runs on and cannot be stopped:
-        # unwinding would wait for it, longer than a batch system's grace period, and a
-        # process that exits normally with it running can crash in its clean-up. What
-        # is finished is on disk already (campaign runs, the run folder's incomplete
-        # mark), so the process ends here.
-        sys.stdout.flush()
-        print(_AT_ONCE[-1], file=sys.stderr, flush=True)
-        os._exit(TERMINATED_EXIT)
+        # unwinding would wait for it, longer than a batch system's grace period. What is
+        # finished is on disk already (campaign runs, the run folder's incomplete mark),
+        # so a command ends here (end_now; library code unwinds)
+        end_now(TERMINATED_EXIT, "SIGTERM while a compiled program ran, which cannot be "
+                "stopped")
     raise Terminated(f"signal {signum}")
 
 
@@ -80,10 +73,8 @@ def sigterm_exit(command: str = "run", fresh: bool = False) -> Iterator[None]:
     """Within the block, SIGTERM stops the work as Ctrl-C does; then one line on stderr
     (:func:`resume_note` of ``command`` and ``fresh``) and exit code
     :data:`TERMINATED_EXIT` (``typer.Exit``)."""
-    _AT_ONCE.append("interrupted (SIGTERM) while a compiled program ran, which cannot be "
-                    "stopped: ended at once; " + resume_note(command, fresh))
     try:
-        with sigterm_as_interrupt():
+        with ending_allowed(resume_note(command, fresh)), sigterm_as_interrupt():
             yield
     except Terminated:
         from rich.console import Console
@@ -91,8 +82,6 @@ def sigterm_exit(command: str = "run", fresh: bool = False) -> Iterator[None]:
         Console(stderr=True).print("[bold red]interrupted[/] (SIGTERM): "
                                    + resume_note(command, fresh), soft_wrap=True)
         raise typer.Exit(TERMINATED_EXIT) from None
-    finally:
-        _AT_ONCE.pop()
 
 
 def sigterm_exits(func: Callable[..., Any]) -> Callable[..., Any]:
