@@ -195,6 +195,22 @@ def test_pit_check_on_known_pit_values():
     assert wide["flagged"] and "too wide" in wide["message"]
 
 
+def test_fit_check_on_known_pit_values():
+    """The in-sample check: a binomial test of the calibration points outside the
+    posterior predictive's 95 % band (a well-specified model's band covers at least 95 %
+    of the points it has seen)."""
+    from calnet.validation import fit_check
+
+    nine = fit_check("d", np.r_[np.full(5, 0.001), np.full(4, 0.999), np.full(7, 0.5)])
+    assert nine["flagged"] and (nine["outside95"], nine["n"]) == (9, 16)
+    assert nine["outside_pvalue"] == pytest.approx(stats.binom.sf(8, 16, 0.05))
+    assert nine["message"].startswith("d: the posterior predictive misses its own "
+                                      "calibration points (9 of 16 outside its 95 % band")
+    one = fit_check("d", np.r_[0.001, np.full(15, 0.5)])
+    assert not one["flagged"] and one["message"] == ""
+    assert not fit_check("d", np.zeros(0))["flagged"]  # no calibration points: no test
+
+
 def test_the_comparison_scores_the_spec_with_its_refitted_pointwise_elpd():
     """The comparison takes the spec's pointwise ELPD with its refits (the leave-one-out
     table's numbers), and the standard error of a pair's difference is ArviZ's."""

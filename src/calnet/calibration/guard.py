@@ -186,13 +186,12 @@ def check_surrogates(network, surrogates, posterior, *, n_draws: int = 50
         data_sd = math.sqrt(noise + disc)
         sds = {k: math.sqrt(max(float(v), 0.0)) for k, v in zip(keys, var, strict=True)}
         runs = {k: int(surrogates[k].n_runs) for k in keys}
+        total = math.sqrt(sum(v**2 for v in sds.values()))
+        warns = (total / data_sd if data_sd > 0 else math.inf) > RATIO_WARN  # .ratio's
         needed = {}
-        for k in keys:
+        for k in keys if warns else ():  # without a warning no runs are counted
             ratio = sds[k] / data_sd if data_sd > 0 else math.inf
             factor = (ratio / RATIO_TARGET) ** 2
-            total = math.sqrt(sum(v**2 for v in sds.values()))
-            if (total / data_sd if data_sd > 0 else math.inf) <= RATIO_WARN:
-                continue  # no warning to give (SurrogateCheck.ratio): no runs to count
             if k not in rates:
                 rates[k] = _cached_rate(surrogates[k].gp)
             needed[k] = runs_for(runs[k], factor, rates[k])
