@@ -95,3 +95,17 @@ def test_the_baselines_score_the_test_points_on_the_data_sets_range():
     assert baselines(network(), train, test)["training_mean"]["mape"] is None
     rel = baselines(network("log"), train, test)["training_mean"]["mape"]
     assert rel == pytest.approx(50 * (abs(0.4 - 25.25) / 0.4 + abs(40.0 - 25.25) / 40.0))
+
+
+def test_a_naive_predictor_far_better_than_the_network_is_warned_of():
+    from calnet.validation import baseline_check
+
+    test = {"n": 4, "rmse": 0.125}
+    naive = {"training_mean": {"rmse": 0.4}, "direct_gp": {"rmse": 0.0303},
+             "power_law": {"error": "no positive data"}}
+    said = baseline_check("d", test, naive)
+    assert said.startswith("d: a GP fitted directly to the training points predicts the 4 "
+                           "test point(s) 4.1 times better than the calibrated network "
+                           "(RMSE 0.0303 against 0.125)"), said
+    assert baseline_check("d", test, {"direct_gp": {"rmse": 0.07}}) is None  # within 2x
+    assert baseline_check("d", None, naive) is None and baseline_check("d", test, {}) is None

@@ -138,6 +138,22 @@ def test_extra_columns_and_names_are_ignored_alike(run, tmp_path):
             warned
 
 
+def test_the_output_table_keeps_a_points_other_columns(run, tmp_path):
+    """With --output, the columns that are not inputs (an ID, a label) stay beside each
+    point's predictions, so they join back to the sample list."""
+    import csv
+
+    points = tmp_path / "points.csv"
+    points.write_text("x,id,label\n0.3,A7,first point\n0.9,B2,second\n")
+    table = tmp_path / "out.csv"
+    _, warned = _predict(run, "--csv", str(points), "--output", str(table))
+    assert "not used id, label: not process inputs of yd (it takes x); copied to --output " \
+           "beside each point" in " ".join(warned.split()), warned
+    rows = list(csv.DictReader(table.open()))
+    assert [(r["point"], r["id"], r["label"], r["up.x"]) for r in rows] == [
+        ("1", "A7", "first point", "0.3"), ("2", "B2", "second", "0.9")]
+
+
 @pytest.mark.parametrize(("text", "said"), [
     (None, "--csv: no file"),
     ("x\n", "no rows"),

@@ -549,8 +549,9 @@ def predict(
     # a point may carry inputs that only some of the targets take, and names (CSV
     # columns) that none takes: those are ignored, with a warning
     skip = {k for row in rows for k in row}
-    _warn_extra(network, names, [k for k in dict.fromkeys(k for row in rows for k in row)
-                                 if k not in shared_inputs(network, names, rows)])
+    extra = [k for k in dict.fromkeys(k for row in rows for k in row)
+             if k not in shared_inputs(network, names, rows)]
+    _warn_extra(network, names, extra, kept=output is not None)
     for name in names:
         x, notes = settings_matrix(network, name, rows, skip=skip)
         notes += link_notes(network, sur, post, name, x)
@@ -573,7 +574,8 @@ def predict(
                                f"{pred.upper[i]:.4g}]", unit,
                                ", ".join(f"{k} {v:.0%}" for k, v in top)))
     if output:
-        _write_predictions(output, results)
+        _write_predictions(output, results, [{k: row.get(k, "") for k in extra}
+                                             for row in rows])
     if as_json:
         print(json.dumps({"predictions": results}, indent=2, default=_json_default))
         return
@@ -586,9 +588,9 @@ def predict(
         console.print(f"predictions written to {output}")
 
 
-def _warn_extra(network: Any, targets: list[str], extra: list[str]) -> None:
+def _warn_extra(network: Any, targets: list[str], extra: list[str], kept: bool) -> None:
     """One warning naming the given names (``--at`` or ``--csv`` columns) that no target
-    takes."""
+    takes (``kept``: they are copied to ``--output``)."""
     if not extra:
         return
     from calnet.predict import target_model
@@ -597,9 +599,10 @@ def _warn_extra(network: Any, targets: list[str], extra: list[str]) -> None:
                               network.process_input_keys(target_model(network, t))))
     bare = [k.split(".", 1)[1] for k in keys]
     takes = ", ".join(bare if len(set(bare)) == len(bare) else keys)
-    warnings.warn(f"ignored {', '.join(extra)}: not process inputs of {', '.join(targets)} "
-                  f"({'it takes' if len(targets) == 1 else 'they take'} {takes})",
-                  stacklevel=1)
+    verb = "it takes" if len(targets) == 1 else "they take"
+    warnings.warn(f"{'not used' if kept else 'ignored'} {', '.join(extra)}: not process "
+                  f"inputs of {', '.join(targets)} ({verb} {takes})"
+                  + ("; copied to --output beside each point" if kept else ""), stacklevel=1)
 
 
 def _read_points(path: Path) -> list[dict[str, float | str]]:
@@ -614,18 +617,24 @@ def _read_points(path: Path) -> list[dict[str, float | str]]:
     return read_points(path)
 
 
-def _write_predictions(path: Path, results: list[dict]) -> None:
+def _write_predictions(path: Path, results: list[dict], extras: list[dict]) -> None:
+    """The predictions as CSV, a row per point and target: the point's number (from 1,
+    in the order of --at then --csv), the columns it carried that no target takes (an
+    ID, say), then the target, its inputs and the prediction."""
     make_folder(path.parent)
+    names = list(dict.fromkeys(k for e in extras for k in e))
     with replacing(path) as tmp, tmp.open("w", newline="") as fh:
         writer = csv_mod.writer(fh)
         keys = list(dict.fromkeys(k for r in results for k in r["inputs"]))
-        writer.writerow(["dataset", "output", *keys, "mean", "lower95", "upper95"])
+        writer.writerow(["point", *names, "dataset", "output", *keys, "mean", "lower95",
+                         "upper95"])
         for r in results:
-            for x, m, lo, hi in zip(r["x"], r["mean"], r["lower95"], r["upper95"],
-                                    strict=True):
+            for i, (x, m, lo, hi) in enumerate(zip(r["x"], r["mean"], r["lower95"],
+                                                   r["upper95"], strict=True)):
                 given = dict(zip(r["inputs"], x, strict=True))
-                writer.writerow([r["dataset"], r["observes"], *(given.get(k, "") for k in keys),
-                                 m, lo, hi])
+                writer.writerow([i + 1, *(extras[i].get(k, "") for k in names),
+                                 r["dataset"], r["observes"],
+                                 *(given.get(k, "") for k in keys), m, lo, hi])
 
 
 @app.command()

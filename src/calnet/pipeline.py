@@ -51,7 +51,7 @@ from calnet.surrogates.fit_network import (
     fit_surrogates,
 )
 from calnet.surrogates.plots import parity_plots
-from calnet.validation import baselines, compare_variants, validate_dataset
+from calnet.validation import baseline_check, baselines, compare_variants, validate_dataset
 
 STAGES = ("campaign", "surrogates", "calibration", "prediction", "validation", "report")
 """The stages of ``calnet run``, in order; ``validation`` also computes the sensitivity."""
@@ -501,6 +501,10 @@ class _Context:
             naive, self.explored = other.result()
         self.validated = {name: replace(v, baselines_test=naive.get(name))
                           for name, v in loo.items()}
+        for name, v in self.validated.items():
+            said = baseline_check(name, v.test, v.baselines_test)
+            if said:
+                warnings.warn(said, CalibrationWarning, stacklevel=1)
 
     def report(self, note) -> None:
         note("figures, report.html, metrics.json")

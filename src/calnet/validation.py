@@ -267,6 +267,32 @@ def misfit_hint(network: Network, name: str, surrogate_warned: bool) -> str:
     return "".join(f"; {h}" for h in hints)
 
 
+#: a naive predictor whose test RMSE is below this fraction of calnet's is warned of
+BASELINE_BETTER = 0.5
+_NAIVE = {"training_mean": "the training mean", "power_law": "a power law in the inputs",
+          "direct_gp": "a GP fitted directly to the training points"}
+
+
+def baseline_check(name: str, test: dict | None, naive: dict | None) -> str | None:
+    """A warning where a naive predictor of data set ``name``'s test points (the
+    :func:`baselines`) has an RMSE below :data:`BASELINE_BETTER` of the calibrated
+    network's: the network then misses structure that the data themselves show (its
+    model form, or surrogates whose error the discrepancy absorbs)."""
+    if not test or not naive or not test.get("n"):
+        return None
+    scored = {k: m["rmse"] for k, m in naive.items() if isinstance(m, dict) and "rmse" in m}
+    if not scored:
+        return None
+    best = min(scored, key=scored.get)
+    if not scored[best] < BASELINE_BETTER * test["rmse"]:
+        return None
+    return (f"{name}: {_NAIVE.get(best, best)} predicts the {test['n']} test point(s) "
+            f"{test['rmse'] / max(scored[best], 1e-300):.1f} times better than the calibrated "
+            f"network (RMSE {scored[best]:.3g} against {test['rmse']:.3g}): the network "
+            "misses structure the data show (its model form, or surrogate error that the "
+            "discrepancy takes up); see the surrogate checks and 'calnet verify'")
+
+
 VARIANTS = ("no_discrepancy", "non_orthogonal", "reference")
 
 

@@ -71,7 +71,7 @@ def test_a_poor_surrogate_is_named_with_the_runs_it_needs(tmp_path):
     (check,) = post.checks
     assert check.ratio > 1.0 and check.runs == {"m.y": 5} and check.needed["m.y"] > 5
     assert any("the surrogate, not the data, sets the answer" in m and "m.y" in m
-               and "runs of 'm' (now 5)" in m for m in messages), messages
+               and "runs of 'm' (now 5;" in m for m in messages), messages
     assert check.to_dict()["warning"] is not None
 
 
@@ -179,7 +179,7 @@ def test_the_check_says_what_its_sds_are_in():
         return SurrogateCheck("d", {"m.y": 0.3}, 0.2, {"m.y": 10}, {"m.y": 40}, scale=scale)
 
     assert "(0.3 on the ln scale) is 1.5 x" in check("ln").message()
-    assert "noise and discrepancy sd (0.2 um)" in check("um").message()
+    assert "noise and discrepancy sd at the data (0.2 um," in check("um").message()
     assert "(0.3) is 1.5 x" in check("").message() and check("1").to_dict()["scale"] == "1"
     assert "(0.3) is" in check("1").message()
 
@@ -220,7 +220,9 @@ def test_the_runs_named_do_divide_the_variance_as_asked():
     rough = condition(qmc.Halton(2, seed=3).random(64), np.zeros(64), lower=np.zeros(2),
                       upper=np.ones(2), lengthscales=np.array([1e-3, 1e-3]),
                       signal_var=1.0, nugget=1e-6)
-    assert variance_rate(rough) < 0.05 and runs_for(64, 4.0, 0.0) == 1_000_000
+    assert variance_rate(rough) < 0.05 and runs_for(64, 4.0, 0.0) is None
+    # too few runs to measure a rate: None, not a rate of 0 (which would say "rough")
+    assert variance_rate(gp_on(7)) is None
     assert runs_for(64, 0.5, rate) == 64  # already below the target
 
 
@@ -232,4 +234,18 @@ def test_a_rough_surrogate_is_not_given_a_run_count():
     assert "more runs of 'm' (now 50) would barely lower it" in check.message()
     fine = SurrogateCheck("d", {"m.y": 0.3}, 0.2, {"m.y": 50}, {"m.y": 120},
                           rates={"m.y": 1.5})
-    assert "about 120 runs of 'm' (now 50)" in fine.message() and "n^-1.5" in fine.message()
+    assert "about 120 runs of 'm' (now 50; m.y's variance falls as n^-1.5 with its runs)" \
+        in fine.message()
+    # every surrogate that needs runs is named, the largest sd first
+    two = SurrogateCheck("d", {"u.a": 0.1, "m.y": 0.3}, 0.2, {"m.y": 50, "u.a": 30},
+                         {"m.y": 120, "u.a": 37}, rates={"m.y": 1.5, "u.a": 1.0})
+    assert "about 120 runs of 'm' (now 50; " in two.message()
+    assert ") and about 37 runs of 'u' (now 30; u.a's" in two.message()
+    # a rough dominant surrogate: no count for it, but the others' still
+    rough = SurrogateCheck("d", {"u.a": 0.1, "m.y": 0.3}, 0.2, {"m.y": 50, "u.a": 30},
+                           {"m.y": None, "u.a": 37}, rates={"m.y": 0.01, "u.a": 1.0})
+    said = rough.message()
+    assert "more runs of 'm' (now 50) would barely lower it" in said
+    assert said.endswith("; about 37 runs of 'u' (now 30; u.a's variance falls as n^-1 with "
+                         "its runs) would lower the rest"), said
+    assert rough.to_dict()["runs_gain_little"] == ["m.y"]

@@ -95,7 +95,7 @@ def test_predictions_and_surrogates_on_a_full_disk(disk):
     results = [{"dataset": "d", "observes": "m.y", "inputs": ["m.x"], "x": [[1.0]],
                 "mean": [2.0], "lower95": [1.0], "upper95": [3.0]}]
     with pytest.raises(CalnetError, match="cannot write '.*pred.csv': no space left"):
-        _write_predictions(disk / "pred.csv", results)
+        _write_predictions(disk / "pred.csv", results, [{}])
     x = np.linspace(0.0, 1.0, 6)[:, None]
     gp = fit_gp(x, np.sin(3 * x[:, 0]), lower=[0.0], upper=[1.0], n_restarts=0, name="y")
     with pytest.raises(CalnetError, match="cannot write '.*y.npz': no space left"):

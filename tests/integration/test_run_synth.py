@@ -136,7 +136,7 @@ def _check_predict(work: Path, out: Path, tmp_path: Path) -> None:
     assert res.exit_code == 0, res.output
     assert "outside its bounds" in res.output  # P = 300 W extrapolates: said, not hidden
     lines = table.read_text().splitlines()
-    assert lines[0] == "dataset,output,thermal.P,thermal.v,mean,lower95,upper95"
+    assert lines[0] == "point,dataset,output,thermal.P,thermal.v,mean,lower95,upper95"
     assert len(lines) == 1 + 2 * 3  # two points for each of the three data sets
     res = runner.invoke(app, ["predict", str(work), "--run", str(out), "--at", "P=200"])
     assert res.exit_code == 2 and "missing v" in res.output  # a bad --at value

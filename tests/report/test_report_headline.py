@@ -147,3 +147,18 @@ def test_influential_points_are_named_by_their_inputs_and_measurement():
     assert influential_note("d", loo, most=1).endswith("and 1 more.")
     assert _p(float("nan"), "too few points") == "\u2013 (too few points)"
     assert _p(None) == "\u2013" and _p(0.25) == "0.25"
+
+
+def test_a_model_sampled_in_two_stages_gives_each_stage_its_own_row():
+    """Segmented, with M2's shared k sampled in M1's stage: M2 lists both stages, and
+    each stage keeps its own data sets and diagnostics (not M1's for 'M1 and M2')."""
+    from calnet.report.headline import sampling_stages
+
+    m1 = {"datasets": ["d1"], "divergences": 0, "max_rhat": 1.006, "min_ess_bulk": 488.0}
+    m2 = {"datasets": ["d2"], "divergences": 1, "max_rhat": 1.001, "min_ess_bulk": 857.0}
+    summary = {"M1": {"stage": "M1", "stages": {"M1": m1}, **m1},
+               "M2": {"stage": "M1 and M2", "stages": {"M1": m1, "M2": m2},
+                      "datasets": ["d1", "d2"], "divergences": 1, "max_rhat": 1.006,
+                      "min_ess_bulk": 488.0},
+               "M3": {"prior_only": True}}
+    assert sampling_stages(summary) == {"M1": m1, "M2": m2}

@@ -62,8 +62,9 @@ class SurrogateCheck:
     scale : str
         What the sds are in: ``"ln"`` for data modelled on the log scale (the sds of
         ``ln y``), else the observed output's unit (empty for none).
-    rates : dict of ``model.output`` -> float
-        :func:`variance_rate` of each surrogate: its variance falls as ``n^-rate``.
+    rates : dict of ``model.output`` -> float or None
+        :func:`variance_rate` of each surrogate: its variance falls as ``n^-rate`` (None:
+        too few runs to measure).
     """
 
     dataset: str
@@ -101,22 +102,30 @@ class SurrogateCheck:
                 else f" {self.scale}" if self.scale not in ("", "1") else "")
         head = (f"{self.dataset}: the surrogate, not the data, sets the answer: the surrogate "
                 f"sd at the posterior ({total:.3g}{unit}) is {self.ratio:.2g} x the data's "
-                f"noise and discrepancy sd ({self.data_sd:.3g}{unit}), mostly from {k}")
+                f"noise and discrepancy sd at the data ({self.data_sd:.3g}{unit}, the "
+                f"discrepancy's as it enters the likelihood there), mostly from {k}")
         if self.extrapolating:
             return (f"{head}, at the {self.outside} data point(s) outside the input bounds "
                     f"({self.outside_share:.0%} of it), where the surrogate extrapolates: "
                     "more runs inside the bounds will not help; widen the bounds and extend "
                     "the campaign over those points, or leave them out")
-        rate = self.rates.get(k)
-        if rate is not None and rate < RATE_MIN:
-            return (f"{head}; more runs of '{model}' (now {self.runs[k]}) would barely lower "
-                    "it: its GP's variance hardly falls when half of its runs are left out "
-                    "(length scales short against the runs' spacing: a rough or "
-                    "discontinuous output); check its cross-validation and 'calnet verify'")
-        how = (f"at the rate its GP's variance falls with runs, n^-{rate:.2g}"
-               if rate is not None else "a rough estimate")
-        return (f"{head}; about {self.needed[k]} runs of '{model}' (now {self.runs[k]}) "
-                f"would bring it to {RATIO_TARGET:g} x ({how}); check with 'calnet verify'")
+        rough = self.rates.get(k) is not None and self.rates[k] < RATE_MIN
+        more = [j for j in sorted(self.needed, key=lambda j: -self.surrogate_sd[j])
+                if self.needed[j] is not None and self.needed[j] > self.runs[j]]
+        runs = " and ".join(
+            f"about {self.needed[j]} runs of '{j.split('.')[0]}' (now {self.runs[j]}; "
+            + (f"{j}'s variance falls as n^-{self.rates[j]:.2g} with its runs"
+               if self.rates.get(j) is not None else
+               f"too few runs to measure how fast {j}'s variance falls: Matern 3/2's "
+               "worst case assumed") + ")" for j in more)
+        if rough:
+            tail = (f"; more runs of '{model}' (now {self.runs[k]}) would barely lower it: "
+                    f"{k}'s variance hardly falls when half of its runs are left out (length "
+                    "scales short against the runs' spacing: a rough or discontinuous "
+                    "output); check its cross-validation and 'calnet verify'")
+            return head + tail + (f"; {runs} would lower the rest" if runs else "")
+        return (f"{head}; {runs or 'more runs'} would bring it to {RATIO_TARGET:g} x; check "
+                "with 'calnet verify'")
 
     def to_dict(self) -> dict:
         return {"surrogate_sd": self.surrogate_sd, "data_sd": self.data_sd,
@@ -124,7 +133,8 @@ class SurrogateCheck:
                 "outside_bounds": self.outside, "outside_share": self.outside_share,
                 "extrapolating": self.extrapolating, "scale": self.scale,
                 "variance_rates": self.rates, "target_ratio": RATIO_TARGET,
-                "runs_gain_little": [k for k, r in self.rates.items() if r < RATE_MIN],
+                "runs_gain_little": [k for k, r in self.rates.items()
+                                     if r is not None and r < RATE_MIN],
                 "warning": self.message()}
 
 
@@ -194,7 +204,9 @@ def check_surrogates(network, surrogates, posterior, *, n_draws: int = 50
             factor = (ratio / RATIO_TARGET) ** 2
             if k not in rates:
                 rates[k] = _cached_rate(surrogates[k].gp)
-            needed[k] = runs_for(runs[k], factor, rates[k])
+            # unmeasured (too few runs): Matern 3/2's rate in d inputs, n^(-3/d)
+            rate = rates[k] if rates[k] is not None else 3.0 / surrogates[k].gp.n_inputs
+            needed[k] = runs_for(runs[k], factor, rate)
         observed = network.observed(network.dataset(ds))
         scale = "ln" if observed.transform == "log" else (observed.unit or "")
         out.append(SurrogateCheck(ds, sds, data_sd, runs, needed, int(outside.sum()), share,
@@ -210,20 +222,21 @@ RATE_MIN = 0.05
 RUNS_MAX = 1_000_000
 
 
-def runs_for(n: int, factor: float, rate: float) -> int:
+def runs_for(n: int, factor: float, rate: float) -> int | None:
     """Runs that divide a surrogate's variance by ``factor`` from ``n`` runs when it falls
-    as ``n^-rate`` (at most :data:`RUNS_MAX`)."""
+    as ``n^-rate`` (at most :data:`RUNS_MAX`); None where it barely falls (``rate`` below
+    :data:`RATE_MIN`)."""
     if factor <= 1.0:
         return int(n)
     if rate < RATE_MIN:
-        return RUNS_MAX
+        return None
     return int(math.ceil(min(RUNS_MAX, n * factor ** (1.0 / rate))))
 
 
 _RATES: OrderedDict = OrderedDict()  # id(gp) -> (gp, rate): the refits check the same GPs
 
 
-def _cached_rate(gp) -> float:
+def _cached_rate(gp) -> float | None:
     hit = _RATES.get(id(gp))
     if hit is not None and hit[0] is gp:
         _RATES.move_to_end(id(gp))
@@ -235,7 +248,7 @@ def _cached_rate(gp) -> float:
     return rate
 
 
-def variance_rate(gp, *, seed: int = 0, most: int = 800, repeats: int = 4) -> float:
+def variance_rate(gp, *, seed: int = 0, most: int = 800, repeats: int = 4) -> float | None:
     """How fast ``gp``'s variance falls with its runs: ``r`` in ``var ~ n^-r``.
 
     A quarter of the training runs is held out; the GP, its hyperparameters fixed, is
@@ -246,12 +259,12 @@ def variance_rate(gp, *, seed: int = 0, most: int = 800, repeats: int = 4) -> fl
     ``n^(-3/d)`` in ``d`` inputs at worst; a smooth response or inactive inputs (long
     length scales) fall faster. At most ``most`` runs are used (a random subset).
     Returns 0 where the variance does not fall (length scales short against the runs'
-    spacing) or with fewer than 8 runs.
+    spacing), None where it cannot be measured (fewer than 8 runs, a singular matrix).
     """
     x = np.asarray(gp.x_train, float)
     n = len(x)
     if n < 8:
-        return 0.0
+        return None
     rng = np.random.default_rng(seed)
     if n > most:
         x = x[rng.choice(n, most, replace=False)]
@@ -279,8 +292,10 @@ def variance_rate(gp, *, seed: int = 0, most: int = 800, repeats: int = 4) -> fl
         half = np.mean([mean_var(rest[rng.choice(len(rest), len(rest) // 2, replace=False)])
                         for _ in range(repeats)])
     except np.linalg.LinAlgError:
-        return 0.0
-    if not full > 0 or not half > full:
+        return None
+    if not full > 0:  # known to round-off at the held-out runs: nothing to measure
+        return None
+    if not half > full:
         return 0.0
     return float(np.log(half / full) / np.log(len(rest) / (len(rest) // 2)))
 

@@ -570,11 +570,12 @@ def sample_nuts(
             f"best chain's; {at}, against {where[best]} for chain {best + 1}); every chain "
             "ran again, the stuck ones from the others' last draws"
             + (f", and {_chains(still, num_chains)} stuck again" if still else "")
-            + ". That mode holds a negligible share of the posterior, but it is a second, "
-            "far worse fit of the data: the model or its surrogate may be poor there (with "
-            "the surrogate's variance in the likelihood, a worse fit costs less where the "
-            "surrogate is uncertain, often at the edges of the campaign's box: more runs "
-            "there remove such a mode)")
+            + (". That mode holds" if len(stuck) == 1 else ". Those modes hold")
+            + " a negligible share of the posterior, but each is a far worse fit of the "
+            "data: the model or its surrogate may be poor there (with the surrogate's "
+            "variance in the likelihood, a worse fit costs less where the surrogate is "
+            "uncertain, often at the edges of the campaign's box: more runs there may "
+            "remove such a mode)")
         if warn:
             warnings.warn(stuck_note, CalibrationWarning, stacklevel=2)
         if not ok.all():

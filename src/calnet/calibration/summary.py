@@ -55,14 +55,22 @@ def posterior_summary(network: Network, post: NetworkPosterior) -> dict:
                 "mcse_q97.5": az.mcse(p, method="quantile", prob=0.975)}
         return cache[id(stage)]
 
+    def divergences(stage) -> int:
+        return int(np.asarray(stage.idata.sample_stats["diverging"]).sum())
+
     def sampled_in(stages) -> dict:
-        """The diagnostics, stages and data sets of the stages that sampled a model."""
-        out = {"divergences": sum(int(np.asarray(s.idata.sample_stats["diverging"]).sum())
-                                  for s in stages),
+        """The diagnostics, stages and data sets of the stages that sampled a model (a
+        shared parameter can be sampled in another model's stage): over all of them, and
+        per stage under ``stages``."""
+        out = {"divergences": sum(divergences(s) for s in stages),
                "max_rhat": max(diag(s)["summary"].max_r_hat for s in stages),
                "min_ess_bulk": min(diag(s)["summary"].min_ess_bulk for s in stages),
-               "stage": " ; ".join("+".join(s.models) for s in stages),
-               "datasets": sorted({d for s in stages for d in s.datasets})}
+               "stage": " and ".join("+".join(s.models) for s in stages),
+               "datasets": sorted({d for s in stages for d in s.datasets}),
+               "stages": {"+".join(s.models): {
+                   "datasets": sorted(s.datasets), "divergences": divergences(s),
+                   "max_rhat": diag(s)["summary"].max_r_hat,
+                   "min_ess_bulk": diag(s)["summary"].min_ess_bulk} for s in stages}}
         moved_by = sorted({k for s in stages for k in s.moved_by})
         if moved_by:
             out["moved_by"] = moved_by

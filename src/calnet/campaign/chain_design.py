@@ -168,8 +168,10 @@ def _warn_outside(model: Model, linked: np.ndarray, values: np.ndarray, lower: n
         if share > 0.1:
             warnings.warn(f"{model.name}: {share:.0%} of the values its input '{name}' takes "
                           f"from upstream lie outside its bounds [{lower[j]:g}, {upper[j]:g}] "
-                          f"(from {values[:, j].min():.4g} to {values[:, j].max():.4g}); the "
-                          "design is clipped to the bounds: widen them to cover the chain",
+                          f"(by the upstream GPs' means, from {values[:, j].min():.4g} to "
+                          f"{values[:, j].max():.4g}); the design is clipped to the bounds: "
+                          "widen them to cover the chain if the upstream simulators reach "
+                          "such values (with few upstream runs their GPs can overshoot)",
                           CampaignWarning, stacklevel=5)
 
 

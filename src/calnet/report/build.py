@@ -12,7 +12,7 @@ from calnet.report import figures
 from calnet.report.emulation import caption as emulation_caption
 from calnet.report.emulation import emulation_section, slices_figure
 from calnet.report.figures import unit_text, with_unit
-from calnet.report.headline import BASELINES, headline
+from calnet.report.headline import BASELINES, headline, sampling_stages
 from calnet.report.html import Section, Table, fmt, write_report
 from calnet.report.metrics import write_metrics
 from calnet.report.posterior_csv import write_posterior_csv
@@ -270,13 +270,10 @@ def _sections(ctx, results: RunResults) -> list[Section]:
                          fmt(r["mean"]), f"[{fmt(r['q2.5'])}, {fmt(r['q97.5'])}]",
                          unit_text(r["unit"]), _rhat(r.get("rhat"), cal.rhat_max),
                          fmt(r.get("ess_bulk"))])
-    stages: dict = {}  # one row per calibration stage: its diagnostics are the stage's
-    for s in summary.values():
-        if not s.get("prior_only") and "stage" in s:
-            stages.setdefault(s["stage"], s)
+    # one row per calibration stage: its diagnostics are the stage's
     diag = [[st, ", ".join(s.get("datasets", ())), s.get("divergences", ""),
              _rhat(s.get("max_rhat"), cal.rhat_max), fmt(s.get("min_ess_bulk"))]
-            for st, s in stages.items()]
+            for st, s in sampling_stages(summary).items()]
     terms = _terms_table(cal)
     units = _units(ctx)
     ref = reference_rows(results, units)  # only with a reference.json

@@ -133,9 +133,16 @@ def _error_table(validation: Mapping[str, DatasetValidation],
                  rows)
 
 
-def _stages(summary: Mapping[str, Any]) -> dict[str, Mapping[str, Any]]:
-    """One entry per sampling stage (models sampled together share their diagnostics)."""
-    return {s["stage"]: s for s in summary.values() if not s.get("prior_only")}
+def sampling_stages(summary: Mapping[str, Any]) -> dict[str, Mapping[str, Any]]:
+    """One entry per sampling stage, with its own data sets and diagnostics (models
+    sampled together share them; a model whose shared parameter another model's stage
+    samples is in two)."""
+    out: dict[str, Mapping[str, Any]] = {}
+    for s in summary.values():
+        if not s.get("prior_only") and "stage" in s:
+            for name, st in s.get("stages", {s["stage"]: s}).items():
+                out.setdefault(name, st)
+    return out
 
 
 def _lines(results: RunResults) -> list[str]:
@@ -151,15 +158,14 @@ def _lines(results: RunResults) -> list[str]:
     else:
         calibrated = [m for m, s in summary.items() if not s.get("prior_only")]
         prior = [m for m, s in summary.items() if s.get("prior_only")]
-        where = {s["stage"]: s.get("datasets", ()) for m, s in summary.items()
-                 if not s.get("prior_only") and "stage" in s}
+        where = {name: st.get("datasets", ()) for name, st in sampling_stages(summary).items()}
         lines = [f"Calibration: {cal.mode}, {len(calibrated)} model(s) calibrated"
                  + (" (" + "; ".join(st + (f" with {', '.join(ds)}" if ds else "")
                                      for st, ds in where.items()) + ")" if where else "")
                  + (f"; at their prior (no data): {', '.join(prior)}" if prior else "")
                  + "." + (" Quick run: fewer draws, restarts and folds." if results.quick
                           else "")]
-    stages = _stages(summary)
+    stages = sampling_stages(summary)
     if stages:
         rhat = max(s["max_rhat"] for s in stages.values())
         ess = min(s["min_ess_bulk"] for s in stages.values())
@@ -218,7 +224,7 @@ def _warnings(results: RunResults) -> list[str]:
     checks = {k: c for k, c in cal.surrogate_check.items() if c.get("warning")}
     notes = list(cal.notes)
     out = [_surrogate_warning(k, c) for k, c in checks.items()]
-    out += [w for w in (_sampler_warning(k, s, cal) for k, s in _stages(cal.models).items())
+    out += [w for w in (_sampler_warning(k, s, cal) for k, s in sampling_stages(cal.models).items())
             if w]
     out += notes
     known = {c["warning"] for c in checks.values()} | set(notes)

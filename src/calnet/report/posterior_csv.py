@@ -1,7 +1,8 @@
 """The posterior as two CSV files beside the stage netCDFs, for spreadsheets and R.
 
 ``posterior_draws.csv``: one row per draw of the network (all chains pooled, the rows
-aligned across models), one column per calibrated parameter (``model.parameter``, in
+aligned across models), one column per calibrated parameter (``model.parameter``: a shared
+parameter under each model that has it, with the same draws; in
 declared units). ``posterior_summary.csv``: one row per calibrated parameter with the
 report's posterior summary (mode, mean, sd, central 95 % interval, their Monte Carlo
 standard errors, R-hat, ESS). Models left at their prior are in neither. Both are
