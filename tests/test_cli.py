@@ -278,6 +278,26 @@ def test_seed_reaches_the_stages_after_the_campaign(monkeypatch, tmp_path):
     assert seen["calibrate"] == 3
 
 
+def _signalled(script: str, *signals) -> tuple[int, str, float]:
+    """Run ``script`` in a Python process; once it prints "ready", send ``signals`` 1.5 s
+    apart. Its exit code, its stderr, and the seconds it took to end after the last."""
+    import time
+
+    proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().strip() == "ready"
+        for i, sig in enumerate(signals):
+            if i:
+                time.sleep(1.5)
+            t0 = time.monotonic()
+            proc.send_signal(sig)
+        _, err = proc.communicate(timeout=30)
+    finally:
+        proc.kill()
+    return proc.returncode, err, time.monotonic() - t0
+
+
 _HOLD = """
 import contextlib, sys, time
 import typer
@@ -299,19 +319,10 @@ def test_sigterm_while_a_compiled_program_runs_ends_at_once(in_flight):
     ends calnet run at once with 143 and one line, instead of waiting for the program;
     elsewhere it unwinds as Ctrl-C does, with the same code."""
     import signal
-    import time
 
     hold = "program_running()" if in_flight else "contextlib.nullcontext()"
-    proc = subprocess.Popen([sys.executable, "-c", _HOLD.format(hold=hold)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        assert proc.stdout.readline().strip() == "ready"
-        t0 = time.monotonic()
-        proc.send_signal(signal.SIGTERM)
-        _, err = proc.communicate(timeout=30)
-    finally:
-        proc.kill()
-    assert proc.returncode == 143 and time.monotonic() - t0 < 10, err
+    code, err, took = _signalled(_HOLD.format(hold=hold), signal.SIGTERM)
+    assert code == 143 and took < 10, err
     text = " ".join(err.split())
     said = "ended at once" in text
     assert said == in_flight and "finished simulation runs are kept" in text, text
@@ -391,20 +402,9 @@ def test_a_second_ctrl_c_while_the_chains_run_ends_a_command_at_once():
     """The first Ctrl-C waits for the chains in flight and says that a second ends the
     process; the second does, with 130 and one line."""
     import signal
-    import time
 
-    proc = subprocess.Popen([sys.executable, "-c", _TWICE], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
-    try:
-        assert proc.stdout.readline().strip() == "ready"
-        proc.send_signal(signal.SIGINT)
-        time.sleep(1.5)
-        t0 = time.monotonic()
-        proc.send_signal(signal.SIGINT)
-        _, err = proc.communicate(timeout=30)
-    finally:
-        proc.kill()
-    assert proc.returncode == 130 and time.monotonic() - t0 < 10, err
+    code, err, took = _signalled(_TWICE, signal.SIGINT, signal.SIGINT)
+    assert code == 130 and took < 10, err
     lines = err.strip().splitlines()
     assert lines[0] == ("joint: stopping once the chains in flight end (a running program "
                         "cannot be interrupted; Ctrl-C again ends the process at once)"), err
