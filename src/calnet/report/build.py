@@ -363,7 +363,9 @@ def _sections(ctx, results: RunResults) -> list[Section]:
                           f"[{fmt(sp.ST_lo[j])}, {fmt(sp.ST_hi[j])}]"])
     sens = Section("Sensitivity (Sobol indices of the calibrated chain)",
                    paragraphs=[quick_spread_note(few)] if few else [], tables=[Table(
-        "First-order and total-effect indices over the data's process box",
+        "First-order and total-effect indices over the data's process box (± the "
+        "bootstrap 95 % half-width at the posterior predictive mean; an input the data "
+        "never vary spans its declared bounds)",
         ["data set", "input", "S1", "ST", "ST over posterior draws (95 %)"], srows)],
         figures=pick("sobol ") + pick("map ") + pick("process "))
     sections = [overview, sur] + ([cal] if rows else []) + ([val, sens] if ctx.data else [])
