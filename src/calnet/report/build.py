@@ -250,7 +250,8 @@ def _sections(ctx, results: RunResults) -> list[Section]:
                        for k, c in results.campaigns.items()])],
         figures=pick("network") + pick("data"))
     sur = Section("Surrogates (k-fold cross-validation)", tables=[Table(
-        "GP surrogates (simulator runs per output)",
+        "GP surrogates (simulator runs per output; CV MAPE only where the runs' outputs "
+        "keep one sign and stay within a factor 100 of each other, or the GP is on ln)",
         ["output (unit)", "training runs", "runs left out (not ok or non-finite)",
          "CV folds k", "CV MAPE %", "CV RMSE (output's unit)", "CV 95% coverage"],
         [[surrogate_label(net, k, s.gp.transform), s.n_runs, s.n_excluded,
