@@ -391,9 +391,15 @@ _TWICE = """
 import time
 import calnet.calibration.sampling as sampling
 from calnet.interrupts import ending_allowed
-sampling.jax.block_until_ready = lambda pending: time.sleep(60)  # chains that run on
-with ending_allowed("kept"):
+
+
+def chains(pending):  # chains that run on; ready once the sampler waits for them
     print("ready", flush=True)
+    time.sleep(60)
+
+
+sampling.jax.block_until_ready = chains
+with ending_allowed("kept"):
     sampling._finished("out", "joint", None)
 """
 

@@ -497,7 +497,8 @@ class _Context:
                     sampler=self.sampler, seed=self.seed, calibrated=self.variants,
                     spec_pointwise={name: np.asarray(v.loo["elpd_pointwise"])
                                     for name, v in loo.items()
-                                    if "elpd_pointwise" in v.loo})
+                                    if "elpd_pointwise" in v.loo},
+                    spec_refit={name: v.loo.get("refit", []) for name, v in loo.items()})
             naive, self.explored = other.result()
         self.validated = {name: replace(v, baselines_test=naive.get(name))
                           for name, v in loo.items()}

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import contextlib
 import warnings
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 from scipy import stats
@@ -21,7 +21,7 @@ from calnet.calibration.calibrate_network import (
     stage_keys,
     with_stage,
 )
-from calnet.calibration.diagnostics import import_arviz
+from calnet.calibration.diagnostics import RHAT_MAX, import_arviz
 from calnet.calibration.terms import data_scale, known_noise_var, parameter_keys
 from calnet.chain import ChainPlan
 from calnet.errors import CalibrationWarning, CalnetError, alike
@@ -255,15 +255,27 @@ def fit_check(name: str, pit) -> dict:
             "message": message}
 
 
-def misfit_hint(network: Network, name: str, surrogate_warned: bool) -> str:
-    """What to try when data set ``name``'s predictive checks flag a misfit."""
+def misfit_hint(network: Network, name: str, surrogate_warned: bool,
+                unconverged: float | None = None) -> str:
+    """What to try when data set ``name``'s predictive checks flag a misfit
+    (``unconverged``: the R-hat of a stage behind it that did not converge)."""
     hints = []
+    if unconverged is not None:
+        hints.append(f"its calibration did not converge (R-hat {unconverged:.3g}): these "
+                     "checks inherit that, so fix the sampling first")
     if not network.dataset(name).discrepancy.enabled:
         hints.append("its spec sets discrepancy: none; the default discrepancy (or "
                      "settings.compare: [reference]) would show whether one is needed")
     if surrogate_warned:
         hints.append("the surrogate check warns for it too: misfit counted as surrogate "
                      "error makes leave-one-out look better than the fit")
+    model = network.dataset(name).observed_model
+    others = [d.name for d in network.datasets_for(model) if d.name != name]
+    if others:
+        hints.append(f"{', '.join(others)} also observe{'s' if len(others) == 1 else ''} "
+                     f"'{model}': data sets that pull its parameters apart each show misfit "
+                     "(the one that fits may be flagged too); calibrating with each alone "
+                     "shows which")
     return "".join(f"; {h}" for h in hints)
 
 
@@ -360,7 +372,8 @@ def calibrate_variants(network: Network, surrogates: Surrogates, data, variants,
 def compare_variants(network: Network, surrogates: Surrogates, posterior: NetworkPosterior,
                      variants: tuple[str, ...], *, sampler: SamplerSettings, seed: int = 0,
                      progress=None, calibrated=None,
-                     spec_pointwise: Mapping[str, np.ndarray] | None = None) -> Comparison:
+                     spec_pointwise: Mapping[str, np.ndarray] | None = None,
+                     spec_refit: Mapping[str, Sequence[int]] | None = None) -> Comparison:
     """Calibrate each variant of ``network`` (:func:`variant`) on the posterior's data
     and compare it with the spec's own model by PSIS-LOO, per data set (ArviZ's
     ``compare``: ELPD, difference to the best and its standard error, stacking weight).
@@ -369,8 +382,9 @@ def compare_variants(network: Network, surrogates: Surrogates, posterior: Networ
     :func:`calibrate_variants`, when they were calibrated already. ``spec_pointwise``:
     ``{data set: pointwise ELPD}`` of the spec's model from :func:`psis_loo` with its
     exact refits (``elpd_pointwise``), so that the comparison scores the spec's model as
-    its leave-one-out does; the variants are not refitted (their Pareto k says how far
-    to trust them).
+    its leave-one-out does, and ``spec_refit``: ``{data set: the points refitted}``,
+    whose Pareto k then no longer matters; the variants are not refitted (their Pareto k
+    says how far to trust them).
 
     Returns ``{data set: {model name: VariantScore}}`` where the spec's own model is
     named ``spec``; a score's ``notes`` are a variant's failed convergence or surrogate
@@ -401,12 +415,20 @@ def compare_variants(network: Network, surrogates: Surrogates, posterior: Networ
                        elpd_loo=float(row["elpd_loo"]), p_loo=float(row["p_loo"]),
                        elpd_diff=float(row["elpd_diff"]), dse=float(row["dse"]),
                        weight=float(row["weight"]),
-                       max_pareto_k=float(np.max(loos[name].pareto_k)),
+                       max_pareto_k=_max_k(loos[name].pareto_k, (spec_refit or {}).get(ds, ())
+                                           if name == "spec" else ()),
                        draws=int(posts[name][1].n_draws),
                        notes=() if name == "spec" else tuple(posts[name][1].notes),
                        dse_spec=_pair_se(pointwise["spec"], pointwise[name]))
                    for name, row in table.iterrows()}
     return out
+
+
+def _max_k(khat, refitted: Sequence[int]) -> float:
+    """The largest Pareto k of the points not refitted exactly (0 where all were)."""
+    k = np.asarray(khat, float).copy()
+    k[list(refitted)] = -np.inf
+    return float(max(k.max(), 0.0)) if k.size else 0.0
 
 
 def _with_pointwise(loo, pointwise: np.ndarray):
@@ -485,7 +507,11 @@ def validate_dataset(network: Network, surrogates: Surrogates, posterior: Networ
                  f"{fit['outside_pvalue']:.2g})")
     if said:
         warned = any(c.dataset == data.name and c.message() for c in posterior.checks)
-        said += misfit_hint(network, data.name, warned)
+        rhat = max((st.diagnostics.max_r_hat for st in posterior.stages
+                    if data.name in st.datasets and st.diagnostics is not None),
+                   default=None)
+        said += misfit_hint(network, data.name, warned,
+                            rhat if rhat is not None and rhat > RHAT_MAX else None)
         warnings.warn(said, CalibrationWarning, stacklevel=2)
     loo["sampler"] = {"chains": loo_sampler.chains, "warmup": loo_sampler.warmup,
                       "draws": loo_sampler.draws}

@@ -234,6 +234,14 @@ def test_the_comparison_scores_the_spec_with_its_refitted_pointwise_elpd():
         _pair_se(np.asarray(new["loo_i"]), np.asarray(loos[1]["loo_i"])))
 
 
+def test_a_refitted_points_pareto_k_no_longer_counts():
+    from calnet.validation import _max_k
+
+    khat = np.array([0.2, 1.3, 0.5, 0.9])
+    assert _max_k(khat, []) == 1.3 and _max_k(khat, [1]) == 0.9
+    assert _max_k(khat, [1, 3]) == 0.5 and _max_k(khat[:1], [0]) == 0.0
+
+
 def test_the_loo_band_is_the_mixtures_own_quantiles():
     """The LOO band's ends are the mixture's 2.5 and 97.5 % quantiles, so a point lies
     outside the band exactly when its LOO-PIT is in the tails."""
@@ -271,3 +279,23 @@ def test_the_refits_of_a_data_set_warn_each_kind_once():
                              "of obs said so)"),
         (CalibrationWarning, "C LOO: R-hat 1.02 > 1.01 for C.c"),
         (UserWarning, "something else")]
+
+
+def test_the_misfit_hint_names_what_to_try():
+    from pathlib import Path
+
+    from calnet.spec import load_spec
+    from calnet.validation import misfit_hint, variant
+
+    twodata = load_spec(Path(__file__).parents[1] / "integration" / "twodata")
+    said = misfit_hint(twodata, "d1", surrogate_warned=False)
+    assert said == ("; d2 also observes 'M': data sets that pull its parameters apart each "
+                    "show misfit (the one that fits may be flagged too); calibrating with "
+                    "each alone shows which"), said
+    said = misfit_hint(variant(twodata, "no_discrepancy"), "d2", surrogate_warned=True)
+    assert said.startswith("; its spec sets discrepancy: none; the default discrepancy (or "
+                           "settings.compare: [reference]) would show whether one is needed; "
+                           "the surrogate check warns for it too"), said
+    said = misfit_hint(twodata, "d1", surrogate_warned=False, unconverged=1.527)
+    assert said.startswith("; its calibration did not converge (R-hat 1.53): these checks "
+                           "inherit that, so fix the sampling first; d2 also observes"), said

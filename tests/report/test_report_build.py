@@ -48,7 +48,8 @@ def test_the_comparison_says_whether_the_discrepancy_is_needed():
     needed = {"w": {"spec": s(-118.0, 0.0, 0.0), "no_discrepancy": s(-132.2, 14.2, 2.4)}}
     assert comparison_verdicts(needed) == [
         "w: the spec's model predicts the left-out points better than no_discrepancy (ELPD "
-        "difference 14.2 ± 2.4, more than two standard errors); the discrepancy is needed."]
+        "difference 14.2 ± 2.4, more than two standard errors and 4); the discrepancy is "
+        "needed."]
     # within two standard errors, whichever model leads: no verdict on the discrepancy
     for spec, nodisc in ((s(3.24, 0.0, 0.0), s(2.93, 0.31, 0.66)),
                          (s(2.93, 0.31, 0.66), s(3.24, 0.0, 0.0))):
@@ -61,14 +62,19 @@ def test_the_comparison_says_whether_the_discrepancy_is_needed():
     (v,) = comparison_verdicts(worse)
     assert v.startswith("d: no_discrepancy predicts the left-out points better than the "
                         "spec's model (ELPD difference 6 ± 1.5, more than two standard "
-                        "errors); the discrepancy does not help")
+                        "errors and 4); the discrepancy does not help")
     assert v.endswith("(Pareto k up to 1.13: these ELPDs are uncertain).")
     # a third model best: the pair's own standard error (dse_spec), else no claim
     three = {"d": {"reference": s(0.0, 0.0, 0.0), "spec": s(-1.0, 1.0, 0.5),
-                   "non_orthogonal": s(-1.02, 1.02, 0.5, pair=0.001)}}
+                   "non_orthogonal": s(-6.0, 6.0, 0.5, pair=0.1)}}
     assert comparison_verdicts(three)[1].startswith(
         "d: the spec's model predicts the left-out points better than non_orthogonal (ELPD "
-        "difference 0.02 ± 0.001, more than two standard errors)")
+        "difference 5 ± 0.1, more than two standard errors and 4)")
+    # many standard errors, but a difference below 4: too small to tell models apart
+    three["d"]["non_orthogonal"] = s(-1.02, 1.02, 0.5, pair=0.001)
+    assert ("no clear difference between the spec's model and non_orthogonal (ELPD "
+            "difference 0.02 ± 0.001, below 4, too small to tell models apart)"
+            in comparison_verdicts(three)[1])
     three["d"]["non_orthogonal"] = s(-1.02, 1.02, 0.5)
     assert "no clear difference" in comparison_verdicts(three)[1]
     assert "no standard error of the difference" in comparison_verdicts(three)[1]

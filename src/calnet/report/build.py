@@ -173,7 +173,10 @@ def _caption(ctx, results: RunResults, key: str) -> str:
         return (f"{name}: where each measurement of {observes} falls in its predictive "
                 f"distribution (PIT), {which}; a calibrated "
                 "model gives a flat histogram, a U shape means intervals too narrow, a hump "
-                "too wide, a slope a bias.")
+                "too wide, a slope a bias"
+                + (f" (with {len(v.pit)} points a histogram shows little: read the "
+                   "coverage and the tests in the table)" if v is not None and len(v.pit) < 10
+                   else "") + ".")
     if kind == "sobol":
         return (f"{name}: Sobol indices of the predicted {observes} over the data's range of "
                 "process inputs: first-order (S1) and total effect (ST), with 95 % bootstrap "
@@ -434,11 +437,14 @@ def comparison_tables(comparison) -> tuple[list[Table], list[str]]:
     for every data set."""
     tables = [Table(
         f"{name}: the spec's discrepancy against variants, by leave-one-out (ELPD "
-        "difference to the best, its standard error, stacking weight; the variants are "
-        "calibrated beside the spec with fewer draws)",
+        "difference to the best model and its standard error, as ArviZ's compare gives "
+        "them; the sentences compare each variant with the spec's model instead; stacking "
+        "weight; max k of the points not refitted exactly; the variants are calibrated "
+        "beside the spec with fewer draws)",
         ["model", "ELPD", "difference", "se of difference", "weight", "max k", "draws"],
         [[variant, fmt(r.elpd_loo), fmt(r.elpd_diff), fmt(r.dse),
-          fmt(r.weight), fmt(r.max_pareto_k), str(r.draws)] for variant, r in cmp.items()])
+          fmt(r.weight if r.weight >= 1e-4 else 0.0), fmt(r.max_pareto_k), str(r.draws)]
+         for variant, r in cmp.items()])
         for name, cmp in comparison.items()]
     notes = list(dict.fromkeys(f"{variant}: {n}" for cmp in comparison.values()
                                for variant, r in cmp.items() for n in r.notes))

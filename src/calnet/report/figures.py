@@ -467,12 +467,13 @@ def pit_histogram(pit_loo: Any, pit_post: Any, path: str | Path, title: str,
     fig = _figure(4.6, 3.2)
     ax = fig.add_subplot()
     edges = np.linspace(0.0, 1.0, bins + 1)
-    for values, label, color, alpha in ((pit_post, "posterior predictive", "#9ecae1", 0.9),
-                                        (pit_loo, "leave-one-out", "#08519c", 0.6)):
-        values = np.asarray(values, float)
-        if len(values):
-            ax.hist(values, bins=edges, density=True, color=color, alpha=alpha,
-                    edgecolor="k", lw=0.5, label=f"{label} ({len(values)} points)")
+    post, loo = np.asarray(pit_post, float), np.asarray(pit_loo, float)
+    if len(post):  # filled, and leave-one-out as an outline over it: no blended shade
+        ax.hist(post, bins=edges, density=True, color="#9ecae1", edgecolor="k", lw=0.5,
+                label=f"posterior predictive, all {len(post)} points")
+    if len(loo):
+        ax.hist(loo, bins=edges, density=True, histtype="step", color="#08519c", lw=2,
+                label=f"leave-one-out, {len(loo)} calibration points")
     ax.axhline(1.0, color="k", ls="--", lw=1, label="calibrated (uniform)")
     ax.set(xlim=(0, 1), xlabel="PIT: predictive probability below the measurement",
            ylabel="density", title=title)

@@ -9,6 +9,11 @@ from typing import Any
 from calnet.report.html import fmt
 
 K_RELIABLE = 0.7  # Pareto k above which a PSIS ELPD is not to be trusted
+#: an ELPD difference below this is small whatever its standard error: the models predict
+#: alike and the normal approximation of the difference's error is unreliable there
+#: (Sivula, Magnusson, Matamoros and Vehtari 2022, "Uncertainty in Bayesian leave-one-out
+#: cross-validation based model comparison")
+ELPD_SMALL = 4.0
 
 _MEANING = {  # what each variant's result says about the spec's discrepancy
     "no_discrepancy": ("the discrepancy is needed",
@@ -24,9 +29,9 @@ _MEANING = {  # what each variant's result says about the spec's discrepancy
 
 def comparison_verdicts(comparison: Mapping[str, Mapping[str, Any]]) -> list[str]:
     """One sentence per data set and variant: which model predicts the left-out points
-    better where the ELPD difference exceeds two standard errors (else: no clear
-    difference), what that says about the discrepancy, and whether a Pareto k makes it
-    uncertain.
+    better where the ELPD difference exceeds both two standard errors and
+    :data:`ELPD_SMALL` (else: no clear difference), what that says about the
+    discrepancy, and whether a Pareto k makes it uncertain.
 
     ``comparison``: ``{data set: {"spec" or variant: VariantScore}}``."""
     out = []
@@ -47,9 +52,10 @@ def comparison_verdicts(comparison: Mapping[str, Mapping[str, Any]]) -> list[str
                      if k > K_RELIABLE else "")
             size = f"ELPD difference {fmt(abs(diff))}" + (f" ± {fmt(se)}" if se is not None
                                                            else "")
-            if se is None or abs(diff) <= 2 * se:
+            if se is None or abs(diff) <= 2 * se or abs(diff) < ELPD_SMALL:
                 why = ("no standard error of the difference" if se is None
-                       else "within two standard errors")
+                       else "within two standard errors" if abs(diff) <= 2 * se
+                       else f"below {ELPD_SMALL:g}, too small to tell models apart")
                 out.append(f"{name}: no clear difference between the spec's model and "
                            f"{variant} ({size}, {why})"
                            + (f"; {meaning[1]}" if meaning else "") + f"{shaky}.")
@@ -58,5 +64,5 @@ def comparison_verdicts(comparison: Mapping[str, Mapping[str, Any]]) -> list[str
                 "the spec's model", variant)
             said = f"; {meaning[0] if diff < 0 else meaning[2]}" if meaning else ""
             out.append(f"{name}: {better} predicts the left-out points better than {worse} "
-                       f"({size}, more than two standard errors){said}{shaky}.")
+                       f"({size}, more than two standard errors and {ELPD_SMALL:g}){said}{shaky}.")
     return out
