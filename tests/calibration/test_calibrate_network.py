@@ -253,9 +253,9 @@ def test_calibrate_command_writes_posteriors_summary_and_plots(indep, tmp_path):
     assert "joint calibration" in res.output and "R-hat" in res.output
     # no terminal: progress as plain lines, from the start to the end of each stage
     assert "calibrating ..." in res.output and "calibrating: done in" in res.output
-    assert re.search(r"calibrating: joint: (compiled in [\d.]+ s; )?sampling 2 chains x "
+    assert re.search(r"calibrating: up\+down: (compiled in [\d.]+ s; )?sampling 2 chains x "
                      r"\(300 warm-up \+ 300\) iterations \(0 s\)", res.output), res.output
-    assert "calibrating: joint: sampled (" in res.output
+    assert "calibrating: up+down: sampled (" in res.output
     assert "\r" not in res.output
     summary = json.loads((out / "summary.json").read_text())
     row = summary["up"]["parameters"]["a"]
@@ -273,7 +273,8 @@ def test_a_short_run_warns_about_its_diagnostics(indep):
         calibrate(network, sur, mode="joint", sampler=short, seed=4)
     messages = [str(w.message) for w in caught if issubclass(w.category, CalibrationWarning)]
     assert any("bulk ESS" in m and "< 400" in m for m in messages), messages
-    assert all(m.startswith("joint: ") for m in messages)  # names the stage
+    stage = "+".join(m for m in network.order if network.model(m).parameters)
+    assert all(m.startswith(f"{stage}: ") for m in messages)  # names the stage
     # in the user's words: model.parameter or the data set's discrepancy/noise, not the
     # sampler's variable names
     assert not any(re.search(r"\b(theta|ell|sd2|se2)_", m) for m in messages), messages

@@ -360,8 +360,9 @@ def _joint(network, surrogates, data, plan, seed, sampler, emu, progress,
     models = tuple(m for m in network.order if network.model(m).parameters)
     if progress:
         progress("joint: " + ", ".join(models))
+    # named as the stage is in the tables, the netCDF file and run_info.json
     ld = build_koh(network, surrogates, free=free, datasets=data, emulator_variance=emu,
-                   name="joint", plan=plan)
+                   name="+".join(models) or "joint", plan=plan)
     if ld.dim == 0:  # no parameters, known noise, no discrepancy: nothing to sample
         return _posterior(network, "joint", "-", (), {}, data, (), {}, ())
     idata = _sample(ld, sampler, seed, progress, compiled, warn)
