@@ -175,7 +175,7 @@ def user_errors(func: Callable[..., Any]) -> Callable[..., Any]:
                 if func.__name__ == "run" and _FINISHED:
                     kept = (f" after the run had finished: its results in '{_FINISHED[-1]}' "
                             "are complete")
-                err_console.print(f"[bold red]interrupted[/]{escape(kept)}")
+                err_console.print(f"[bold red]interrupted[/]{escape(kept)}", soft_wrap=True)
                 raise typer.Exit(130) from None
             except Exception as err:
                 if os.environ.get("CALNET_DEBUG"):  # the traceback; the same exit code

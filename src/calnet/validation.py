@@ -213,25 +213,36 @@ def pit_check(name: str, pit) -> dict:
     """Whether the predictive is calibrated for data set ``name``, from its PIT values:
     a Kolmogorov-Smirnov test against the uniform distribution (bias, too wide), and a
     binomial test of the number of points outside the central 95 % band (too narrow;
-    the KS test is weak against PIT values piled at both ends). Returns
-    ``dict(ks_pvalue, outside95, outside_pvalue, flagged, message)``."""
+    the KS test is weak against PIT values piled at both ends), and one of the number
+    inside the central 50 % band (too wide). Returns ``dict(ks_pvalue, outside95,
+    outside_pvalue, inside50, inside50_pvalue, flagged, message)``."""
     pit = np.asarray(pit, float)
     n = len(pit)
     outside = int(np.sum((pit < 0.025) | (pit > 0.975)))
+    inside50 = int(np.sum(np.abs(pit - 0.5) <= 0.25))
     p_ks = float(stats.kstest(pit, "uniform").pvalue) if n >= 3 else float("nan")
     p_out = float(stats.binom.sf(outside - 1, n, 0.05)) if n else float("nan")
-    flagged = bool(p_ks < PIT_P_MIN or p_out < PIT_P_MIN)
+    # too wide: too many points in the central half (the KS test is weak there too)
+    p_wide = float(stats.binom.sf(inside50 - 1, n, 0.5)) if n else float("nan")
+    flagged = bool(p_ks < PIT_P_MIN or p_out < PIT_P_MIN or p_wide < PIT_P_MIN)
     message = ""
-    if flagged:
+    if flagged and p_out >= PIT_P_MIN and (p_wide < PIT_P_MIN or np.mean(
+            np.abs(pit - 0.5) < 0.25) > 0.75):
+        message = (f"{name}: the leave-one-out predictive is too wide ({inside50} of {n} "
+                   f"points inside its central 50 % band where {0.5 * n:.1f} are expected, "
+                   f"p = {p_wide:.2g}; PIT uniformity p = {p_ks:.2g}); its noise or "
+                   "discrepancy is larger than these data need (their priors may be too "
+                   "generous), so its bands overstate the uncertainty")
+    elif flagged:
         shape = ("too narrow: the data fall in its tails" if p_out < PIT_P_MIN else
-                 "too wide" if np.mean(np.abs(pit - 0.5) < 0.25) > 0.75 else
                  "biased" if abs(float(np.mean(pit)) - 0.5) > 0.15 else "miscalibrated")
         message = (f"{name}: the leave-one-out predictive is {shape} ({outside} of {n} "
                    f"points outside its 95 % band where {0.05 * n:.1f} are expected, "
                    f"p = {p_out:.2g}; PIT uniformity p = {p_ks:.2g}); the model, its "
                    "discrepancy or its noise does not describe these data")
     return {"ks_pvalue": p_ks, "outside95": outside, "outside_pvalue": p_out,
-            "flagged": flagged, "message": message}
+            "inside50": inside50, "inside50_pvalue": p_wide, "flagged": flagged,
+            "message": message}
 
 
 def fit_check(name: str, pit) -> dict:

@@ -179,7 +179,7 @@ def test_pit_check_flags_a_known_wrong_model(tmp_path_factory):
 
 
 def test_pit_check_on_known_pit_values():
-    from calnet.validation import pit_check
+    from calnet.validation import PIT_P_MIN, pit_check
 
     rng = np.random.default_rng(0)
     assert not pit_check("d", rng.uniform(size=200))["flagged"]
@@ -193,6 +193,14 @@ def test_pit_check_on_known_pit_values():
             f"{four['ks_pvalue']:.2g}") in four["message"], four["message"]
     wide = pit_check("d", rng.uniform(0.4, 0.6, 60))
     assert wide["flagged"] and "too wide" in wide["message"]
+    # 26 of 30 in the central half (the case study's widths): too wide by the count
+    # inside the 50 % band, which the KS test alone misses
+    half = pit_check("d", np.r_[np.linspace(0.26, 0.74, 26), 0.1, 0.2, 0.8, 0.9])
+    assert half["ks_pvalue"] > PIT_P_MIN and half["inside50"] == 26
+    assert half["inside50_pvalue"] == pytest.approx(stats.binom.sf(25, 30, 0.5))
+    assert half["flagged"] and half["message"].startswith(
+        "d: the leave-one-out predictive is too wide (26 of 30 points inside its central "
+        "50 % band where 15.0 are expected"), half["message"]
 
 
 def test_fit_check_on_known_pit_values():

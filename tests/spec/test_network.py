@@ -211,3 +211,12 @@ def test_simulator_forms_in_campaigns_doc_parse():
     refs = [SimulatorRef.model_validate(e) for e in entries]
     assert {r.kind for r in refs} == {"builtin", "python", "command", "umbridge"}
     assert len(refs) >= 7
+
+
+def test_a_unit_written_as_a_number_is_its_text():
+    """``unit: 1`` (YAML reads a number) means the dimensionless "1"."""
+    from calnet.spec.variables import Bounded, Output
+
+    assert Bounded(name="a", unit=1, lower=0.0, upper=1.0).unit == "1"
+    assert Output(name="y", unit=1e-3).unit == "0.001"
+    assert Output(name="y", unit="mm").unit == "mm"

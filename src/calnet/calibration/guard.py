@@ -65,6 +65,8 @@ class SurrogateCheck:
     rates : dict of ``model.output`` -> float or None
         :func:`variance_rate` of each surrogate: its variance falls as ``n^-rate`` (None:
         too few runs to measure).
+    discrepancy : bool
+        Whether the data set has a discrepancy (``data_sd`` is then not the noise's alone).
     """
 
     dataset: str
@@ -76,6 +78,7 @@ class SurrogateCheck:
     outside_share: float = 0.0
     scale: str = ""
     rates: dict[str, float] = field(default_factory=dict)
+    discrepancy: bool = True
 
     @property
     def ratio(self) -> float:
@@ -102,8 +105,9 @@ class SurrogateCheck:
                 else f" {self.scale}" if self.scale not in ("", "1") else "")
         head = (f"{self.dataset}: the surrogate, not the data, sets the answer: the surrogate "
                 f"sd at the posterior ({total:.3g}{unit}) is {self.ratio:.2g} x the data's "
-                f"noise and discrepancy sd at the data ({self.data_sd:.3g}{unit}, the "
-                f"discrepancy's as it enters the likelihood there), mostly from {k}")
+                + (f"noise and discrepancy sd at the data ({self.data_sd:.3g}{unit}, the "
+                   "discrepancy's as it enters the likelihood there)" if self.discrepancy
+                   else f"noise sd ({self.data_sd:.3g}{unit})") + f", mostly from {k}")
         if self.extrapolating:
             return (f"{head}, at the {self.outside} data point(s) outside the input bounds "
                     f"({self.outside_share:.0%} of it), where the surrogate extrapolates: "
@@ -210,7 +214,8 @@ def check_surrogates(network, surrogates, posterior, *, n_draws: int = 50
         observed = network.observed(network.dataset(ds))
         scale = "ln" if observed.transform == "log" else (observed.unit or "")
         out.append(SurrogateCheck(ds, sds, data_sd, runs, needed, int(outside.sum()), share,
-                                  scale, {k: rates[k] for k in keys if k in rates}))
+                                  scale, {k: rates[k] for k in keys if k in rates},
+                                  bool(term.discrepancy)))
     return out
 
 

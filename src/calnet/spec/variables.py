@@ -158,6 +158,13 @@ ScalePrior = Annotated[
 
 
 # ---------------------------------------------------------------- variables
+def unit_text(value):
+    """A unit as the spec may write it: ``unit: 1`` (YAML reads a number) is ``"1"``."""
+    if isinstance(value, int | float) and not isinstance(value, bool):
+        return f"{value:g}"
+    return value
+
+
 class Bounded(Frozen):
     """A named real variable with a unit and finite bounds ``lower < upper``."""
 
@@ -166,6 +173,8 @@ class Bounded(Frozen):
     lower: float
     upper: float
     description: str = ""
+
+    _unit = field_validator("unit", mode="before")(lambda cls, value: unit_text(value))
 
     @field_validator("lower", "upper")
     @classmethod
@@ -283,3 +292,5 @@ class Output(Frozen):
     measurable: bool = False
     transform: Literal["log"] | None = None
     description: str = ""
+
+    _unit = field_validator("unit", mode="before")(lambda cls, value: unit_text(value))
