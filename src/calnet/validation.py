@@ -215,7 +215,7 @@ def pit_check(name: str, pit) -> dict:
     binomial test of the number of points outside the central 95 % band (too narrow;
     the KS test is weak against PIT values piled at both ends), and one of the number
     inside the central 50 % band (too wide). Returns ``dict(ks_pvalue, outside95,
-    outside_pvalue, inside50, inside50_pvalue, flagged, message)``."""
+    outside_pvalue, inside50, inside50_pvalue, flagged, too_wide, message)``."""
     pit = np.asarray(pit, float)
     n = len(pit)
     outside = int(np.sum((pit < 0.025) | (pit > 0.975)))
@@ -226,8 +226,9 @@ def pit_check(name: str, pit) -> dict:
     p_wide = float(stats.binom.sf(inside50 - 1, n, 0.5)) if n else float("nan")
     flagged = bool(p_ks < PIT_P_MIN or p_out < PIT_P_MIN or p_wide < PIT_P_MIN)
     message = ""
-    if flagged and p_out >= PIT_P_MIN and (p_wide < PIT_P_MIN or np.mean(
-            np.abs(pit - 0.5) < 0.25) > 0.75):
+    too_wide = bool(flagged and p_out >= PIT_P_MIN and (p_wide < PIT_P_MIN or np.mean(
+        np.abs(pit - 0.5) < 0.25) > 0.75))
+    if too_wide:
         message = (f"{name}: the leave-one-out predictive is too wide ({inside50} of {n} "
                    f"points inside its central 50 % band where {0.5 * n:.1f} are expected, "
                    f"p = {p_wide:.2g}; PIT uniformity p = {p_ks:.2g}); its noise or "
@@ -242,7 +243,7 @@ def pit_check(name: str, pit) -> dict:
                    "discrepancy or its noise does not describe these data")
     return {"ks_pvalue": p_ks, "outside95": outside, "outside_pvalue": p_out,
             "inside50": inside50, "inside50_pvalue": p_wide, "flagged": flagged,
-            "message": message}
+            "too_wide": too_wide, "message": message}
 
 
 def fit_check(name: str, pit) -> dict:
@@ -516,13 +517,14 @@ def validate_dataset(network: Network, surrogates: Surrogates, posterior: Networ
         said += (f"; in-sample {fit['outside95']} of {fit['n']} calibration points fall "
                  f"outside the posterior predictive's 95 % band (p = "
                  f"{fit['outside_pvalue']:.2g})")
-    if said:
+    if said and not (check.get("flagged") and check.get("too_wide")):  # a misfit: hints
         warned = any(c.dataset == data.name and c.message() for c in posterior.checks)
         rhat = max((st.diagnostics.max_r_hat for st in posterior.stages
                     if data.name in st.datasets and st.diagnostics is not None),
                    default=None)
         said += misfit_hint(network, data.name, warned,
                             rhat if rhat is not None and rhat > RHAT_MAX else None)
+    if said:
         warnings.warn(said, CalibrationWarning, stacklevel=2)
     loo["sampler"] = {"chains": loo_sampler.chains, "warmup": loo_sampler.warmup,
                       "draws": loo_sampler.draws}

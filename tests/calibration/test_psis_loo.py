@@ -196,7 +196,7 @@ def test_pit_check_on_known_pit_values():
     # 26 of 30 in the central half (the case study's widths): too wide by the count
     # inside the 50 % band, which the KS test alone misses
     half = pit_check("d", np.r_[np.linspace(0.26, 0.74, 26), 0.1, 0.2, 0.8, 0.9])
-    assert half["ks_pvalue"] > PIT_P_MIN and half["inside50"] == 26
+    assert half["ks_pvalue"] > PIT_P_MIN and half["inside50"] == 26 and half["too_wide"]
     assert half["inside50_pvalue"] == pytest.approx(stats.binom.sf(25, 30, 0.5))
     assert half["flagged"] and half["message"].startswith(
         "d: the leave-one-out predictive is too wide (26 of 30 points inside its central "
