@@ -217,11 +217,9 @@ def pit_check(name: str, pit) -> dict:
     inside the central 50 % band (too wide). Returns ``dict(ks_pvalue, outside95,
     outside_pvalue, inside50, inside50_pvalue, flagged, too_wide, message)``."""
     pit = np.asarray(pit, float)
-    n = len(pit)
-    outside = int(np.sum((pit < 0.025) | (pit > 0.975)))
+    n, outside, p_out = _outside95(pit)
     inside50 = int(np.sum(np.abs(pit - 0.5) <= 0.25))
     p_ks = float(stats.kstest(pit, "uniform").pvalue) if n >= 3 else float("nan")
-    p_out = float(stats.binom.sf(outside - 1, n, 0.05)) if n else float("nan")
     # too wide: too many points in the central half (the KS test is weak there too)
     p_wide = float(stats.binom.sf(inside50 - 1, n, 0.5)) if n else float("nan")
     flagged = bool(p_ks < PIT_P_MIN or p_out < PIT_P_MIN or p_wide < PIT_P_MIN)
@@ -246,6 +244,14 @@ def pit_check(name: str, pit) -> dict:
             "too_wide": too_wide, "message": message}
 
 
+def _outside95(pit: np.ndarray) -> tuple[int, int, float]:
+    """Points, points outside the central 95 % band (PIT below 0.025 or above 0.975), and
+    the binomial p-value of at least that many where 5 % are expected."""
+    n = len(pit)
+    outside = int(np.sum((pit < 0.025) | (pit > 0.975)))
+    return n, outside, float(stats.binom.sf(outside - 1, n, 0.05)) if n else float("nan")
+
+
 def fit_check(name: str, pit) -> dict:
     """Whether the posterior predictive covers its own calibration points: a binomial
     test of the number outside its central 95 % band. A well-specified model's in-sample
@@ -254,10 +260,7 @@ def fit_check(name: str, pit) -> dict:
     the likelihood, correlated across the points, lets a left-out point be predicted
     from its neighbours' misfit). Returns ``dict(outside95, n, outside_pvalue, flagged,
     message)``."""
-    pit = np.asarray(pit, float)
-    n = len(pit)
-    outside = int(np.sum((pit < 0.025) | (pit > 0.975)))
-    p_out = float(stats.binom.sf(outside - 1, n, 0.05)) if n else float("nan")
+    n, outside, p_out = _outside95(np.asarray(pit, float))
     flagged = bool(p_out < PIT_P_MIN)
     message = (f"{name}: the posterior predictive misses its own calibration points "
                f"({outside} of {n} outside its 95 % band where at most {0.05 * n:.1f} are "

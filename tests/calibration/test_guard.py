@@ -241,6 +241,7 @@ def test_a_rough_surrogate_is_not_given_a_run_count():
                          {"m.y": 120, "u.a": 37}, rates={"m.y": 1.5, "u.a": 1.0})
     assert "about 120 runs of 'm' (now 50; " in two.message()
     assert ") and about 37 runs of 'u' (now 30; u.a's" in two.message()
+    assert two.to_dict()["needing_runs"] == ["m.y", "u.a"]  # the report's box reads these
     # a rough dominant surrogate: no count for it, but the others' still
     rough = SurrogateCheck("d", {"u.a": 0.1, "m.y": 0.3}, 0.2, {"m.y": 50, "u.a": 30},
                            {"m.y": None, "u.a": 37}, rates={"m.y": 0.01, "u.a": 1.0})

@@ -35,7 +35,8 @@ def calibration(summary_=None, *, mode="segmented", checks=None, notes=()):
         checks = {"pdas": {"ratio": 0.68, "warning": GUARD,
                            "surrogate_sd": {"thermal.G": 0.06, "micro.lam": 0.09},
                            "runs": {"thermal.G": 40, "micro.lam": 30},
-                           "runs_needed": {"thermal.G": 900, "micro.lam": 552}},
+                           "runs_needed": {"thermal.G": 900, "micro.lam": 552},
+                           "needing_runs": ["micro.lam", "thermal.G"]},
                   "width": {"ratio": 0.2, "warning": None, "surrogate_sd": {},
                             "runs": {}, "runs_needed": {}}}
     return CalibrationResult(mode=mode, plug="mode", calibrated=True, rhat_max=1.01, ess_min=400,

@@ -38,6 +38,12 @@ RATIO_TARGET = 0.25
 OUTSIDE_SHARE = 0.5
 
 
+def sd_ratio(surrogate_sd: dict[str, float], data_sd: float) -> float:
+    """The surrogates' summed sd (root of the summed variances) over the data's sd."""
+    total = math.sqrt(sum(v**2 for v in surrogate_sd.values()))
+    return total / data_sd if data_sd > 0 else math.inf
+
+
 @dataclass(frozen=True)
 class SurrogateCheck:
     """The surrogate-versus-data comparison of one data set.
@@ -82,8 +88,13 @@ class SurrogateCheck:
 
     @property
     def ratio(self) -> float:
-        total = math.sqrt(sum(v**2 for v in self.surrogate_sd.values()))
-        return total / self.data_sd if self.data_sd > 0 else math.inf
+        return sd_ratio(self.surrogate_sd, self.data_sd)
+
+    @property
+    def wanting(self) -> list[str]:
+        """The surrogates that need more runs than they have, largest sd first."""
+        return [k for k in sorted(self.needed, key=lambda k: -self.surrogate_sd[k])
+                if self.needed[k] is not None and self.needed[k] > self.runs[k]]
 
     @property
     def extrapolating(self) -> bool:
@@ -114,8 +125,7 @@ class SurrogateCheck:
                     "more runs inside the bounds will not help; widen the bounds and extend "
                     "the campaign over those points, or leave them out")
         rough = self.rates.get(k) is not None and self.rates[k] < RATE_MIN
-        more = [j for j in sorted(self.needed, key=lambda j: -self.surrogate_sd[j])
-                if self.needed[j] is not None and self.needed[j] > self.runs[j]]
+        more = self.wanting
         runs = " and ".join(
             f"about {self.needed[j]} runs of '{j.split('.')[0]}' (now {self.runs[j]}; "
             + (f"{j}'s variance falls as n^-{self.rates[j]:.2g} with its runs"
@@ -139,6 +149,7 @@ class SurrogateCheck:
                 "variance_rates": self.rates, "target_ratio": RATIO_TARGET,
                 "runs_gain_little": [k for k, r in self.rates.items()
                                      if r is not None and r < RATE_MIN],
+                "needing_runs": self.wanting,
                 "warning": self.message()}
 
 
@@ -200,8 +211,7 @@ def check_surrogates(network, surrogates, posterior, *, n_draws: int = 50
         data_sd = math.sqrt(noise + disc)
         sds = {k: math.sqrt(max(float(v), 0.0)) for k, v in zip(keys, var, strict=True)}
         runs = {k: int(surrogates[k].n_runs) for k in keys}
-        total = math.sqrt(sum(v**2 for v in sds.values()))
-        warns = (total / data_sd if data_sd > 0 else math.inf) > RATIO_WARN  # .ratio's
+        warns = sd_ratio(sds, data_sd) > RATIO_WARN  # SurrogateCheck.message's test
         needed = {}
         for k in keys if warns else ():  # without a warning no runs are counted
             ratio = sds[k] / data_sd if data_sd > 0 else math.inf

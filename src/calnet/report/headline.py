@@ -190,11 +190,9 @@ def _surrogate_warning(name: str, check: Mapping[str, Any]) -> str:
     if worst in check.get("runs_gain_little", ()):
         return (f"{head}; more runs of '{model}' would barely lower it (its GP's variance "
                 "hardly falls with runs).")
-    needed = check["runs_needed"]
-    more = [k for k in sorted(needed, key=lambda k: -check["surrogate_sd"].get(k, 0.0))
-            if needed[k] is not None and needed[k] > check["runs"].get(k, 0)]
-    runs = " and ".join(f"about {needed[k]} runs of '{k.split('.')[0]}' (now "
-                        f"{check['runs'][k]})" for k in more) or "more runs"
+    runs = " and ".join(f"about {check['runs_needed'][k]} runs of '{k.split('.')[0]}' "
+                        f"(now {check['runs'][k]})"
+                        for k in check.get("needing_runs", ())) or "more runs"
     return f"{head}; {runs} would bring it to {check.get('target_ratio', 0.25):g} x."
 
 
