@@ -216,5 +216,5 @@ def test_a_linear_output_into_a_log_scale_input_is_warned_of_twice():
         pred = predict_output(net, sur, post, "b.y", np.array([[0.0], [0.5]]))
     said = [str(w.message) for w in caught]
     assert not np.isfinite(pred.mean[0]) and np.isfinite(pred.mean[1])  # u = sin 0 = 0
-    assert any(m.startswith("b.y: 1 of 2 point(s) have no finite prediction (row(s) [0])")
+    assert any(m.startswith("b.y: 1 of 2 point(s) have no finite prediction (point(s) [1])")
                for m in said), said

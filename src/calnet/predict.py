@@ -239,9 +239,9 @@ def warn_not_finite(what: str, samples: np.ndarray) -> None:
     some points: a surrogate upstream gave values the input it feeds cannot take."""
     bad = ~np.all(np.isfinite(samples), axis=0)
     if bad.any():
-        rows = np.flatnonzero(bad)
+        rows = np.flatnonzero(bad) + 1  # numbered from 1, as check_settings does
         warnings.warn(f"{what}: {rows.size} of {bad.size} point(s) have no finite prediction "
-                      f"(row(s) {rows[:5].tolist()}{', ...' if rows.size > 5 else ''}): a "
+                      f"(point(s) {rows[:5].tolist()}{', ...' if rows.size > 5 else ''}): a "
                       "surrogate upstream gives values there that the input it feeds "
                       "cannot take (<= 0 into an input on the log scale, for instance); "
                       "declare 'transform: log' on such an output (calnet check warns of "
