@@ -355,6 +355,43 @@ def test_without_warn_a_stuck_chain_is_noted_not_warned():
     assert note.startswith("two_modes: chain 2 of 4 stuck in a local mode"), note
 
 
+@dataclass(frozen=True)
+class _NeedleSpec:
+    """A narrow mode at -2 (sd 0.02) beside a broad one at 5 (sd 1) 200 log units lower:
+    a chain started outside the narrow mode's basin (about +-0.4) settles in the broad
+    one, where a prior draw lands 11 times out of 12."""
+
+    def logdensity(self, data, u):
+        narrow = -0.5 * ((u[0] + 2.0) / 0.02) ** 2
+        broad = -200.0 - 0.5 * (u[0] - 5.0) ** 2
+        return jnp.logaddexp(narrow, broad)
+
+    def constrain(self, data, u):
+        return {"theta": u}
+
+
+@dataclass(frozen=True)
+class _Needle(_TwoModes):
+    spec: _NeedleSpec = _NeedleSpec()
+    name: str = "needle"
+
+    def init(self, seed, n_chains):  # a prior N(0, 3^2)
+        return np.random.default_rng(seed).normal(0.0, 3.0, (n_chains, 1))
+
+
+def test_each_chain_starts_from_the_best_of_many_prior_draws():
+    ld = _Needle()
+    starts = ld.init(0, 4)
+    assert np.all(np.abs(starts + 2.0) > 0.4)  # one draw per chain: all in the broad mode
+    idata = sample_nuts(ld, seed=0, num_chains=4, num_warmup=300, num_draws=300)
+    theta = idata.posterior["theta"].values[..., 0]
+    assert abs(theta.mean() + 2.0) < 0.004 and 0.016 < theta.std() < 0.024, (
+        theta.mean(axis=1), theta.std())
+    # the same chains from single draws stay in the broad mode
+    idata = sample_nuts(ld, seed=0, num_chains=4, num_warmup=300, num_draws=300, init=starts)
+    assert abs(idata.posterior["theta"].values.mean() - 5.0) < 0.3
+
+
 def test_chains_of_one_mode_are_not_run_again(oracle_run):
     assert oracle_run[3].posterior.sizes["chain"] == 4
     assert oracle_run[3].posterior.attrs["chains_restarted"] == ""

@@ -30,6 +30,7 @@ import time
 import warnings
 from collections import OrderedDict
 from collections.abc import Callable, Hashable, Iterator
+from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager, nullcontext, suppress
 from dataclasses import dataclass
 from functools import partial
@@ -55,6 +56,8 @@ __all__ = ["sample_nuts", "clear_cache", "cache_info", "CHAIN_METHODS"]
 
 CHAIN_METHODS = ("auto", "parallel", "sequential", "vectorized")
 _CACHE_SIZE = 16
+#: prior draws per chain among which its initial point is the one of highest log-density
+INIT_CANDIDATES = 64
 
 
 @dataclass(frozen=True)
@@ -389,6 +392,28 @@ def _resolve_method(chain_method: str, num_chains: int) -> tuple[str, int]:
     return chain_method, groups
 
 
+def _logdensity_fn(spec):
+    # evaluated once per calibration: compiled quickly rather than optimised
+    return jax.jit(jax.vmap(spec.logdensity, in_axes=(None, 0)), compiler_options=FEW_CALLS)
+
+
+_LOGDENSITY: OrderedDict = OrderedDict()
+
+
+def best_starts(ld, candidates: np.ndarray) -> np.ndarray:
+    """Per chain, the row of ``candidates`` (chains, K, dim) of highest finite log-density
+    (the first where none is finite, so that the sampler's check names that chain)."""
+    if ld.spec not in _LOGDENSITY:
+        _LOGDENSITY[ld.spec] = _logdensity_fn(ld.spec)
+        while len(_LOGDENSITY) > _CACHE_SIZE:
+            _LOGDENSITY.popitem(last=False)
+    chains, k, dim = candidates.shape
+    lps = np.asarray(_LOGDENSITY[ld.spec](ld.data, device_array(candidates.reshape(-1, dim),
+                                                                 float))).reshape(chains, k)
+    best = np.argmax(np.where(np.isfinite(lps), lps, -np.inf), axis=1)
+    return candidates[np.arange(chains), best]
+
+
 def _constrain_fn(spec):
     return jax.jit(jax.vmap(jax.vmap(spec.constrain, in_axes=(None, 0)), in_axes=(None, 0)),
                    compiler_options=FEW_CALLS)
@@ -461,7 +486,11 @@ def sample_nuts(
     thin : int
         Keep every ``thin``-th iteration: ``num_draws // thin`` draws per chain.
     init : array (num_chains, dim), optional
-        Initial points on the unconstrained scale; default: draws from the priors.
+        Initial points on the unconstrained scale. Default: for each chain the one of
+        highest log-density among ``INIT_CANDIDATES`` (64) draws from the priors, so that
+        a narrow mode of the posterior (a sharp feature of a model, precise data) is
+        found by at least one chain; chains stuck in a far lower mode are then restarted
+        from the others (below).
     target_accept : float
         Target acceptance rate of the step-size adaptation.
     max_tree_depth : int
@@ -509,10 +538,19 @@ def sample_nuts(
     every = max(1, total // 50) if _counts_iterations(progress) else 0
     cfg = _Config(ld.spec, ld.dim, num_warmup, num_draws, thin, float(target_accept),
                   max_tree_depth, bool(dense_mass), method, groups, every)
-    u0 = np.asarray(ld.init(seed, num_chains) if init is None else init, dtype=float)
-    if u0.shape != (num_chains, ld.dim):
-        raise CalibrationError(f"{ld.name}: init must have shape ({num_chains}, {ld.dim}), "
-                               f"got {u0.shape}")
+    screening = None
+    if init is None:  # screened beside the sampler's compilation, which needs shapes only
+        candidates = np.asarray(ld.init(seed, num_chains * INIT_CANDIDATES),
+                                dtype=float).reshape(num_chains, -1, ld.dim)
+        pool = ThreadPoolExecutor(max_workers=1)
+        screening = pool.submit(best_starts, ld, candidates)
+        pool.shutdown(wait=False)
+        u0 = candidates[:, 0]
+    else:
+        u0 = np.asarray(init, dtype=float)
+        if u0.shape != (num_chains, ld.dim):
+            raise CalibrationError(f"{ld.name}: init must have shape ({num_chains}, "
+                                   f"{ld.dim}), got {u0.shape}")
     ids = np.arange(num_chains)
 
     def host(a):  # host arrays: pmap places each device's share itself (a JAX array would
@@ -527,6 +565,9 @@ def sample_nuts(
 
     args = (host(chain_keys(1)), host(u0), host(ids), ld.data)
     exe, t_compile = _compiled(cfg, args)
+    if screening is not None:
+        u0 = screening.result()
+        args = (args[0], host(u0), *args[2:])
     if compiled is not None:
         compiled()
 
