@@ -196,6 +196,50 @@ def test_a_poor_surrogate_is_flagged(calibrated, tmp_path):
                              "posterior")
 
 
+def _posterior_of_ydata(post, a: float, sd: float) -> NetworkPosterior:
+    """A posterior of ydata alone (so every point's setting is one of its rows), every
+    draw at ``a``, its noise variance sampled at ``sd**2``."""
+    n = 400
+    theta = {"up": np.full((n, 1), a), "down": np.full((n, 1), B_TRUE)}
+    return NetworkPosterior("joint", "-", (), theta, {"ydata": {"se2": np.full(n, sd**2)}},
+                            {"ydata": post.data["ydata"]})
+
+
+@pytest.mark.parametrize("a", [A_TRUE, A_TRUE + 0.15])
+def test_the_simulator_at_the_posterior_against_the_observations(calibrated, tmp_path, a):
+    """Each point's setting is a row of ydata: the simulator's value there against the
+    row's observation, in sds of the noise at the draw. The RMS of those residuals is
+    recomputed here from the closed-form simulator; at the parameter the data were made
+    with it is about 1 (fits), 0.15 away the simulator misses every observation by some
+    10 noise sds."""
+    network, sur, post, _ = calibrated
+    sd = 0.02
+    result = verify(network, sur, _posterior_of_ydata(post, a, sd), k=8, seed=0,
+                    workdir=tmp_path)
+    data = post.data["ydata"]
+    r = []
+    for p in result.points:
+        if p.surrogate == "up.y":
+            j = int(np.flatnonzero(np.isclose(data.x[:, 0], p.setting["up.x"]))[0])
+            r.append((data.y[j] - up_y(p.setting["up.x"], a)) / sd)
+    fit = result.fits["ydata"]
+    assert set(result.fits) == {"ydata"} and fit.n == len(r) == 8
+    assert fit.rms == pytest.approx(np.sqrt(np.mean(np.square(r))), rel=1e-9)
+    assert fit.max_abs == pytest.approx(np.max(np.abs(r)), rel=1e-9)
+    if a == A_TRUE:
+        assert fit.fits and fit.rms < 2
+    else:
+        assert not fit.fits and fit.rms > 5
+        assert fit.verdict.startswith("the simulator at the posterior misses these "
+                                      f"observations: RMS {fit.rms:.1f} sds")
+    assert result.to_dict()["data_fits"]["ydata"]["rms"] == pytest.approx(fit.rms)
+
+
+def test_a_data_set_without_a_noise_level_is_not_fitted(good):
+    """The module's posterior carries no noise draws: nothing to scale a residual by."""
+    assert all(not f.n and f.verdict.startswith("not checked") for f in good.fits.values())
+
+
 def _with_up(root, function: str, name: str):
     """The spec with ``up`` simulated by ``verify_sims.<function>``, written to
     ``root/name``."""

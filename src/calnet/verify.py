@@ -12,6 +12,13 @@ scale (``ln y`` for ``transform: log``)
 
 with ``m`` and ``s`` the GP's predictive mean and sd of a new simulator run (nugget
 included). A surrogate agrees when every ``|z| <= 3``.
+
+Where a point's setting is a row of a data set, the simulator's value is also compared
+with that row's observation, in sds of the calibration's noise and discrepancy at the
+draw (:class:`DataFit`): a surrogate can agree with its simulator where the posterior
+is, and the posterior still miss the data (chains that settled in a wrong mode, a
+surrogate that led the calibration astray elsewhere). An RMS above :data:`FIT_RMS` says
+the simulator at the posterior does not fit the data.
 """
 
 from __future__ import annotations
@@ -36,6 +43,8 @@ Z_LIMIT = 3.0
 #: an RMS z below this, over at least WIDE_MIN_POINTS points, is noted as an overstated sd
 WIDE_RMS_Z = 0.4
 WIDE_MIN_POINTS = 8
+#: an RMS of the observations' residuals (in the likelihood's sds) above this is a misfit
+FIT_RMS = 2.0
 
 
 @dataclass(frozen=True)
@@ -134,6 +143,43 @@ class SurrogateCheck:
 
 
 @dataclass(frozen=True)
+class DataFit:
+    """The simulator at posterior points against one data set's observations there.
+
+    Attributes
+    ----------
+    dataset : str
+    observes : str
+        ``model.output``.
+    n : int
+        Points whose setting is a row of the data set and whose run gave a value.
+    rms, max_abs : float
+        RMS and largest ``|r|``, ``r = (observed - simulator) / sd`` on the modelled
+        scale, ``sd`` the calibration's noise and discrepancy sd at the point's draw:
+        about 1 where the simulator at the posterior fits the data as the calibration
+        says; NaN when ``n`` is 0.
+    verdict : str
+        ``"fits"``, or what is wrong and what to do.
+    """
+
+    dataset: str
+    observes: str
+    n: int
+    rms: float
+    max_abs: float
+    verdict: str
+
+    @property
+    def fits(self) -> bool:
+        return self.verdict == "fits"
+
+    def to_dict(self) -> dict:
+        return {"dataset": self.dataset, "observes": self.observes, "n": self.n,
+                "rms": _num(self.rms), "max_abs": _num(self.max_abs),
+                "rms_limit": FIT_RMS, "verdict": self.verdict}
+
+
+@dataclass(frozen=True)
 class VerifyResult:
     """Every surrogate checked at ``k`` posterior points.
 
@@ -148,6 +194,9 @@ class VerifyResult:
         One per surrogate, keyed ``model.output``.
     notes : tuple of str
         How settings were completed where the calibration data did not give them.
+    fits : dict of str to DataFit
+        Per data set with a row among the points' settings: the simulator against its
+        observations.
     """
 
     k: int
@@ -156,6 +205,7 @@ class VerifyResult:
     points: tuple[VerifyPoint, ...]
     checks: Mapping[str, SurrogateCheck]
     notes: tuple[str, ...] = field(default=())
+    fits: Mapping[str, DataFit] = field(default_factory=dict)
 
     @property
     def agrees(self) -> bool:
@@ -166,7 +216,8 @@ class VerifyResult:
         return {"k": self.k, "seed": self.seed, "z_limit": Z_LIMIT, "agrees": self.agrees,
                 "draws": list(self.draws),
                 "checks": {key: c.to_dict() for key, c in self.checks.items()},
-                "points": [p.to_dict() for p in self.points], "notes": list(self.notes)}
+                "points": [p.to_dict() for p in self.points], "notes": list(self.notes),
+                "data_fits": {name: f.to_dict() for name, f in self.fits.items()}}
 
 
 def verify(network: Network, surrogates: Surrogates, posterior: NetworkPosterior, *,
@@ -221,7 +272,7 @@ def verify(network: Network, surrogates: Surrogates, posterior: NetworkPosterior
                                                replace=k > posterior.n_draws))
              if has_parameters else (None,) * k)
     needed = list(dict.fromkeys(key for m in models for key in network.process_input_keys(m)))
-    settings, notes = pick_settings(network, posterior.data, needed, k, rng)
+    settings, notes, rows = pick_settings(network, posterior.data, needed, k, rng)
     if not has_parameters:
         notes.append("the network has no calibration parameters: each point is a setting "
                       "only, the simulators against the surrogates there")
@@ -234,12 +285,16 @@ def verify(network: Network, surrogates: Surrogates, posterior: NetworkPosterior
                                Path(workdir) / m, progress)
     checks = {s.key: summarise(s.key, s.transform, [p for p in points if p.surrogate == s.key])
               for s in surrogates.items.values() if s.model in models}
-    return VerifyResult(k, seed, draws, tuple(points), checks, tuple(notes))
+    fits = data_fits(network, posterior, points, rows)
+    return VerifyResult(k, seed, draws, tuple(points), checks, tuple(notes), fits)
 
 
 def pick_settings(network: Network, data: Mapping, needed: Sequence[str], k: int,
-                  rng: np.random.Generator) -> tuple[list[dict[str, float]], list[str]]:
-    """``k`` process settings (``model.input -> value``) covering the keys ``needed``.
+                  rng: np.random.Generator
+                  ) -> tuple[list[dict[str, float]], list[str], list[tuple[str, int] | None]]:
+    """``k`` process settings (``model.input -> value``) covering the keys ``needed``,
+    notes, and the data row (data set, index) each point's setting starts from (None
+    without data).
 
     Point ``i`` takes row ``i`` (cycling) of a seeded shuffle of every calibration data
     row; keys that row lacks come from a random row of another data set that has them,
@@ -249,11 +304,12 @@ def pick_settings(network: Network, data: Mapping, needed: Sequence[str], k: int
     rows = [(name, j) for name, d in data.items() for j in range(len(d.x))]
     order = rng.permutation(len(rows))
     unseen = [key for key in needed if not any(key in d.input_keys for d in data.values())]
-    settings = []
+    settings, sources = [], []
     for i in range(k):
         setting: dict[str, float] = {}
+        sources.append(rows[order[i % len(rows)]] if rows else None)
         if rows:
-            name, j = rows[order[i % len(rows)]]
+            name, j = sources[-1]
             setting = _row(data[name], j)
         for d in data.values():
             if any(key in needed and key not in setting for key in d.input_keys):
@@ -269,7 +325,55 @@ def pick_settings(network: Network, data: Mapping, needed: Sequence[str], k: int
     else:
         notes = [f"inputs {unseen} appear in no calibration data set; drawn within their "
                  "declared bounds"] if unseen else []
-    return settings, notes
+    return settings, notes, sources
+
+
+def data_fits(network: Network, posterior: NetworkPosterior, points: Sequence[VerifyPoint],
+              rows: Sequence[tuple[str, int] | None]) -> dict[str, DataFit]:
+    """:class:`DataFit` of every data set that gave a point its setting and whose output
+    was run there."""
+    from calnet.calibration.terms import known_noise_var, modelled
+
+    by_point = {(p.surrogate, p.point): p for p in points}
+    residuals: dict[str, list[float]] = {}
+    for i, row in enumerate(rows):
+        if row is None:
+            continue
+        name, j = row
+        data = posterior.data[name]
+        p = by_point.get((data.observes, i))
+        hyper = posterior.hyper.get(name, {})
+        known = known_noise_var(network, data)
+        if p is None:
+            continue
+        residuals.setdefault(name, [])
+        if p.status != "ok" or (known is None and "se2" not in hyper):
+            continue
+        var = float(known[j]) if known is not None else _at(hyper["se2"], p.draw)
+        if "sd2" in hyper:
+            var += _at(hyper["sd2"], p.draw)
+        observed = float(modelled(network, data)[j])
+        residuals[name].append((observed - p.simulator) / math.sqrt(max(var, 1e-300)))
+    return {name: _fit(name, posterior.data[name].observes, np.asarray(r))
+            for name, r in residuals.items()}
+
+
+def _at(draws: np.ndarray, draw: int | None) -> float:
+    """A hyperparameter at a draw (its mean in a network without parameters)."""
+    return float(np.mean(draws) if draw is None else draws[draw])
+
+
+def _fit(name: str, observes: str, r: np.ndarray) -> DataFit:
+    if r.size == 0:
+        return DataFit(name, observes, 0, math.nan, math.nan,
+                       "not checked: no run at its settings gave a value")
+    rms, top = float(np.sqrt(np.mean(r**2))), float(np.abs(r).max())
+    verdict = "fits" if rms <= FIT_RMS else (
+        f"the simulator at the posterior misses these observations: RMS {rms:.1f} sds of "
+        f"the calibration's noise and discrepancy over {r.size} points (about 1 for a "
+        "fit): the chains may have settled in a wrong mode (run calnet run again with "
+        "another seed) or the surrogates misled the calibration (more campaign runs)")
+    return DataFit(name, observes, int(r.size), rms, top, verdict)
 
 
 def summarise(key: str, transform: str | None, points: Sequence[VerifyPoint]) -> SurrogateCheck:
