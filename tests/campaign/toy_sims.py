@@ -200,3 +200,17 @@ def chain_m2(inputs):
 def chain_m3(inputs):
     """``y = w1 + w2``."""
     return {"y": inputs["w1"] + inputs["w2"]}
+
+
+def deaf_hang(inputs, *, pid_file):
+    """Ignores SIGTERM and SIGINT, writes its process id to ``pid_file`` and hangs for
+    ever (a simulator that nothing but SIGKILL stops)."""
+    import signal
+
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    with open(pid_file, "w") as f:
+        f.write(str(os.getpid()))
+    while True:
+        time.sleep(1)
+

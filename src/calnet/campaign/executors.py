@@ -36,6 +36,9 @@ are killed (:meth:`ProcessExecutor._restart`)."""
 WATCH_INTERVAL = 1.0
 """Seconds between looks at a process pool's workers while no run finishes
 (:meth:`ProcessExecutor._nudge`)."""
+STOP_GRACE = 1.0
+"""Seconds the workers of an interrupted process pool have to end on SIGTERM before they
+are killed (:meth:`ProcessExecutor.close`)."""
 
 
 class Executor(Protocol):
@@ -229,13 +232,13 @@ class ProcessExecutor:
 
     def close(self, *, wait: bool = True) -> None:
         """Shut the pool down; ``wait=False`` also stops the runs in flight (the
-        interpreter would otherwise wait for them at exit)."""
-        processes = self._pool_processes()
+        interpreter would otherwise wait for them at exit): SIGTERM, then SIGKILL for a
+        worker still running :data:`STOP_GRACE` seconds later (a simulator that ignores
+        SIGTERM)."""
+        processes = list(dict.fromkeys([*self._processes, *self._pool_processes()]))
         self._pool.shutdown(wait=wait, cancel_futures=True)
         if not wait:
-            for proc in processes:
-                if proc.is_alive():
-                    proc.terminate()
+            _stop(processes, STOP_GRACE)
 
     def __enter__(self):
         return self
@@ -243,6 +246,21 @@ class ProcessExecutor:
     def __exit__(self, kind, *exc):
         # after an interrupt, do not wait for the runs in flight: they will be run again
         self.close(wait=kind is None)
+
+
+def _stop(processes: list[Any], grace: float) -> None:
+    """SIGTERM to each process still alive, SIGKILL to those alive ``grace`` seconds
+    later; returns once each has ended."""
+    alive = [proc for proc in processes if proc.is_alive()]
+    for proc in alive:
+        proc.terminate()
+    end = time.monotonic() + grace
+    for proc in alive:
+        wait_ended([proc.sentinel], max(0.0, end - time.monotonic()))
+    for proc in alive:
+        if not wait_ended([proc.sentinel], 0):
+            proc.kill()
+            wait_ended([proc.sentinel], 5)
 
 
 def _die_with_parent() -> None:
