@@ -255,9 +255,9 @@ def test_a_worker_killed_from_outside_is_said_and_its_runs_run_again(tmp_path):
     assert result.exit_code == 0, result.output
     text = " ".join(result.output.split())
     assert marker.is_file() and "toy.sqlite:ok4" in "".join(result.output.split())
-    said = ("a worker process died (killed by signal 9) with runs 0, 1 in flight; they are "
-            "run again, one at a time (a run that ends its process again is recorded "
-            "failed)")
+    # run 1 was only queued behind run 0: it is not suspected, nor named
+    said = ("a worker process died (killed by signal 9) with run 0 running; it is run "
+            "again alone (a run that ends its process again is recorded failed)")
     assert f"toy: {said}" in text  # the progress line, as it happens
     assert f"note: {said}" in text  # and the summary
 

@@ -162,6 +162,10 @@ def test_sigterm_to_a_campaign_with_a_hung_simulator_stops_as_ctrl_c_does(tmp_pa
     assert len(kept) < 12
     with sqlite3.connect(f"file:{store}?mode=ro", uri=True) as db:  # closed cleanly
         assert db.execute("SELECT COUNT(*) FROM lease").fetchone()[0] == 0
+        # the hung run was started, the one queued behind it was not: a resume says
+        # "1 re-run after an interruption"
+        assert db.execute("SELECT COUNT(*) FROM runs WHERE status IS NULL AND started_at "
+                          "IS NOT NULL").fetchone()[0] == 1
     db.close()
 
 

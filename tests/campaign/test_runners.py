@@ -269,6 +269,37 @@ def test_numpy_scalars_in_a_sim_result_are_numbers():
     assert bad.status == "failed" and "non-finite outputs ['y']" in bad.message
 
 
+@pytest.mark.parametrize(("executor", "timeout"), [("processes", None),
+                                                   ("in-process", None), ("auto", 30.0)])
+def test_a_keyboard_interrupt_the_simulator_raises_is_a_failed_run(tmp_path, executor,
+                                                                   timeout):
+    """No signal came: the simulator raised KeyboardInterrupt itself. The run is
+    recorded failed, saying so, and the campaign goes on (in a worker process, in this
+    process, in a timeout's child alike)."""
+    from calnet.campaign import run_campaign
+
+    net = toy_network(tmp_path, "python:toy_sims:raises_interrupt", runs=8, timeout=timeout)
+    summary = run_campaign(net, "toy", executor=executor, progress=False)
+    assert summary.complete and 0 < summary.n_failed < 8
+    for message in summary.failures.values():
+        assert message.startswith("failed: the simulator raised KeyboardInterrupt: solver "
+                                  "caught Ctrl-C (at toy_sims.py:"), message
+
+
+def test_a_ctrl_c_during_an_in_process_run_still_stops_the_campaign(tmp_path):
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        pytest.skip("signals reach the main thread only")
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            _run(toy_network(tmp_path, "python:toy_sims:interrupted_by_user"))
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
 @pytest.mark.parametrize(("workers", "timeout"), [(1, None), (None, 30.0)])
 def test_what_a_python_simulator_prints_goes_to_its_runs_logs(tmp_path, capfd, workers,
                                                                timeout):

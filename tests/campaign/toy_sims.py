@@ -214,3 +214,40 @@ def deaf_hang(inputs, *, pid_file):
     while True:
         time.sleep(1)
 
+
+def raises_interrupt(inputs):
+    """Raises KeyboardInterrupt itself (no signal) for ``x > 0.5``."""
+    if inputs["x"] > 0.5:
+        raise KeyboardInterrupt("solver caught Ctrl-C")
+    return quadratic(inputs)
+
+
+def interrupted_by_user(inputs):
+    """Sends SIGINT to its own process, as a Ctrl-C at the terminal would."""
+    import signal
+
+    os.kill(os.getpid(), signal.SIGINT)
+    time.sleep(5)
+    return quadratic(inputs)
+
+
+def dies_logged(inputs, *, log):
+    """Appends ``x`` to the file ``log``, then ends its process for ``x > 0.75``."""
+    with open(log, "a") as f:
+        f.write(f"{inputs['x']!r}\n")
+    time.sleep(0.2)  # the next run is queued meanwhile
+    if inputs["x"] > 0.75:
+        os._exit(7)
+    return quadratic(inputs)
+
+
+_CALLS = [0]
+
+
+def leaks(inputs):
+    """Runs out of memory from its third call in a process on (a leak)."""
+    _CALLS[0] += 1
+    if _CALLS[0] >= 3:
+        raise MemoryError
+    return quadratic(inputs)
+

@@ -276,12 +276,13 @@ def _kept_imported(db: RunStore) -> list[str]:
 
 
 def _died_note(indices: list[int], code: str) -> str:
-    """The line saying that a worker process died with the runs ``indices`` in flight."""
+    """The line saying that a worker process died while the runs ``indices`` were
+    running (the runs only queued are not named: they are not suspected)."""
     runs = (f"run {indices[0]}" if len(indices) == 1
             else f"runs {', '.join(map(str, indices))}")
-    return (f"a worker process died{code} with {runs} in flight; "
-            f"{'it is' if len(indices) == 1 else 'they are'} run again, one at a time (a run "
-            "that ends its process again is recorded failed)")
+    again = "it is run again alone" if len(indices) == 1 else "they are run again, one at a time"
+    return (f"a worker process died{code} with {runs} running; {again} (a run that ends "
+            "its process again is recorded failed)")
 
 
 def _warn_undeclared(model: Model, rec: RunRecord, said: set[str]) -> set[str]:

@@ -30,15 +30,17 @@ import select
 import signal
 import subprocess
 import sys
+import threading
 import time
 import traceback
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from calnet.campaign import logs, reaper
+from calnet.campaign.executors import replace_this_worker
 from calnet.errors import CampaignError
 from calnet.simulators.base import STATUSES, SimResult, Simulator, not_numbers
 from calnet.simulators.registry import builtin_info
@@ -341,20 +343,67 @@ def execute_run(sim: Simulator, index: int, inputs: Mapping[str, float],
 
 
 def _guarded(call) -> SimResult:
-    try:
-        result = call()
-    except (Exception, SystemExit) as err:  # any simulator error (sys.exit too) is
-        return SimResult({}, "failed", _describe(err))  # recorded, the campaign goes on
+    with _sigint_noted() as interrupted:
+        try:
+            result = call()
+        except (Exception, SystemExit) as err:  # any simulator error (sys.exit too) is
+            return SimResult({}, "failed", _describe(err))  # recorded, the campaign goes on
+        except KeyboardInterrupt as err:
+            # the user's Ctrl-C (or SIGTERM, raised as one) stops the campaign; a
+            # KeyboardInterrupt the simulator raised itself is a failed run
+            from calnet.campaign.interrupt import Terminated
+
+            if interrupted() or isinstance(err, Terminated):
+                raise
+            return SimResult({}, "failed", _describe(err))
     if not isinstance(result, SimResult):
         return SimResult({}, "failed", f"simulator returned {type(result).__name__}, "
                          "expected a SimResult")
     return result
 
 
+@contextmanager
+def _sigint_noted() -> Iterator[Callable[[], bool]]:
+    """Within the block, note whether SIGINT arrived (the handler in place still runs);
+    yields the callable that says so. Where SIGINT raises no KeyboardInterrupt (ignored,
+    as in a local worker process; default; off the main thread, where no signal handler
+    runs) it always says no."""
+    seen: list[int] = []
+    if threading.current_thread() is not threading.main_thread():
+        yield lambda: False
+        return
+    previous = signal.getsignal(signal.SIGINT)
+    if not callable(previous):
+        yield lambda: False
+        return
+
+    def note(signum: int, frame: Any) -> None:
+        seen.append(signum)
+        previous(signum, frame)
+
+    signal.signal(signal.SIGINT, note)
+    try:
+        yield lambda: bool(seen)
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
 def _describe(err: BaseException) -> str:
+    """A simulator's exception as a run's message: ``ValueError: bad mesh (at sim.py:12)``.
+
+    A MemoryError says that memory ran out (and asks for a fresh worker process, which
+    the leaked memory does not follow: :func:`~calnet.campaign.executors.replace_this_worker`);
+    a KeyboardInterrupt says that the simulator raised it."""
     frame = traceback.extract_tb(err.__traceback__)[-1:] if err.__traceback__ else []
-    where = f" (at {Path(frame[0].filename).name}:{frame[0].lineno})" if frame else ""
-    return f"{type(err).__name__}: {err}{where}"
+    at = f"at {Path(frame[0].filename).name}:{frame[0].lineno}" if frame else ""
+    text = str(err)
+    if isinstance(err, MemoryError):
+        replace_this_worker()
+        return f"MemoryError (out of memory){': ' + text if text else ''}{' ' + at if at else ''}"
+    name = type(err).__name__
+    if isinstance(err, KeyboardInterrupt):
+        name = "the simulator raised KeyboardInterrupt"
+    return f"{name}{': ' + text if text else ''}{f' ({at})' if at else ''}"
 
 
 def call_in_child(sim: Simulator, inputs: Mapping[str, float], timeout: float, *,
