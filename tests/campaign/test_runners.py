@@ -52,7 +52,7 @@ def test_callable_gets_options(tmp_path):
 
 @pytest.mark.parametrize(("target", "inputs", "status", "message"), [
     ("crashy", {**POINT, "x": 0.9}, "failed", "RuntimeError: solver diverged"),
-    ("nan_out", POINT, "failed", "non-finite outputs ['y']"),
+    ("nan_out", POINT, "failed", "non-finite outputs: 'y' = nan"),
     ("nonconverged", {**POINT, "a": 0.1}, "nonconverged", "residual"),
     ("exits", {**POINT, "x": 0.95}, "failed", "SystemExit: 4"),
 ])
@@ -267,6 +267,27 @@ def test_numpy_scalars_in_a_sim_result_are_numbers():
     assert all(type(v) is float for v in res.outputs.values())
     bad = SimResult({"y": np.float32("nan"), "z": 1.0}).checked(("y", "z"))
     assert bad.status == "failed" and "non-finite outputs ['y']" in bad.message
+
+
+@pytest.mark.parametrize(("kind", "message"), [
+    ("bool", "output 'y' is bool True, expected a number"),
+    ("none", "output 'y' is NoneType None, expected a number"),
+    ("nan", "non-finite outputs: 'y' = nan"),
+    ("inf", "non-finite outputs: 'y' = -inf"),
+])
+def test_an_output_that_is_no_finite_number_says_what_it_is(tmp_path, kind, message):
+    net = toy_network(tmp_path, {"kind": "python", "target": "toy_sims:odd_outputs",
+                                 "options": {"kind": kind}})
+    rec = _run(net)
+    assert (rec.status, rec.message) == ("failed", message)
+
+
+def test_a_command_output_true_is_no_number(tmp_path):
+    from calnet.campaign.runners import _parse_outputs
+
+    res = _parse_outputs('{"y": true, "z": 1}', "json-file", ("y", "z"))
+    assert res.status == "failed"
+    assert res.message == "output 'y' in output.json is bool True, expected a number"
 
 
 @pytest.mark.parametrize(("executor", "timeout"), [("processes", None),

@@ -251,3 +251,8 @@ def leaks(inputs):
         raise MemoryError
     return quadratic(inputs)
 
+
+def odd_outputs(inputs, *, kind):
+    """Returns ``y`` as a bool, None, NaN or infinity, by ``kind``."""
+    value = {"bool": True, "none": None, "nan": math.nan, "inf": -math.inf}[kind]
+    return {"y": value, "z": 1.0}

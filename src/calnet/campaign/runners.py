@@ -23,6 +23,7 @@ from __future__ import annotations
 import importlib
 import json
 import math
+import numbers
 import os
 import pickle
 import re
@@ -38,6 +39,8 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from calnet.campaign import logs, reaper
 from calnet.campaign.executors import replace_this_worker
@@ -333,13 +336,32 @@ def execute_run(sim: Simulator, index: int, inputs: Mapping[str, float],
             result = _guarded(lambda: sim(inputs))
     else:
         result = _guarded(lambda: sim(inputs))
-    result = result.checked(expected)
+    result = _checked(result, expected)
     if result.status not in STATUSES:
         result = SimResult(result.outputs, "failed", f"unknown status '{result.status}' "
                            f"(allowed {list(STATUSES)}): {result.message}", result.diagnostics)
     outputs = {k: _to_float(v) for k, v in result.outputs.items()}
     return RunRecord(index, result.status, outputs, result.message,
                      _jsonable(result.diagnostics), time.perf_counter() - start)
+
+
+def _checked(result: SimResult, expected: tuple[str, ...]) -> SimResult:
+    """:meth:`SimResult.checked`, which also refuses a bool (True is no measurement) or
+    None for an output, and names the value of each output that is not finite."""
+    if result.status != "ok":
+        return result
+    wrong = "; ".join(f"output '{k}' is {type(v).__name__} {v!r}, expected a number"
+                      for k, v in result.outputs.items()
+                      if v is None or isinstance(v, (bool, np.bool_)))
+    if wrong:
+        return SimResult(result.outputs, "failed", wrong, result.diagnostics)
+    checked = result.checked(expected)
+    if checked.status == "ok" or not checked.message.startswith("non-finite outputs"):
+        return checked
+    values = ", ".join(f"'{k}' = {float(v)!r}" for k, v in result.outputs.items()
+                       if isinstance(v, numbers.Real) and not math.isfinite(float(v)))
+    return SimResult(result.outputs, "failed", f"non-finite outputs: {values}",
+                     result.diagnostics)
 
 
 def _guarded(call) -> SimResult:
@@ -591,7 +613,10 @@ def _parse_outputs(text: str, mode: str, expected: tuple[str, ...] = ()) -> SimR
     message = str(doc.pop("message", ""))
     outputs = {k: _to_float(v) for k, v in doc.items() if isinstance(v, (int, float))
                or v is None}
-    wrong = not_numbers({k: doc[k] for k in expected if k in doc}, f" in {where}")
+    wrong = "; ".join([*(f"output '{k}' in {where} is bool {doc[k]!r}, expected a number"
+                         for k in expected if isinstance(doc.get(k), bool)),
+                       *filter(None, [not_numbers({k: doc[k] for k in expected if k in doc},
+                                                  f" in {where}")])])
     if wrong and status == "ok":
         return SimResult(outputs, "failed", wrong)
     return SimResult(outputs, status, message)  # type: ignore[arg-type]  (execute_run
