@@ -33,6 +33,7 @@ from calnet.campaign.planning import (
     choose_design,
     design_conflict,
     fallback_note,
+    fewer_note,
     plan,
     settings_of,
     spec_design,
@@ -98,7 +99,8 @@ class CampaignSummary:
         Runs of this call that did not finish ``ok`` (all of them, not only those in
         ``failures``).
     notes : tuple of str
-        What else happened, one line each: imported runs not ``ok`` that
+        What else happened, one line each: fewer runs asked for than the store plans
+        (all of them kept), imported runs not ``ok`` that
         ``retry_failed`` keeps as they are, a worker process that died (and the runs in
         flight with it, run again).
     """
@@ -143,7 +145,8 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
     model_name : str
     runs : int, optional
         Size of the design; default the model's ``campaign.runs`` (or the network's), or
-        the store's planned size when that is larger. More than the store plans augments it.
+        the store's planned size when that is larger. More than the store plans augments it;
+        fewer keeps the store's design whole, which ``notes`` of the summary says.
     workers : int, optional
         Parallel runs; with ``executor="auto"``, more than 1 means local processes.
     scheduler : str, optional
@@ -206,7 +209,8 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
         total = plan(db, network, model, choice,
                      target_runs(runs, network, model, choice, db.planned(), db.imported()),
                      seed)
-        notes: list[str] = []
+        fewer = fewer_note(runs, network, model, choice, total)
+        notes: list[str] = [fewer] if fewer else []
         if retry_failed:
             db.reset_failed()
             notes += _kept_imported(db)
@@ -404,9 +408,11 @@ def _complete_readonly(path: Path, network: Network, model: Model, seed: int,
     except (CampaignError, sqlite3.DatabaseError):
         return None  # let the writing path give the full diagnosis
     _warn_fallback(network, model, choice, meta, path)
+    fewer = fewer_note(runs, network, model, choice, planned)
     return CampaignSummary(model.name, path, planned, planned, 0, 0, counts, {},
                            time.perf_counter() - start, "none", 0, seed, 0,
-                           meta.get("design_kind") or choice.label)
+                           meta.get("design_kind") or choice.label,
+                           notes=(fewer,) if fewer else ())
 
 
 def _warn_fallback(network: Network, model: Model, choice: DesignChoice,

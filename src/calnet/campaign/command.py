@@ -25,7 +25,7 @@ def campaign(
         "parents first)")] = None,
     runs: Annotated[int | None, typer.Option(
         metavar="N", min=1, help="runs in the design (default: the spec's); more than the "
-        "store has augments it")] = None,
+        "store has augments it, fewer keeps all it has")] = None,
     workers: Annotated[int | None, typer.Option(
         metavar="K", min=1, help="parallel runs on this machine")] = None,
     scheduler: Annotated[str | None, typer.Option(
