@@ -329,3 +329,16 @@ def test_export_only_refuses_another_models_store_and_names_a_changed_seed(tmp_p
     assert seeded.exit_code == 0 and (tmp_path / "s.csv").is_file(), seeded.output
     assert "was made from seed 2, not 5; it is exported as it is" in " ".join(
         seeded.output.split()), seeded.output
+
+
+def test_summaries_are_not_wrapped_off_a_terminal(tmp_path):
+    """stdout to a log file: each summary line is one line, so that grep finds it."""
+    deep = tmp_path / ("a-rather-long-folder-name-" * 3)
+    spec = toy_spec(deep, runs=4)
+    result = CliRunner().invoke(app, ["campaign", str(spec), "--no-progress"])
+    assert result.exit_code == 0, result.output
+    lines = result.output.splitlines()
+    assert any("4 runs planned" in line and "re-run after an interruption) in" in line
+               and line.endswith("lhs design)") for line in lines), result.output
+    assert any(line.startswith(f"  store {deep}") and line.endswith("ok 4")
+               for line in lines), result.output
