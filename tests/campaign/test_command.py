@@ -160,6 +160,16 @@ def test_a_store_with_results_names_only_the_changed_fields(tmp_path):
     text = " ".join(refused.output.split())
     assert "(simulator options.scale: (unset) -> 2.0); simulate again with --fresh" in text
     assert "'kind'" not in text and "input_mode" not in text
+    # the other way out keeps the runs: export the old store, import it into a new one
+    assert ("or keep its runs: export them (`calnet campaign SPEC --model toy --export-only "
+            "--export runs.csv`), then import them into a new --store (`calnet campaign "
+            "SPEC --model toy --store NEW.sqlite --import runs.csv`)") in text
+    table, new = tmp_path / "runs.csv", tmp_path / "NEW.sqlite"
+    base = ["campaign", str(spec), "--model", "toy"]
+    assert CliRunner().invoke(app, [*base, "--export-only", "--export", str(table)]
+                              ).exit_code == 0
+    moved = CliRunner().invoke(app, [*base, "--store", str(new), "--import", str(table)])
+    assert moved.exit_code == 0 and "imported 4 runs" in moved.output, moved.output
 
 
 def test_a_campaign_with_many_failed_runs_ends_with_a_warning_saying_where(tmp_path):

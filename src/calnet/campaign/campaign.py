@@ -524,7 +524,11 @@ def _foreign(meta: dict[str, str], model: Model, seed: int, path: Path) -> str |
     kind, change = difference
     if kind == "spec":
         return (f"the store '{path}' was made from a different '{model.name}' spec "
-                f"({change}); simulate again with --fresh: {_WAYS_OUT}")
+                f"({change}); simulate again with --fresh: {_WAYS_OUT}; or keep its runs: "
+                f"export them (`calnet campaign SPEC --model {model.name} --export-only "
+                f"--export runs.csv`), then import them into a new --store (`calnet campaign "
+                f"SPEC --model {model.name} --store NEW.sqlite --import runs.csv`), where "
+                "the new spec's campaign goes on from them")
     return (f"the store '{path}' was made with seed {meta.get('seed')}, not {seed}; "
             f"to keep it, set settings.seed back to {meta.get('seed')} (calnet campaign: "
             f"--seed {meta.get('seed')}); for the new seed, simulate again with --fresh: "
