@@ -121,3 +121,13 @@ def test_a_memory_error_gets_the_next_runs_a_fresh_worker(tmp_path):
         assert message.startswith("failed: MemoryError (out of memory) at toy_sims.py:"), message
     note = store_failure_note(summary.store_path, net.model("toy"))
     assert "2 of them ran out of memory (MemoryError" in note and "--retry-failed" in note
+
+
+def test_runs_whose_process_died_leave_no_empty_folders(tmp_path):
+    """A run that ended its worker had no time to remove its empty logs: the campaign
+    removes them, and the run's folder, as for a run that finished."""
+    net = toy_network(tmp_path, "python:toy_sims:dies", runs=12)
+    summary = run_campaign(net, "toy", workers=1, progress=False)
+    assert summary.n_failed > 0
+    work = summary.store_path.with_suffix(".work")
+    assert not work.exists() or not any(work.iterdir()), sorted(work.rglob("*"))

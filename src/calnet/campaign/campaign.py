@@ -18,7 +18,8 @@ import math
 import sqlite3
 import time
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager, suppress
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -27,7 +28,7 @@ import calnet
 from calnet.campaign.executors import WorkerDied, executor_kind, make_executor
 from calnet.campaign.importing import ImportedRuns, import_into, point_finder, read_runs
 from calnet.campaign.lease import holder as lease_holder
-from calnet.campaign.logs import logs_note
+from calnet.campaign.logs import logs_note, tidy
 from calnet.campaign.planning import (
     DesignChoice,
     choose_design,
@@ -226,10 +227,11 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
         # a user's Python function without a timeout runs in a worker process, so that
         # one ending the interpreter is recorded as failed instead of ending the campaign
         isolate = isinstance(sim, CallableRunner) and timeout is None
-        with make_executor(executor, workers=workers, scheduler=scheduler,
-                           isolate=isolate) as ex, \
+        work = path.with_suffix(".work").absolute()
+        with _tidied(work, [i for i, _, _ in todo]), \
+                make_executor(executor, workers=workers, scheduler=scheduler,
+                              isolate=isolate) as ex, \
                 campaign_progress(progress, model_name, total, skipped, db) as shown:
-            work = path.with_suffix(".work").absolute()
             # what a simulator prints goes to its run's logs, unless the run shares this
             # process (the console's) or runs on Dask workers (threads of their process)
             capture = timeout is not None or ex.name == "processes"
@@ -261,6 +263,21 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
     return CampaignSummary(model_name, path, total, skipped, len(todo), in_flight,
                            counts, failures, time.perf_counter() - start, ex.name, ex.workers,
                            seed, imported, label, n_failed, tuple(notes))
+
+
+@contextmanager
+def _tidied(work: Path, indices: list[int]) -> Iterator[None]:
+    """On leaving the block, however it is left, remove the empty logs and empty folders
+    of the runs ``indices`` in the work folder ``work``, which a run whose process was
+    killed (an interrupt, a worker that died, a timeout) had no time to remove."""
+    try:
+        yield
+    finally:
+        if work.is_dir():
+            for index in indices:
+                tidy(work / f"run-{index:05d}")
+        with suppress(OSError):
+            work.rmdir()  # only when empty
 
 
 def _kept_imported(db: RunStore) -> list[str]:
