@@ -86,9 +86,25 @@ def test_more_runs_augment_the_design(tmp_path):
     after = store_rows(default_store(net, "toy"))
     assert after[:6] == before
     assert len({r[1] for r in after}) == 9  # no input hash repeated
-    with pytest.raises(CampaignError, match="already plans 9 runs"):
-        run_campaign(net, "toy", runs=4, progress=False)
-    assert run_campaign(net, "toy", progress=False).planned == 9  # the spec's 6 < 9
+    fewer = run_campaign(net, "toy", runs=4, progress=False)
+    assert (fewer.planned, fewer.ran) == (9, 0)
+    assert fewer.notes == ("--runs asks for 4 runs, the store plans 9: all 9 are kept (a "
+                           "design shrinks only in a new store: --fresh, which deletes these "
+                           "runs, or a new --store)",)
+    again = run_campaign(net, "toy", progress=False)  # the spec's 6 < 9
+    assert again.planned == 9 and again.notes[0].startswith(
+        "models.toy.campaign.runs asks for 6 runs, the store plans 9: all 9 are kept")
+
+
+def test_fewer_runs_in_the_spec_than_the_store_holds_are_said(tmp_path):
+    """The spec's campaign.runs lowered from 8 to 5 after the runs finished: the store's
+    8 runs are kept and used, and the summary says so (as for --runs 5)."""
+    run_campaign(toy_network(tmp_path, runs=8), "toy", progress=False)
+    summary = run_campaign(toy_network(tmp_path, runs=5), "toy", progress=False)
+    assert summary.complete and (summary.planned, summary.ran) == (8, 0)
+    assert summary.notes == ("models.toy.campaign.runs asks for 5 runs, the store plans 8: "
+                             "all 8 are kept (a design shrinks only in a new store: --fresh, "
+                             "which deletes these runs, or a new --store)",)
 
 
 def test_retry_failed_and_fresh(tmp_path):

@@ -160,6 +160,16 @@ def test_a_store_with_results_names_only_the_changed_fields(tmp_path):
     text = " ".join(refused.output.split())
     assert "(simulator options.scale: (unset) -> 2.0); simulate again with --fresh" in text
     assert "'kind'" not in text and "input_mode" not in text
+    # the other way out keeps the runs: export the old store, import it into a new one
+    assert ("or keep its runs: export them (`calnet campaign SPEC --model toy --export-only "
+            "--export runs.csv`), then import them into a new --store (`calnet campaign "
+            "SPEC --model toy --store NEW.sqlite --import runs.csv`)") in text
+    table, new = tmp_path / "runs.csv", tmp_path / "NEW.sqlite"
+    base = ["campaign", str(spec), "--model", "toy"]
+    assert CliRunner().invoke(app, [*base, "--export-only", "--export", str(table)]
+                              ).exit_code == 0
+    moved = CliRunner().invoke(app, [*base, "--store", str(new), "--import", str(table)])
+    assert moved.exit_code == 0 and "imported 4 runs" in moved.output, moved.output
 
 
 def test_a_campaign_with_many_failed_runs_ends_with_a_warning_saying_where(tmp_path):
@@ -255,9 +265,9 @@ def test_a_worker_killed_from_outside_is_said_and_its_runs_run_again(tmp_path):
     assert result.exit_code == 0, result.output
     text = " ".join(result.output.split())
     assert marker.is_file() and "toy.sqlite:ok4" in "".join(result.output.split())
-    said = ("a worker process died (killed by signal 9) with runs 0, 1 in flight; they are "
-            "run again, one at a time (a run that ends its process again is recorded "
-            "failed)")
+    # run 1 was only queued behind run 0: it is not suspected, nor named
+    said = ("a worker process died (killed by signal 9) with run 0 running; it is run "
+            "again alone (a run that ends its process again is recorded failed)")
     assert f"toy: {said}" in text  # the progress line, as it happens
     assert f"note: {said}" in text  # and the summary
 
@@ -329,3 +339,16 @@ def test_export_only_refuses_another_models_store_and_names_a_changed_seed(tmp_p
     assert seeded.exit_code == 0 and (tmp_path / "s.csv").is_file(), seeded.output
     assert "was made from seed 2, not 5; it is exported as it is" in " ".join(
         seeded.output.split()), seeded.output
+
+
+def test_summaries_are_not_wrapped_off_a_terminal(tmp_path):
+    """stdout to a log file: each summary line is one line, so that grep finds it."""
+    deep = tmp_path / ("a-rather-long-folder-name-" * 3)
+    spec = toy_spec(deep, runs=4)
+    result = CliRunner().invoke(app, ["campaign", str(spec), "--no-progress"])
+    assert result.exit_code == 0, result.output
+    lines = result.output.splitlines()
+    assert any("4 runs planned" in line and "re-run after an interruption) in" in line
+               and line.endswith("lhs design)") for line in lines), result.output
+    assert any(line.startswith(f"  store {deep}") and line.endswith("ok 4")
+               for line in lines), result.output

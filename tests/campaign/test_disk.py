@@ -72,6 +72,19 @@ def test_an_unwritable_store_is_kept_and_the_cause_named(tmp_path, disk, trouble
         assert db.rows()[:3] == before and db.status_counts() == {"ok": 6}
 
 
+def test_a_new_store_in_a_read_only_folder_is_not_said_to_be_kept(tmp_path, disk):
+    spec = toy_spec(tmp_path, runs=3)
+    _remount(disk, "ro")
+    try:
+        code, output = _campaign(spec, "--store", disk / "toy.sqlite")
+    finally:
+        _remount(disk, "rw")
+    assert code == 1, output
+    assert f"cannot create the campaign store '{disk / 'toy.sqlite'}'" in output
+    assert "pass a --store in a writable folder" in output
+    assert "kept as it is" not in output and "Traceback" not in output
+
+
 def test_an_export_to_a_full_disk_leaves_the_old_file(tmp_path, disk):
     spec = toy_spec(tmp_path, runs=3)
     out = disk / "runs.csv"

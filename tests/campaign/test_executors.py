@@ -86,3 +86,48 @@ def test_a_worker_deaf_to_sigterm_is_killed_when_another_dies(tmp_path):
     assert time.monotonic() - t0 < 40  # the deaf run's first attempt sleeps for 60 s
     assert out[deaf] == "deaf done"
     assert isinstance(out[dies], WorkerDied) and "exit code 7" in str(out[dies])
+
+
+def test_a_run_that_ends_its_worker_runs_twice_and_the_queued_ones_once(tmp_path):
+    """One worker, two runs in flight (one running, one queued): a run that ends its
+    worker is executed twice, then recorded failed; the run queued behind it is not
+    blamed, and runs once."""
+    from collections import Counter
+
+    log = tmp_path / "calls.log"
+    net = toy_network(tmp_path, {"kind": "python", "target": "toy_sims:dies_logged",
+                                 "options": {"log": str(log)}}, runs=12)
+    summary = run_campaign(net, "toy", workers=1, progress=False)
+    calls = Counter(float(x) for x in log.read_text().split())
+    rows = {r[0]: r for r in store_rows(summary.store_path)}
+    failed = sorted(i for i, r in rows.items() if "failed" in r)
+    assert failed and summary.n_failed == len(failed) and len(calls) == 12
+    assert sorted(calls.values()) == [1] * (12 - len(failed)) + [2] * len(failed)
+    assert summary.notes[:len(failed)] == tuple(
+        f"a worker process died (exit code 7) with run {i} running; it is run again alone "
+        "(a run that ends its process again is recorded failed)" for i in failed)
+
+
+def test_a_memory_error_gets_the_next_runs_a_fresh_worker(tmp_path):
+    """A simulator that leaks: from its third run in a process on, memory runs out. The
+    worker is replaced after a MemoryError, so the next runs succeed; the message says
+    what happened, and the campaign's warning points at --retry-failed."""
+    from calnet.campaign.failures import store_failure_note
+
+    net = toy_network(tmp_path, "python:toy_sims:leaks", runs=6)
+    summary = run_campaign(net, "toy", workers=1, progress=False)
+    assert summary.n_failed == 2  # the third and the sixth, each in its own worker
+    for message in summary.failures.values():
+        assert message.startswith("failed: MemoryError (out of memory) at toy_sims.py:"), message
+    note = store_failure_note(summary.store_path, net.model("toy"))
+    assert "2 of them ran out of memory (MemoryError" in note and "--retry-failed" in note
+
+
+def test_runs_whose_process_died_leave_no_empty_folders(tmp_path):
+    """A run that ended its worker had no time to remove its empty logs: the campaign
+    removes them, and the run's folder, as for a run that finished."""
+    net = toy_network(tmp_path, "python:toy_sims:dies", runs=12)
+    summary = run_campaign(net, "toy", workers=1, progress=False)
+    assert summary.n_failed > 0
+    work = summary.store_path.with_suffix(".work")
+    assert not work.exists() or not any(work.iterdir()), sorted(work.rglob("*"))

@@ -162,4 +162,39 @@ def test_sigterm_to_a_campaign_with_a_hung_simulator_stops_as_ctrl_c_does(tmp_pa
     assert len(kept) < 12
     with sqlite3.connect(f"file:{store}?mode=ro", uri=True) as db:  # closed cleanly
         assert db.execute("SELECT COUNT(*) FROM lease").fetchone()[0] == 0
+        # the hung run was started, the one queued behind it was not: a resume says
+        # "1 re-run after an interruption"
+        assert db.execute("SELECT COUNT(*) FROM runs WHERE status IS NULL AND started_at "
+                          "IS NOT NULL").fetchone()[0] == 1
+    db.close()
+
+
+def _alive(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except FileNotFoundError:
+        return False
+
+
+@pytest.mark.integration
+@pytest.mark.parametrize(("sig", "code"), [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_an_interrupt_ends_a_campaign_whose_simulator_ignores_signals(tmp_path, sig, code):
+    """A Python simulator that ignores SIGTERM and SIGINT hangs in the worker process
+    (no timeout): Ctrl-C or SIGTERM still ends the campaign within seconds, with 130 or
+    143 and one line, the worker killed (SIGKILL after a short grace) and the store
+    closed cleanly."""
+    pid_file = tmp_path / "worker.pid"
+    spec = toy_spec(tmp_path, {"kind": "python", "target": "toy_sims:deaf_hang",
+                               "options": {"pid_file": str(pid_file)}}, runs=4)
+    store = tmp_path / "deaf.sqlite"
+    argv = [sys.executable, "-c", _WITH_SIGINT, *_campaign(spec, store)[3:]]
+    got, output, waited = _signalled(argv, pid_file.exists, sig, settle=0.5, timeout=30)
+    assert got == code, output
+    assert waited < 10, f"took {waited:.0f} s to end"
+    assert "interrupted" in output and "Traceback" not in output, output
+    assert "resource_tracker" not in output, output
+    assert not _alive(int(pid_file.read_text()))
+    with sqlite3.connect(f"file:{store}?mode=ro", uri=True) as db:
+        assert db.execute("SELECT COUNT(*) FROM lease").fetchone()[0] == 0
     db.close()

@@ -52,7 +52,7 @@ def test_callable_gets_options(tmp_path):
 
 @pytest.mark.parametrize(("target", "inputs", "status", "message"), [
     ("crashy", {**POINT, "x": 0.9}, "failed", "RuntimeError: solver diverged"),
-    ("nan_out", POINT, "failed", "non-finite outputs ['y']"),
+    ("nan_out", POINT, "failed", "non-finite outputs: 'y' = nan"),
     ("nonconverged", {**POINT, "a": 0.1}, "nonconverged", "residual"),
     ("exits", {**POINT, "x": 0.95}, "failed", "SystemExit: 4"),
 ])
@@ -267,6 +267,58 @@ def test_numpy_scalars_in_a_sim_result_are_numbers():
     assert all(type(v) is float for v in res.outputs.values())
     bad = SimResult({"y": np.float32("nan"), "z": 1.0}).checked(("y", "z"))
     assert bad.status == "failed" and "non-finite outputs ['y']" in bad.message
+
+
+@pytest.mark.parametrize(("kind", "message"), [
+    ("bool", "output 'y' is bool True, expected a number"),
+    ("none", "output 'y' is NoneType None, expected a number"),
+    ("nan", "non-finite outputs: 'y' = nan"),
+    ("inf", "non-finite outputs: 'y' = -inf"),
+])
+def test_an_output_that_is_no_finite_number_says_what_it_is(tmp_path, kind, message):
+    net = toy_network(tmp_path, {"kind": "python", "target": "toy_sims:odd_outputs",
+                                 "options": {"kind": kind}})
+    rec = _run(net)
+    assert (rec.status, rec.message) == ("failed", message)
+
+
+def test_a_command_output_true_is_no_number(tmp_path):
+    from calnet.campaign.runners import _parse_outputs
+
+    res = _parse_outputs('{"y": true, "z": 1}', "json-file", ("y", "z"))
+    assert res.status == "failed"
+    assert res.message == "output 'y' in output.json is bool True, expected a number"
+
+
+@pytest.mark.parametrize(("executor", "timeout"), [("processes", None),
+                                                   ("in-process", None), ("auto", 30.0)])
+def test_a_keyboard_interrupt_the_simulator_raises_is_a_failed_run(tmp_path, executor,
+                                                                   timeout):
+    """No signal came: the simulator raised KeyboardInterrupt itself. The run is
+    recorded failed, saying so, and the campaign goes on (in a worker process, in this
+    process, in a timeout's child alike)."""
+    from calnet.campaign import run_campaign
+
+    net = toy_network(tmp_path, "python:toy_sims:raises_interrupt", runs=8, timeout=timeout)
+    summary = run_campaign(net, "toy", executor=executor, progress=False)
+    assert summary.complete and 0 < summary.n_failed < 8
+    for message in summary.failures.values():
+        assert message.startswith("failed: the simulator raised KeyboardInterrupt: solver "
+                                  "caught Ctrl-C (at toy_sims.py:"), message
+
+
+def test_a_ctrl_c_during_an_in_process_run_still_stops_the_campaign(tmp_path):
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        pytest.skip("signals reach the main thread only")
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            _run(toy_network(tmp_path, "python:toy_sims:interrupted_by_user"))
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 @pytest.mark.parametrize(("workers", "timeout"), [(1, None), (None, 30.0)])

@@ -200,3 +200,59 @@ def chain_m2(inputs):
 def chain_m3(inputs):
     """``y = w1 + w2``."""
     return {"y": inputs["w1"] + inputs["w2"]}
+
+
+def deaf_hang(inputs, *, pid_file):
+    """Ignores SIGTERM and SIGINT, writes its process id to ``pid_file`` and hangs for
+    ever (a simulator that nothing but SIGKILL stops)."""
+    import signal
+
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    with open(pid_file, "w") as f:
+        f.write(str(os.getpid()))
+    while True:
+        time.sleep(1)
+
+
+def raises_interrupt(inputs):
+    """Raises KeyboardInterrupt itself (no signal) for ``x > 0.5``."""
+    if inputs["x"] > 0.5:
+        raise KeyboardInterrupt("solver caught Ctrl-C")
+    return quadratic(inputs)
+
+
+def interrupted_by_user(inputs):
+    """Sends SIGINT to its own process, as a Ctrl-C at the terminal would."""
+    import signal
+
+    os.kill(os.getpid(), signal.SIGINT)
+    time.sleep(5)
+    return quadratic(inputs)
+
+
+def dies_logged(inputs, *, log):
+    """Appends ``x`` to the file ``log``, then ends its process for ``x > 0.75``."""
+    with open(log, "a") as f:
+        f.write(f"{inputs['x']!r}\n")
+    time.sleep(0.2)  # the next run is queued meanwhile
+    if inputs["x"] > 0.75:
+        os._exit(7)
+    return quadratic(inputs)
+
+
+_CALLS = [0]
+
+
+def leaks(inputs):
+    """Runs out of memory from its third call in a process on (a leak)."""
+    _CALLS[0] += 1
+    if _CALLS[0] >= 3:
+        raise MemoryError
+    return quadratic(inputs)
+
+
+def odd_outputs(inputs, *, kind):
+    """Returns ``y`` as a bool, None, NaN or infinity, by ``kind``."""
+    value = {"bool": True, "none": None, "nan": math.nan, "inf": -math.inf}[kind]
+    return {"y": value, "z": 1.0}

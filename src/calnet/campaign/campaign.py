@@ -18,7 +18,8 @@ import math
 import sqlite3
 import time
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager, suppress
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -27,12 +28,13 @@ import calnet
 from calnet.campaign.executors import WorkerDied, executor_kind, make_executor
 from calnet.campaign.importing import ImportedRuns, import_into, point_finder, read_runs
 from calnet.campaign.lease import holder as lease_holder
-from calnet.campaign.logs import logs_note
+from calnet.campaign.logs import logs_note, tidy
 from calnet.campaign.planning import (
     DesignChoice,
     choose_design,
     design_conflict,
     fallback_note,
+    fewer_note,
     plan,
     settings_of,
     spec_design,
@@ -98,7 +100,8 @@ class CampaignSummary:
         Runs of this call that did not finish ``ok`` (all of them, not only those in
         ``failures``).
     notes : tuple of str
-        What else happened, one line each: imported runs not ``ok`` that
+        What else happened, one line each: fewer runs asked for than the store plans
+        (all of them kept), imported runs not ``ok`` that
         ``retry_failed`` keeps as they are, a worker process that died (and the runs in
         flight with it, run again).
     """
@@ -143,7 +146,8 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
     model_name : str
     runs : int, optional
         Size of the design; default the model's ``campaign.runs`` (or the network's), or
-        the store's planned size when that is larger. More than the store plans augments it.
+        the store's planned size when that is larger. More than the store plans augments it;
+        fewer keeps the store's design whole, which ``notes`` of the summary says.
     workers : int, optional
         Parallel runs; with ``executor="auto"``, more than 1 means local processes.
     scheduler : str, optional
@@ -206,7 +210,8 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
         total = plan(db, network, model, choice,
                      target_runs(runs, network, model, choice, db.planned(), db.imported()),
                      seed)
-        notes: list[str] = []
+        fewer = fewer_note(runs, network, model, choice, total)
+        notes: list[str] = [fewer] if fewer else []
         if retry_failed:
             db.reset_failed()
             notes += _kept_imported(db)
@@ -222,10 +227,11 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
         # a user's Python function without a timeout runs in a worker process, so that
         # one ending the interpreter is recorded as failed instead of ending the campaign
         isolate = isinstance(sim, CallableRunner) and timeout is None
-        with make_executor(executor, workers=workers, scheduler=scheduler,
-                           isolate=isolate) as ex, \
+        work = path.with_suffix(".work").absolute()
+        with _tidied(work, [i for i, _, _ in todo]), \
+                make_executor(executor, workers=workers, scheduler=scheduler,
+                              isolate=isolate) as ex, \
                 campaign_progress(progress, model_name, total, skipped, db) as shown:
-            work = path.with_suffix(".work").absolute()
             # what a simulator prints goes to its run's logs, unless the run shares this
             # process (the console's) or runs on Dask workers (threads of their process)
             capture = timeout is not None or ex.name == "processes"
@@ -259,6 +265,21 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
                            seed, imported, label, n_failed, tuple(notes))
 
 
+@contextmanager
+def _tidied(work: Path, indices: list[int]) -> Iterator[None]:
+    """On leaving the block, however it is left, remove the empty logs and empty folders
+    of the runs ``indices`` in the work folder ``work``, which a run whose process was
+    killed (an interrupt, a worker that died, a timeout) had no time to remove."""
+    try:
+        yield
+    finally:
+        if work.is_dir():
+            for index in indices:
+                tidy(work / f"run-{index:05d}")
+        with suppress(OSError):
+            work.rmdir()  # only when empty
+
+
 def _kept_imported(db: RunStore) -> list[str]:
     """The line saying that ``--retry-failed`` keeps the imported runs that are not
     ``ok`` as they are (none without such runs)."""
@@ -276,12 +297,13 @@ def _kept_imported(db: RunStore) -> list[str]:
 
 
 def _died_note(indices: list[int], code: str) -> str:
-    """The line saying that a worker process died with the runs ``indices`` in flight."""
+    """The line saying that a worker process died while the runs ``indices`` were
+    running (the runs only queued are not named: they are not suspected)."""
     runs = (f"run {indices[0]}" if len(indices) == 1
             else f"runs {', '.join(map(str, indices))}")
-    return (f"a worker process died{code} with {runs} in flight; "
-            f"{'it is' if len(indices) == 1 else 'they are'} run again, one at a time (a run "
-            "that ends its process again is recorded failed)")
+    again = "it is run again alone" if len(indices) == 1 else "they are run again, one at a time"
+    return (f"a worker process died{code} with {runs} running; {again} (a run that ends "
+            "its process again is recorded failed)")
 
 
 def _warn_undeclared(model: Model, rec: RunRecord, said: set[str]) -> set[str]:
@@ -403,9 +425,11 @@ def _complete_readonly(path: Path, network: Network, model: Model, seed: int,
     except (CampaignError, sqlite3.DatabaseError):
         return None  # let the writing path give the full diagnosis
     _warn_fallback(network, model, choice, meta, path)
+    fewer = fewer_note(runs, network, model, choice, planned)
     return CampaignSummary(model.name, path, planned, planned, 0, 0, counts, {},
                            time.perf_counter() - start, "none", 0, seed, 0,
-                           meta.get("design_kind") or choice.label)
+                           meta.get("design_kind") or choice.label,
+                           notes=(fewer,) if fewer else ())
 
 
 def _warn_fallback(network: Network, model: Model, choice: DesignChoice,
@@ -517,7 +541,11 @@ def _foreign(meta: dict[str, str], model: Model, seed: int, path: Path) -> str |
     kind, change = difference
     if kind == "spec":
         return (f"the store '{path}' was made from a different '{model.name}' spec "
-                f"({change}); simulate again with --fresh: {_WAYS_OUT}")
+                f"({change}); simulate again with --fresh: {_WAYS_OUT}; or keep its runs: "
+                f"export them (`calnet campaign SPEC --model {model.name} --export-only "
+                f"--export runs.csv`), then import them into a new --store (`calnet campaign "
+                f"SPEC --model {model.name} --store NEW.sqlite --import runs.csv`), where "
+                "the new spec's campaign goes on from them")
     return (f"the store '{path}' was made with seed {meta.get('seed')}, not {seed}; "
             f"to keep it, set settings.seed back to {meta.get('seed')} (calnet campaign: "
             f"--seed {meta.get('seed')}); for the new seed, simulate again with --fresh: "

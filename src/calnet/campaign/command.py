@@ -25,7 +25,7 @@ def campaign(
         "parents first)")] = None,
     runs: Annotated[int | None, typer.Option(
         metavar="N", min=1, help="runs in the design (default: the spec's); more than the "
-        "store has augments it")] = None,
+        "store has augments it, fewer keeps all it has")] = None,
     workers: Annotated[int | None, typer.Option(
         metavar="K", min=1, help="parallel runs on this machine")] = None,
     scheduler: Annotated[str | None, typer.Option(
@@ -105,7 +105,8 @@ def campaign(
                                    retry_failed=retry_failed)
         print_summary(summary, console)
         if export:
-            console.print(f"exported to {export_runs(summary.store_path, export)}")
+            console.print(f"exported to {export_runs(summary.store_path, export)}",
+                          soft_wrap=not console.is_terminal)
         if (summary.planned or summary.imported) and not summary.n_ok:
             useless.append(name)
             why[name] = "; ".join(common_failures(summary.store_path))
@@ -169,29 +170,33 @@ def _export_only(network: Any, names: list[str], store: Path | None, export: Pat
 
 
 def print_summary(summary: Any, console: Any) -> None:
-    """A few lines: counts per status, throughput, the first failures."""
+    """A few lines: counts per status, throughput, the first failures. Not on a
+    terminal (a log file, a pipe) no line is wrapped, so that grep finds it whole."""
+    soft = not getattr(console, "is_terminal", True)
     counts = ", ".join(f"{k} {n}" for k, n in sorted(summary.status_counts.items()))
     rate = summary.ran / summary.wall_time if summary.wall_time > 0 else 0.0
     if summary.imported:
         runs = "run" if summary.imported == 1 else "runs"
-        console.print(f"[bold]{summary.model}[/]: imported {summary.imported} {runs}")
+        console.print(f"[bold]{summary.model}[/]: imported {summary.imported} {runs}",
+                      soft_wrap=soft)
     if summary.planned == 0:
         pass  # imported runs only: no design to report on
     elif summary.ran == 0 and summary.skipped == summary.planned:
         console.print(f"[bold]{summary.model}[/]: complete, all {summary.planned} runs "
-                      f"finished (seed {summary.seed}); nothing to run")
+                      f"finished (seed {summary.seed}); nothing to run", soft_wrap=soft)
     else:
         console.print(f"[bold]{summary.model}[/]: {summary.planned} runs planned, "
                       f"{summary.skipped} already finished, {summary.ran} run now "
                       f"({summary.rerun_in_flight} re-run after an interruption) in "
                       f"{summary.wall_time:.1f} s ({rate:.2f} runs/s, {summary.executor}, "
                       f"{summary.workers} worker(s), seed {summary.seed}"
-                      + (f", {summary.design} design)" if summary.design else ")"))
-    console.print(f"  store {summary.store_path}: {counts}")
+                      + (f", {summary.design} design)" if summary.design else ")"),
+                      soft_wrap=soft)
+    console.print(f"  store {summary.store_path}: {counts}", soft_wrap=soft)
     for index, message in list(summary.failures.items())[:5]:
         console.print(f"  [yellow]run {index}[/]: {message}", soft_wrap=True)
     more = max(summary.n_failed, len(summary.failures)) - min(len(summary.failures), 5)
     if more > 0:
-        console.print(f"  ... {more} more not ok (see the store)")
+        console.print(f"  ... {more} more not ok (see the store)", soft_wrap=soft)
     for note in summary.notes:
         console.print(f"  [yellow]note[/]: {note}", soft_wrap=True)

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import logging
 import multiprocessing
+import signal
 import time
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
@@ -36,6 +37,12 @@ are killed (:meth:`ProcessExecutor._restart`)."""
 WATCH_INTERVAL = 1.0
 """Seconds between looks at a process pool's workers while no run finishes
 (:meth:`ProcessExecutor._nudge`)."""
+START_POLL = 0.1
+"""Seconds between looks for the runs a process pool's workers have started, while one
+handed to the pool has not started yet (:meth:`ProcessExecutor._note_starts`)."""
+STOP_GRACE = 1.0
+"""Seconds the workers of an interrupted process pool have to end on SIGTERM before they
+are killed (:meth:`ProcessExecutor.close`)."""
 
 
 class Executor(Protocol):
@@ -81,71 +88,111 @@ class WorkerDied(RuntimeError):
 class ProcessExecutor:
     """A pool of ``workers`` local processes (``spawn`` start method).
 
-    A worker that dies (a simulator crashing the interpreter or calling ``os._exit``)
-    breaks the pool: the runs then in flight are run again one at a time in a new pool,
-    so that the run that kills its worker is found and its result is a
-    :class:`WorkerDied`, while the others finish normally. ``run``'s ``on_died`` is
-    told of each such death (the runs in flight, and `` (exit code N)`` or
-    `` (killed by signal N)``), as the runs are run again.
+    Each worker announces the runs it starts, and ``run``'s ``on_submit`` is told of a
+    run when its worker starts it (not when it is queued). A worker that dies (a
+    simulator crashing the interpreter or calling ``os._exit``) breaks the pool: the runs
+    it and the other workers were running are run again one at a time in a new pool, so
+    that the run that kills its worker is found (executed at most twice) and its result
+    is a :class:`WorkerDied`, while the others finish normally; runs that were only
+    queued are queued again, not suspected. ``on_died`` is told of each such death (the
+    runs that were running, and `` (exit code N)`` or `` (killed by signal N)``). A run
+    that asks for a fresh worker (:func:`replace_this_worker`, after a MemoryError) gets
+    one: no run is handed out until those in flight finish, then the pool is replaced.
     """
 
     name = "processes"
 
     def __init__(self, workers: int):
         self.workers = workers
+        self._serial = 0  # each submission's number, which its worker announces
+        self._serials: dict[int, Future] = {}
+        self._running: set[Future] = set()
+        self._alone = False  # the run in flight is a suspect, run alone
         self._pool = self._new_pool()
         self._processes: list[Any] = []
 
     def _new_pool(self) -> ProcessPoolExecutor:
         # spawn: the workers are children of this process, so they die with it (see
-        # _die_with_parent) and never inherit a half-copied threaded state
-        return ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"),
-                                   initializer=_die_with_parent)
+        # _init_worker) and never inherit a half-copied threaded state
+        context = multiprocessing.get_context("spawn")
+        if getattr(self, "_starts", None) is not None:
+            self._starts.close()  # the old pool's workers have ended
+        self._starts = context.SimpleQueue()  # each worker announces the runs it starts
+        self._serials = {}
+        self._alone = False
+        return ProcessPoolExecutor(self.workers, mp_context=context,
+                                   initializer=_init_worker, initargs=(self._starts,))
 
     def run(self, fn, tasks, on_submit=None, on_died=None):
         pending: dict[Future, Task] = {}
+        self._running: set[Future] = set()  # pending runs a worker has started
         stream = iter(tasks)
-        suspects: list[Task] = []  # in flight when a worker died: run again one at a time
-        unsent: list[Task] = []  # refused by a pool that had just broken: never started
+        suspects: list[Task] = []  # running when a worker died: run again one at a time
+        unsent: list[Task] = []  # queued, or refused by a pool that had just broken
+        replace = False  # a run asked for a fresh worker (MemoryError): drain, then replace
+        nudged = time.monotonic()
         try:
-            while self._fill(fn, stream, suspects, unsent, pending, on_submit):
-                alone = len(pending) == 1
-                done, _ = wait(pending, timeout=WATCH_INTERVAL, return_when=FIRST_COMPLETED)
+            while True:
+                if replace and not pending:
+                    self._replace()
+                    replace = False
+                if not replace and not self._fill(fn, stream, suspects, unsent, pending):
+                    break
+                alone = len(pending) == 1 and bool(self._alone)
+                quiet = all(fut in self._running for fut in pending)
+                done, _ = wait(pending, timeout=WATCH_INTERVAL if quiet else START_POLL,
+                               return_when=FIRST_COMPLETED)
+                self._note_starts(pending, on_submit)
                 if not done:
-                    self._nudge()
+                    if time.monotonic() - nudged >= WATCH_INTERVAL:
+                        self._nudge()
+                        nudged = time.monotonic()
                     continue
                 if any(isinstance(fut.exception(), BrokenProcessPool) for fut in done):
                     done, _ = wait(pending)  # a broken pool fails every run in flight
-                crashed = []
+                    self._note_starts(pending, on_submit)
+                ran, queued = [], []
                 for fut in done:
                     task = pending.pop(fut)
+                    started = fut in self._running
+                    self._running.discard(fut)
                     err = fut.exception()
                     if isinstance(err, BrokenProcessPool):
-                        crashed.append(task)
+                        (ran if started else queued).append(task)
                     elif err is not None:
                         raise CampaignError(f"a run could not be executed in a worker "
                                             f"({type(err).__name__}: {err})") from err
                     else:
-                        yield task, fut.result()
-                if crashed:
+                        result, tired = fut.result()
+                        replace = replace or tired
+                        if result is _Spent:  # not run: its worker is to be replaced
+                            (suspects if alone else unsent).insert(0, task)
+                            continue
+                        if not started and on_submit:
+                            on_submit(task)
+                        yield task, result
+                if ran or queued:
                     code = self._restart()
-                    if alone:
-                        yield crashed[0], WorkerDied(f"the process running it died{code}; "
-                                                     "the simulator crashed the interpreter "
-                                                     "or ended it (os._exit)")
-                    else:
-                        suspects.extend(crashed)
+                    unsent[:0] = queued  # only queued: not charged with the death
+                    if alone and ran:
+                        yield ran[0], WorkerDied(f"the process running it died{code}; "
+                                                 "the simulator crashed the interpreter "
+                                                 "or ended it (os._exit)")
+                    elif ran:
+                        suspects.extend(ran)
                         if on_died:
-                            on_died(crashed, code)
+                            on_died(ran, code)
         finally:
             for fut in pending:
                 fut.cancel()
 
-    def _fill(self, fn, stream, suspects, unsent, pending, on_submit) -> bool:
-        """Submit tasks up to the window (a suspect only into an empty pool); False when
-        nothing is left to run. A pool that broke since the last wait refuses a task:
-        it goes back to its queue, and the runs in flight report the break."""
-        while len(pending) < (1 if suspects else 2 * self.workers):
+    def _fill(self, fn, stream, suspects, unsent, pending) -> bool:
+        """Submit tasks up to the window (a suspect alone, into an empty pool); False
+        when nothing is left to run. A pool that broke since the last wait refuses a
+        task: it goes back to its queue, and the runs in flight report the break."""
+        while len(pending) < (1 if suspects or self._alone else 2 * self.workers):
+            if self._alone and pending:
+                break
             if suspects:
                 if pending:
                     break
@@ -156,10 +203,9 @@ class ProcessExecutor:
                 queue, task = unsent, next(stream, None)
                 if task is None:
                     break
-            if on_submit:
-                on_submit(task)
+            self._serial += 1
             try:
-                future = self._pool.submit(fn, *task)
+                future = self._pool.submit(_announced, self._serial, fn, *task)
             except BrokenProcessPool:
                 queue.insert(0, task)
                 if pending:
@@ -167,8 +213,28 @@ class ProcessExecutor:
                 self._restart()  # nothing in flight reports the break: start afresh
                 continue
             pending[future] = task
+            self._serials[self._serial] = future
+            self._alone = queue is suspects
             self._processes = self._pool_processes()
+            if self._alone:
+                break
         return bool(pending)
+
+    def _note_starts(self, pending, on_submit) -> None:
+        """Mark the pending runs whose worker has said it started them, and tell
+        ``on_submit`` of each (so a run merely queued is never taken as started)."""
+        while not self._starts.empty():
+            future = self._serials.pop(self._starts.get(), None)
+            if future in pending and future not in self._running:
+                self._running.add(future)
+                if on_submit:
+                    on_submit(pending[future])
+
+    def _replace(self) -> None:
+        """A fresh pool (fresh workers) for one whose runs have all finished."""
+        self._pool.shutdown(wait=True)
+        self._pool = self._new_pool()
+        self._processes = []
 
     def _restart(self) -> str:
         """A new pool for a broken one; returns `` (exit code N)`` of the dead worker
@@ -229,13 +295,14 @@ class ProcessExecutor:
 
     def close(self, *, wait: bool = True) -> None:
         """Shut the pool down; ``wait=False`` also stops the runs in flight (the
-        interpreter would otherwise wait for them at exit)."""
-        processes = self._pool_processes()
+        interpreter would otherwise wait for them at exit): SIGTERM, then SIGKILL for a
+        worker still running :data:`STOP_GRACE` seconds later (a simulator that ignores
+        SIGTERM)."""
+        processes = list(dict.fromkeys([*self._processes, *self._pool_processes()]))
         self._pool.shutdown(wait=wait, cancel_futures=True)
         if not wait:
-            for proc in processes:
-                if proc.is_alive():
-                    proc.terminate()
+            _stop(processes, STOP_GRACE)
+        self._starts.close()
 
     def __enter__(self):
         return self
@@ -245,12 +312,61 @@ class ProcessExecutor:
         self.close(wait=kind is None)
 
 
+def _stop(processes: list[Any], grace: float) -> None:
+    """SIGTERM to each process still alive, SIGKILL to those alive ``grace`` seconds
+    later; returns once each has ended."""
+    alive = [proc for proc in processes if proc.is_alive()]
+    for proc in alive:
+        proc.terminate()
+    end = time.monotonic() + grace
+    for proc in alive:
+        wait_ended([proc.sentinel], max(0.0, end - time.monotonic()))
+    for proc in alive:
+        if not wait_ended([proc.sentinel], 0):
+            proc.kill()
+            wait_ended([proc.sentinel], 5)
+
+
+_STARTS: list[Any] = []  # in a worker process: the queue it announces its runs on
+_REPLACE = [False]  # in a worker process: its run asked for a fresh worker
+
+
+def _init_worker(starts: Any) -> None:
+    """Set up a worker process: it dies with its parent (:func:`_die_with_parent`),
+    announces its runs on ``starts``, and ignores SIGINT. Ctrl-C reaches the whole
+    process group; the campaign decides what it means and stops the workers itself, so
+    a KeyboardInterrupt in a worker is always the simulator's own."""
+    _die_with_parent()
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    _STARTS[:] = [starts]
+
+
+class _Spent:
+    """What a worker to be replaced answers for a run it was queued, without running it."""
+
+
+def _announced(serial: int, fn: Callable[..., Any], *task: Any) -> tuple[Any, bool]:
+    """In a worker: say that submission ``serial`` starts, run it; its result, and
+    whether this worker is to be replaced (:func:`replace_this_worker`). A worker to be
+    replaced runs nothing more: the runs queued to it come back as :class:`_Spent`."""
+    if _REPLACE[0]:
+        return _Spent, True
+    _STARTS[0].put(serial)
+    result = fn(*task)
+    return result, _REPLACE[0]
+
+
+def replace_this_worker() -> None:
+    """Ask, from a run in a local worker process, for a fresh process for the next runs
+    (after a MemoryError, whatever leaked stays in this one); elsewhere a no-op."""
+    _REPLACE[0] = True
+
+
 def _die_with_parent() -> None:
     """Ask Linux to kill this worker when its parent dies (a campaign killed with -9), so
     that no orphan keeps simulating; a no-op elsewhere."""
     try:
         import ctypes
-        import signal
 
         ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
     except (OSError, AttributeError):

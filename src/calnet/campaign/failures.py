@@ -54,6 +54,21 @@ def failure_note(model: str, rows: Iterable[Mapping[str, Any]], columns: Sequenc
     bad = [r for r in done if r["status"] != "ok"]
     if not done or len(bad) <= limit * len(done):
         return None
+    return _where(model, done, bad, columns) + _memory_hint(bad)
+
+
+def _memory_hint(bad: list) -> str:
+    """What to do about the runs of ``bad`` that ran out of memory ("" when none did):
+    they are worth running again, unlike a region where the simulator fails."""
+    n = sum("MemoryError" in (r.get("message") or "") for r in bad)
+    if not n:
+        return ""
+    return (f"; {n} of them ran out of memory (MemoryError: a leak, or too many --workers, "
+            "rather than their inputs): free memory, then run them again with --retry-failed")
+
+
+def _where(model: str, done: list, bad: list, columns: Sequence[str]) -> str:
+    """:func:`failure_note`'s line without its hint on memory."""
     counts = ", ".join(f"{k} {n}" for k, n in sorted(Counter(r["status"] for r in bad).items()))
     share = f"{100 * len(bad) / len(done):.0f} %"
     text = f"{model}: {len(bad)} of {len(done)} runs ({share}) did not finish ok ({counts})"

@@ -143,19 +143,36 @@ def design_conflict(choice: DesignChoice, meta: dict[str, str], path: Path) -> s
 def target_runs(runs: int | None, network: Network, model: Model, choice: DesignChoice,
                 planned: int, imported: int) -> int:
     """Size of the design: ``--runs``; else a design file's rows; else ``campaign.runs``,
-    where an import without ``runs`` in the spec simulates nothing more."""
+    where an import without ``runs`` in the spec simulates nothing more. Never fewer than
+    the store plans: its design is kept whole (:func:`fewer_note` says so)."""
     if runs is not None:
-        if runs < planned:
-            raise CampaignError(f"the store already plans {planned} runs; ask for at least "
-                                f"{planned} (--runs), or use a new --store for a smaller "
-                                "design")
-        return runs
+        return max(runs, planned)
     if choice.points is not None:
         return max(len(choice.points), planned)
     settings = settings_of(network, model)
     if "runs" not in settings.model_fields_set and (settings.import_ or imported):
         return planned
     return max(settings.runs, planned)
+
+
+def fewer_note(runs: int | None, network: Network, model: Model, choice: DesignChoice,
+               planned: int) -> str | None:
+    """The line saying that ``--runs`` (``runs``) or the spec's ``campaign.runs`` asks for
+    fewer runs than the store plans, all of which are kept; None when it does not."""
+    if runs is not None:
+        asked, where = runs, "--runs"
+    else:
+        settings = settings_of(network, model)
+        if choice.points is not None or "runs" not in settings.model_fields_set:
+            return None
+        asked = settings.runs
+        where = (f"models.{model.name}.campaign.runs" if model.campaign is not None
+                 else "settings.campaign.runs")
+    if asked >= planned:
+        return None
+    return (f"{where} asks for {asked} runs, the store plans {planned}: all {planned} are "
+            "kept (a design shrinks only in a new store: --fresh, which deletes these runs, "
+            "or a new --store)")
 
 
 def plan(db: RunStore, network: Network, model: Model, choice: DesignChoice, runs: int,

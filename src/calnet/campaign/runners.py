@@ -23,6 +23,7 @@ from __future__ import annotations
 import importlib
 import json
 import math
+import numbers
 import os
 import pickle
 import re
@@ -30,15 +31,19 @@ import select
 import signal
 import subprocess
 import sys
+import threading
 import time
 import traceback
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from calnet.campaign import logs, reaper
+from calnet.campaign.executors import replace_this_worker
 from calnet.errors import CampaignError
 from calnet.simulators.base import STATUSES, SimResult, Simulator, not_numbers
 from calnet.simulators.registry import builtin_info
@@ -331,7 +336,7 @@ def execute_run(sim: Simulator, index: int, inputs: Mapping[str, float],
             result = _guarded(lambda: sim(inputs))
     else:
         result = _guarded(lambda: sim(inputs))
-    result = result.checked(expected)
+    result = _checked(result, expected)
     if result.status not in STATUSES:
         result = SimResult(result.outputs, "failed", f"unknown status '{result.status}' "
                            f"(allowed {list(STATUSES)}): {result.message}", result.diagnostics)
@@ -340,21 +345,87 @@ def execute_run(sim: Simulator, index: int, inputs: Mapping[str, float],
                      _jsonable(result.diagnostics), time.perf_counter() - start)
 
 
+def _checked(result: SimResult, expected: tuple[str, ...]) -> SimResult:
+    """:meth:`SimResult.checked`, which also refuses a bool (True is no measurement) or
+    None for an output, and names the value of each output that is not finite."""
+    if result.status != "ok":
+        return result
+    wrong = "; ".join(f"output '{k}' is {type(v).__name__} {v!r}, expected a number"
+                      for k, v in result.outputs.items()
+                      if v is None or isinstance(v, (bool, np.bool_)))
+    if wrong:
+        return SimResult(result.outputs, "failed", wrong, result.diagnostics)
+    checked = result.checked(expected)
+    if checked.status == "ok" or not checked.message.startswith("non-finite outputs"):
+        return checked
+    values = ", ".join(f"'{k}' = {float(v)!r}" for k, v in result.outputs.items()
+                       if isinstance(v, numbers.Real) and not math.isfinite(float(v)))
+    return SimResult(result.outputs, "failed", f"non-finite outputs: {values}",
+                     result.diagnostics)
+
+
 def _guarded(call) -> SimResult:
-    try:
-        result = call()
-    except (Exception, SystemExit) as err:  # any simulator error (sys.exit too) is
-        return SimResult({}, "failed", _describe(err))  # recorded, the campaign goes on
+    with _sigint_noted() as interrupted:
+        try:
+            result = call()
+        except (Exception, SystemExit) as err:  # any simulator error (sys.exit too) is
+            return SimResult({}, "failed", _describe(err))  # recorded, the campaign goes on
+        except KeyboardInterrupt as err:
+            # the user's Ctrl-C (or SIGTERM, raised as one) stops the campaign; a
+            # KeyboardInterrupt the simulator raised itself is a failed run
+            from calnet.campaign.interrupt import Terminated
+
+            if interrupted() or isinstance(err, Terminated):
+                raise
+            return SimResult({}, "failed", _describe(err))
     if not isinstance(result, SimResult):
         return SimResult({}, "failed", f"simulator returned {type(result).__name__}, "
                          "expected a SimResult")
     return result
 
 
+@contextmanager
+def _sigint_noted() -> Iterator[Callable[[], bool]]:
+    """Within the block, note whether SIGINT arrived (the handler in place still runs);
+    yields the callable that says so. Where SIGINT raises no KeyboardInterrupt (ignored,
+    as in a local worker process; default; off the main thread, where no signal handler
+    runs) it always says no."""
+    seen: list[int] = []
+    if threading.current_thread() is not threading.main_thread():
+        yield lambda: False
+        return
+    previous = signal.getsignal(signal.SIGINT)
+    if not callable(previous):
+        yield lambda: False
+        return
+
+    def note(signum: int, frame: Any) -> None:
+        seen.append(signum)
+        previous(signum, frame)
+
+    signal.signal(signal.SIGINT, note)
+    try:
+        yield lambda: bool(seen)
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
 def _describe(err: BaseException) -> str:
+    """A simulator's exception as a run's message: ``ValueError: bad mesh (at sim.py:12)``.
+
+    A MemoryError says that memory ran out (and asks for a fresh worker process, which
+    the leaked memory does not follow: :func:`~calnet.campaign.executors.replace_this_worker`);
+    a KeyboardInterrupt says that the simulator raised it."""
     frame = traceback.extract_tb(err.__traceback__)[-1:] if err.__traceback__ else []
-    where = f" (at {Path(frame[0].filename).name}:{frame[0].lineno})" if frame else ""
-    return f"{type(err).__name__}: {err}{where}"
+    at = f"at {Path(frame[0].filename).name}:{frame[0].lineno}" if frame else ""
+    text = str(err)
+    if isinstance(err, MemoryError):
+        replace_this_worker()
+        return f"MemoryError (out of memory){': ' + text if text else ''}{' ' + at if at else ''}"
+    name = type(err).__name__
+    if isinstance(err, KeyboardInterrupt):
+        name = "the simulator raised KeyboardInterrupt"
+    return f"{name}{': ' + text if text else ''}{f' ({at})' if at else ''}"
 
 
 def call_in_child(sim: Simulator, inputs: Mapping[str, float], timeout: float, *,
@@ -542,7 +613,10 @@ def _parse_outputs(text: str, mode: str, expected: tuple[str, ...] = ()) -> SimR
     message = str(doc.pop("message", ""))
     outputs = {k: _to_float(v) for k, v in doc.items() if isinstance(v, (int, float))
                or v is None}
-    wrong = not_numbers({k: doc[k] for k in expected if k in doc}, f" in {where}")
+    wrong = "; ".join([*(f"output '{k}' in {where} is bool {doc[k]!r}, expected a number"
+                         for k in expected if isinstance(doc.get(k), bool)),
+                       *filter(None, [not_numbers({k: doc[k] for k in expected if k in doc},
+                                                  f" in {where}")])])
     if wrong and status == "ok":
         return SimResult(outputs, "failed", wrong)
     return SimResult(outputs, status, message)  # type: ignore[arg-type]  (execute_run

@@ -413,6 +413,10 @@ def store_error(path: Path, err: sqlite3.Error) -> CampaignError:
     """The one-line error of a store that SQLite refused: cannot be written (full,
     read-only), locked, or not a store at all."""
     code = (getattr(err, "sqlite_errorcode", None) or 0) & 0xFF
+    if code in _UNWRITABLE and not path.is_file():  # nothing there to keep
+        return CampaignError(f"cannot create the campaign store '{path}': "
+                             f"{_UNWRITABLE[code]} ({err}); make its folder writable, or "
+                             "pass a --store in a writable folder")
     if code in _UNWRITABLE:
         return CampaignError(f"cannot write the campaign store '{path}': {_UNWRITABLE[code]} "
                              f"({err}); the store is kept as it is: free some space or make "
