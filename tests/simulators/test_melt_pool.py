@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import math
 import re
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -151,13 +152,16 @@ def test_secant_faces_are_continuous_in_the_fraction():
     assert jumps[False, 1.0] > 1e-3  # the centre form jumps at full consolidation
 
 
-def test_consolidation_coupling_matches_finite_differences():
+@pytest.mark.parametrize("conserved_mass", [True, False])
+def test_consolidation_coupling_matches_finite_differences(conserved_mass):
     """With the consolidated fraction a function of T, the Newton matrix adds
     dR/dfrac dfrac/dT; together with the fixed-fraction Jacobian it is the derivative
-    of R(T, frac(T)) wherever the upstream maxima do not switch cells."""
+    of R(T, frac(T)) wherever the upstream maxima do not switch cells (both mass
+    fluxes of the powder layer)."""
     box = pool_box(150e-6, 40e-6, 50e-6, 80e-6, resolution=0.35, beam_radius=40e-6)
     mesh = build_mesh(box, NI5NB, resolution=0.35, powder=True)
     disc = Discretization(mesh, NI5NB, 150.0, 0.5)
+    disc.conserved_mass = conserved_mass
     laws = _laws()
     T = initial_field(mesh, 150.0, 0.5, 0.5, 100.0, NI5NB)
     T3 = T.reshape(mesh.shape)
@@ -232,12 +236,14 @@ def test_exposure_fraction_is_the_path_integral():
     assert np.all(np.diff(frac[::-1, :, 0], axis=0) >= 0)  # grows downstream (towards -x)
 
 
-def test_exposure_coupling_matches_finite_differences():
+@pytest.mark.parametrize("conserved_mass", [True, False])
+def test_exposure_coupling_matches_finite_differences(conserved_mass):
     """The exposure form's Newton operator is the exact derivative of R(T, frac(T)):
     dR/dT at fixed frac plus dR/dfrac (dfrac/dT + dfrac/dA dA/dT), the fraction's
     derivative applied as an operator and also formed as a matrix."""
     mesh, disc, T = _exposure_case()
     disc.secant_faces = True  # as the model sets it for this form
+    disc.conserved_mass = conserved_mass
     laws = _laws()
     k_surface = 1e4
 
@@ -266,6 +272,50 @@ def test_exposure_coupling_matches_finite_differences():
     coupling = fd - J @ d
     assert np.abs(coupling).max() > 1e-2 * np.abs(fd).max()  # the term matters here
     np.testing.assert_allclose(J @ d + C @ dfrac, fd, atol=1e-5 * np.abs(coupling).max())
+
+
+@pytest.mark.parametrize("conserved_mass", [True, False])
+def test_the_powder_mass_flux_and_the_enthalpy_reference(conserved_mass):
+    """Adding a constant to the advected enthalpy (another reference temperature) moves a
+    cell's balance by the constant times the mass the cell's outflow carries beyond its
+    inflow. With the powder's mass conserved that is the inflow face's cells alone
+    (whose inflow of ambient material carries no enthalpy from ambient); with the
+    consolidated fraction's density it is also the consolidation front, where the mass
+    flux grows: a heat sink that depends on the reference."""
+    mesh, disc, T = _exposure_case()
+    disc.conserved_mass = conserved_mass
+    laws = _laws()
+    frac = exposure(disc, T, 0.4, 1e4).frac
+    R0, _ = disc.evaluate(T, frac, laws, 0.4, None)
+    shift = 1e5  # J/kg
+    R1, _ = disc.evaluate(T, frac, replace(laws, sensible=_shifted(laws.sensible, shift)),
+                          0.4, None)
+    m = disc.v * disc.area_yz * disc.mass_density(frac)
+    gained = np.zeros(mesh.size)  # mass flux out of a cell minus the flux into it
+    np.add.at(gained, disc.x_down, -m[disc.x_upstream])
+    np.add.at(gained, disc.x_upstream, m[disc.x_upstream])
+    gained[disc.outflow] += m[disc.outflow]
+    scale = np.abs(R0).max()
+    np.testing.assert_allclose(R1 - R0, -shift * gained, atol=1e-9 * scale)
+    inflow = np.zeros(mesh.shape, bool)
+    inflow[-1] = True
+    front = (np.abs(gained) > 1e-12 * np.abs(m).max()) & ~inflow.ravel()
+    assert front.any() != conserved_mass
+    if not conserved_mass:  # the sink sits where the fraction grows
+        grows = np.zeros(mesh.size, bool)
+        grows[disc.x_down[frac[disc.x_down] > frac[disc.x_upstream]]] = True
+        assert np.array_equal(front, grows)
+
+
+def _shifted(table, shift):
+    """A sensible-enthalpy law plus a constant (J/kg): the same physics, another
+    reference."""
+
+    def law(T):
+        S, cp = table(T)
+        return S + shift, cp
+
+    return law
 
 
 def test_rosenthal_estimate_scales():
@@ -361,15 +411,21 @@ def test_outputs_do_not_depend_on_the_starting_field():
     _close(a, b)
 
 
-def test_run_104_stays_on_the_conduction_branch():
-    """Continuation from a cold start keeps run 104 in conduction mode (surface below
-    T_b, absorptivity near A_0), whatever the continuation step; the hot start of
-    earlier versions reached the keyhole branch there (W 126 um at the default mesh)."""
-    a = melt_pool.simulate(RUN_104, **COARSE)
-    b = melt_pool.simulate(RUN_104, continuation_ratio=2.5, **COARSE)
-    _close(a, b)
+def test_run_104_parameters_follow_the_conduction_branch_to_its_end():
+    """Continuation from a cold start keeps the conduction branch while it exists and
+    reaches the keyhole branch only where it ends, whatever the continuation step: with
+    campaign run 104's parameters, conduction at 109 W (surface below T_b, absorptivity
+    near A_0), keyhole at run 104's 113.1 W (with the powder's mass flux conserved the
+    pool is hotter than melt_pool 0.8.0's, whose conduction branch reached 113.1 W)."""
+    below = {**RUN_104, "P": 109.0}
+    a = melt_pool.simulate(below, **COARSE)
+    _close(a, melt_pool.simulate(below, continuation_ratio=2.5, **COARSE))
     assert a.outputs["T0"] < NI5NB.T_boil - 100.0
     assert a.diagnostics["absorptivity"] < RUN_104["A_0"] + 0.05
+    b = melt_pool.simulate(RUN_104, **COARSE)
+    _close(b, melt_pool.simulate(RUN_104, continuation_ratio=1.1, **COARSE))
+    assert b.outputs["T0"] > NI5NB.T_boil
+    assert b.diagnostics["absorptivity"] > RUN_104["A_max"] - 0.15
 
 
 @pytest.mark.slow

@@ -155,6 +155,10 @@ class Discretization:
         # of the cell-centre conductivities (False) or of the two laws' secant
         # conductivities over the face's temperature range (True, _secant_mixed)
         self.secant_faces = False
+        # the mass flux of the powder layer: its bulk density whatever the consolidation
+        # (True, mass conserved along every streamline), or the density of the cell's
+        # consolidated fraction (False; :meth:`mass_density`)
+        self.conserved_mass = True
 
     def with_power(self, P: float) -> Discretization:
         """The same discretization with laser power ``P`` (W); geometry shared."""
@@ -332,6 +336,20 @@ class Discretization:
         pack = self.mat.powder_packing
         return (pack + (1.0 - pack) * frac) * self.mat.rho
 
+    def mass_density(self, frac: np.ndarray) -> np.ndarray:
+        """Density (kg/m^3) that carries the advected mass.
+
+        With :attr:`conserved_mass` the powder layer's bulk density whatever its
+        consolidation: the mass flux is the same along every streamline, as the powder's
+        mass is (a consolidated track is denser and thinner; the model keeps the layer's
+        thickness). Otherwise :meth:`density`: the mass flux then grows where powder
+        consolidates, and the enthalpy flux ``m H`` of the mass it gains, referred to
+        ``T_ambient``, is a heat sink at the consolidation front, as if cold metal were
+        added there (benchmarks/README.md, "Mass flux of the powder layer")."""
+        if not self.conserved_mass:
+            return self.density(frac)
+        return np.where(self.powder_cells.ravel(), self.mat.powder_packing, 1.0) * self.mat.rho
+
     def advective_flux(self, T: np.ndarray, frac: np.ndarray, laws: MaterialLaws
                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Enthalpy flux (W) through every interior x face towards ``-x``, shape
@@ -346,7 +364,7 @@ class Discretization:
         """
         S, cp = laws.sensible(T)
         Lh, dl = laws.latent(T)
-        m = self.v * self.area_yz * self.density(frac)  # kg/s through a cross-section
+        m = self.v * self.area_yz * self.mass_density(frac)  # kg/s through a cross-section
         P, E = self.x_down, self.x_upstream
         mE = m[E]
         k_d, k_l = laws.phi_x(self._t_ref)[1][0], laws.powder_x(self._t_ref)[1][0]
@@ -365,7 +383,7 @@ class Discretization:
         S, cp = laws.sensible(T)
         Lh, dl = laws.latent(T)
         o = self.outflow
-        m_o = self.v * self.area_yz[o] * self.density(frac[o])
+        m_o = self.v * self.area_yz[o] * self.mass_density(frac)[o]
         R[o] -= m_o * (S[o] + Lh[o])
         vals += [dFE, dFP, -dFE, -dFP, -m_o * (cp[o] + dl[o])]  # order of _entries
 

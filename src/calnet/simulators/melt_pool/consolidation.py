@@ -264,10 +264,12 @@ def fraction_coupling(disc: Discretization, T: np.ndarray, frac: np.ndarray,
     S, _ = laws.sensible(T)
     Lh, _ = laws.latent(T)
     dm = disc.v * disc.area_yz * (1.0 - mat.powder_packing) * mat.rho  # d mass flux / d f
+    if disc.conserved_mass:  # the powder layer's mass flux does not depend on f
+        dm = 0.0 * dm
     P, E = disc.x_down, disc.x_upstream
     powder = frac[E] < 1
     P, E = P[powder], E[powder]
-    m = disc.v * disc.area_yz * disc.density(frac)
+    m = disc.v * disc.area_yz * disc.mass_density(frac)
     # F = m_E (S_E + beta (1 - w) (S_P - S_E) + L_E) into P out of E, with the hybrid
     # weight beta = min(1, c k_ref(min(f_P, f_E)) / m_E); both forms of frac(T) grow
     # downstream (f_P >= f_E), so the minimum is f_E

@@ -165,6 +165,7 @@ def run(P: float, v: float, theta: dict[str, float], opts: MeltPoolOptions,
         final_stage = res == opts.resolution
         disc = Discretization(mesh, mat, P, v)
         disc.secant_faces = opts.consolidation == "exposure"  # continuous in frac
+        disc.conserved_mass = opts.mass_flux == "conserved"
         for p_stage in powers if stage == 0 else [P]:
             last = p_stage == P and final_stage
             d = disc.with_power(p_stage)

@@ -14,6 +14,7 @@ KVZ_MODES = ("factor", "absolute")
 ANISOTROPY_DIRECTIONS = ("vertical", "lateral")
 STARTS = ("rosenthal", "ambient")
 CONSOLIDATIONS = ("monotone", "field", "exposure")
+MASS_FLUXES = ("conserved", "blended")
 
 
 @dataclass(frozen=True)
@@ -76,6 +77,14 @@ class MeltPoolOptions:
         upstream-maximum ``frac(T)`` over the solve's iterates (each continuation stage
         starts afresh), so the front only advances; it converges, but the state can depend on the
         iteration path by a few per cent.
+    mass_flux : {"conserved", "blended"}, default "conserved"
+        Mass flux of the powder layer along the laser's path: ``"conserved"``, the
+        powder's bulk density whatever the consolidation (the energy equation
+        ``rho_p v dH/dx`` of physics.md along each streamline); ``"blended"``, the
+        density of each cell's consolidated fraction, so the flux grows where powder
+        consolidates and the mass it gains enters at the ambient temperature's enthalpy,
+        a heat sink at the consolidation front (melt_pool 0.8.0 and earlier; widths
+        7-34 % smaller at the 5 benchmark settings, benchmarks/README.md).
     start : {"rosenthal", "ambient"}, default "rosenthal"
         Initial field of the first continuation stage: the beam-smeared Rosenthal field
         at that stage's power and ``A_0``, or the ambient temperature everywhere. The
@@ -99,6 +108,7 @@ class MeltPoolOptions:
     continuation_ratio: float = 1.5
     start: str = "rosenthal"
     consolidation: str = "monotone"
+    mass_flux: str = "conserved"
 
     def __post_init__(self) -> None:
         checks = [
@@ -107,6 +117,7 @@ class MeltPoolOptions:
             ("anisotropy", self.anisotropy in ANISOTROPY_DIRECTIONS, ANISOTROPY_DIRECTIONS),
             ("start", self.start in STARTS, STARTS),
             ("consolidation", self.consolidation in CONSOLIDATIONS, CONSOLIDATIONS),
+            ("mass_flux", self.mass_flux in MASS_FLUXES, MASS_FLUXES),
         ]
         for name, ok, allowed in checks:
             if not ok:
