@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from calnet.calibration.diagnostics import stuck_chains, summarize
+from calnet.calibration.diagnostics import stuck_chains, summarize, unvisited_mode
 from calnet.calibration.sampling import cache_info, sample_nuts
 from calnet.errors import CalibrationError, CalibrationWarning
 from calnet.progress import Lines
@@ -390,6 +390,32 @@ def test_each_chain_starts_from_the_best_of_many_prior_draws():
     # the same chains from single draws stay in the broad mode
     idata = sample_nuts(ld, seed=0, num_chains=4, num_warmup=300, num_draws=300, init=starts)
     assert abs(idata.posterior["theta"].values.mean() - 5.0) < 0.3
+
+
+def _one_mode_draws(seed=0):
+    """4 chains x 500 draws of N(1, 0.01^2) in the first of two parameters, N(0, 1) in
+    the second, with their log densities."""
+    rng = np.random.default_rng(seed)
+    pos = np.stack([1.0 + 0.01 * rng.standard_normal((4, 500)),
+                    rng.standard_normal((4, 500))], axis=-1)
+    lp = -0.5 * (((pos[..., 0] - 1.0) / 0.01) ** 2 + pos[..., 1] ** 2)
+    return pos, lp
+
+
+def test_a_plausible_point_far_from_every_chain_is_an_unvisited_mode():
+    """A candidate with a log density as high as the draws' (the mirror mode at -1 of a
+    symmetric density) but 200 sds from every chain is found; one in the chains' own mode,
+    or one far away but less plausible than every draw, is not."""
+    pos, lp = _one_mode_draws()
+    cands = np.array([[1.005, 0.3], [-1.0, 0.2], [-1.0, 0.1], [0.2, 0.0]])
+    lp_c = np.array([-0.2, -0.5, -0.3, -3000.0])  # the mirror mode's as the draws'
+    assert unvisited_mode(pos, lp, cands, lp_c) == 2  # the higher of the two at -1
+    assert unvisited_mode(pos, lp, cands[[0, 3]], lp_c[[0, 3]]) is None
+    lower = np.array([-0.2, lp.min() - 1.0, lp.min() - 2.0, -3000.0])
+    assert unvisited_mode(pos, lp, cands, lower) is None
+    # the same point is no unvisited mode once a chain sits there
+    pos[3, :, 0] = -1.0 + 0.01 * np.random.default_rng(1).standard_normal(500)
+    assert unvisited_mode(pos, lp, cands, lp_c) is None
 
 
 def test_chains_of_one_mode_are_not_run_again(oracle_run):

@@ -347,8 +347,8 @@ def _convergence(idata, warn: bool) -> tuple[list[str], PosteriorSummary]:
     summary = summarize(idata, warn=False)
     problems = convergence_problems(summary)
     if not warn:
-        stuck = idata.posterior.attrs.get("stuck_note")
-        return ([stuck] if stuck else []) + problems, summary
+        notes = [idata.posterior.attrs.get(k) for k in ("stuck_note", "unvisited_note")]
+        return [n for n in notes if n] + problems, summary
     for message in problems:
         warnings.warn(message, CalibrationWarning, stacklevel=4)
     return [], summary

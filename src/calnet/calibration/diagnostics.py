@@ -249,6 +249,35 @@ def stuck_chains(lp) -> list[int]:
     return [int(c) for c in np.flatnonzero(mean[best] - mean > bar)]
 
 
+UNVISITED_SDS = 10.0  # posterior sds from every chain for a plausible point to be unvisited
+
+
+def unvisited_mode(positions, lp, candidates, candidate_lp) -> int | None:
+    """Index of a candidate point (one of the prior draws the chains were started from)
+    that is as plausible as the draws but far from every chain: its log density is at
+    least the lowest of the draws', and in some parameter it lies more than
+    :data:`UNVISITED_SDS` of each chain's own sd from that chain's mean. Such a point sits
+    in a mode the chains did not visit (a mode's share is then set by how many chains
+    landed in it, not by its mass). None when there is none; the candidate with the
+    highest log density when there are several.
+
+    ``positions`` (chains, draws, dim), ``lp`` (chains, draws), ``candidates`` (n, dim),
+    ``candidate_lp`` (n,), all on the sampled (unconstrained) scale.
+    """
+    positions, lp = np.asarray(positions, float), np.asarray(lp, float)
+    candidates, candidate_lp = np.asarray(candidates, float), np.asarray(candidate_lp, float)
+    plausible = np.isfinite(candidate_lp) & (candidate_lp >= lp.min())
+    if not plausible.any():
+        return None
+    mean = positions.mean(axis=1)  # (chains, dim)
+    sd = positions.std(axis=1) + 1e-12 * (1.0 + np.abs(mean))
+    z = np.abs(candidates[:, None, :] - mean[None]) / sd[None]  # (n, chains, dim)
+    far = plausible & np.all(z.max(axis=2) > UNVISITED_SDS, axis=1)
+    if not far.any():
+        return None
+    return int(np.flatnonzero(far)[np.argmax(candidate_lp[far])])
+
+
 def convergence_problems(summary: PosteriorSummary) -> list[str]:
     """One message per failed check (R-hat, bulk ESS, divergences); empty when fine."""
     out, m = [], summary.model

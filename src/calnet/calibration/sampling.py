@@ -45,7 +45,7 @@ from blackjax.adaptation.window_adaptation import build_schedule
 from blackjax.mcmc import nuts
 
 from calnet._jax import FEW_CALLS, device_array
-from calnet.calibration.diagnostics import import_arviz, stuck_chains
+from calnet.calibration.diagnostics import import_arviz, stuck_chains, unvisited_mode
 from calnet.calibration.koh import initial_point_message
 from calnet.errors import CalibrationError, CalibrationWarning
 from calnet.interrupts import end_now, may_end_now, program_running
@@ -400,9 +400,10 @@ def _logdensity_fn(spec):
 _LOGDENSITY: OrderedDict = OrderedDict()
 
 
-def best_starts(ld, candidates: np.ndarray) -> np.ndarray:
+def best_starts(ld, candidates: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Per chain, the row of ``candidates`` (chains, K, dim) of highest finite log-density
-    (the first where none is finite, so that the sampler's check names that chain)."""
+    (the first where none is finite, so that the sampler's check names that chain), and
+    every candidate's log-density (chains, K)."""
     if ld.spec not in _LOGDENSITY:
         _LOGDENSITY[ld.spec] = _logdensity_fn(ld.spec)
         while len(_LOGDENSITY) > _CACHE_SIZE:
@@ -411,7 +412,7 @@ def best_starts(ld, candidates: np.ndarray) -> np.ndarray:
     lps = np.asarray(_LOGDENSITY[ld.spec](ld.data, device_array(candidates.reshape(-1, dim),
                                                                  float))).reshape(chains, k)
     best = np.argmax(np.where(np.isfinite(lps), lps, -np.inf), axis=1)
-    return candidates[np.arange(chains), best]
+    return candidates[np.arange(chains), best], lps
 
 
 def _constrain_fn(spec):
@@ -566,7 +567,7 @@ def sample_nuts(
     args = (host(chain_keys(1)), host(u0), host(ids), ld.data)
     exe, t_compile = _compiled(cfg, args)
     if screening is not None:
-        u0 = screening.result()
+        u0, candidate_lp = screening.result()
         args = (args[0], host(u0), *args[2:])
     if compiled is not None:
         compiled()
@@ -621,6 +622,21 @@ def sample_nuts(
             warnings.warn(stuck_note, CalibrationWarning, stacklevel=2)
         if not ok.all():
             raise CalibrationError(initial_point_message(ld.name, lp0, ~ok))
+    unvisited = ""
+    if screening is not None and ok.all():
+        c = unvisited_mode(positions, stats["lp"], candidates.reshape(-1, ld.dim),
+                           candidate_lp.ravel())
+        if c is not None:
+            point = candidates.reshape(-1, ld.dim)[c]
+            at = _where(ld, np.broadcast_to(point, (1, 1, ld.dim)), [0])[0]
+            unvisited = (
+                f"{ld.name}: a prior draw at {at} has a log density as high as the "
+                "chains' draws but lies far from every chain: the posterior has a mode "
+                "the chains did not visit, and the chains' share of each mode is set by "
+                "where they started, not by the modes' mass; compare runs with other "
+                "seeds, and add data or bounds that tell the modes apart")
+            if warn:
+                warnings.warn(unvisited, CalibrationWarning, stacklevel=2)
     t_sample = time.perf_counter() - t0
     keep = slice(thin - 1, None, thin)  # the program returns the sampling iterations only
     constrained = _constrain_draws(ld, positions[:, keep])
@@ -637,6 +653,7 @@ def sample_nuts(
              "dense_mass": int(dense_mass), "chain_method": method,
              "chains_restarted": ",".join(map(str, stuck)),
              "stuck_note": "" if warn or not stuck else stuck_note,
+             "unvisited_note": "" if warn else unvisited,
              "compile_time": t_compile, "sampling_time": t_sample}
     idata = az.from_dict(posterior=posterior, sample_stats=stats,
                          observed_data={"y": np.asarray(ld.data["y"])},
