@@ -235,6 +235,21 @@ def test_the_simulator_at_the_posterior_against_the_observations(calibrated, tmp
     assert result.to_dict()["data_fits"]["ydata"]["rms"] == pytest.approx(fit.rms)
 
 
+def test_a_fit_within_a_large_discrepancy_says_how_large():
+    """A fit whose residuals were scaled mostly by the discrepancy says so: the model
+    alone misses the data by about the discrepancy's sd."""
+    from calnet.verify import DataFit
+
+    plain = DataFit("d", "M.y", 8, 0.9, 1.5, "fits", noise_sd=0.02, discrepancy_sd=0.03)
+    assert plain.summary() == ("the simulator fits its observations at the posterior (RMS "
+                               "0.90 sds of noise and discrepancy over 8 points)")
+    wide = DataFit("d", "M.y", 8, 0.6, 1.1, "fits", noise_sd=0.02, discrepancy_sd=0.48)
+    assert wide.summary().endswith(", within a discrepancy 24 times the noise (sd 0.48 "
+                                   "against 0.02): the model alone misses these data by "
+                                   "about that much")
+    assert wide.to_dict()["discrepancy_sd"] == 0.48
+
+
 def test_a_data_set_without_a_noise_level_is_not_fitted(good):
     """The module's posterior carries no noise draws: nothing to scale a residual by."""
     assert all(not f.n and f.verdict.startswith("not checked") for f in good.fits.values())

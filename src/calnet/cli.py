@@ -707,8 +707,7 @@ def verify(
         if c.note:
             console.print(f"{c.surrogate}: {escape(c.note)}", soft_wrap=True)
     for f in result.fits.values():  # the simulator against the observations
-        text = (f"the simulator fits its observations at the posterior (RMS {f.rms:.2f} "
-                f"sds of noise and discrepancy over {f.n} points)" if f.fits else f.verdict)
+        text = f.summary()
         console.print(f"{f.dataset}: " + (escape(text) if f.fits
                                            else f"[yellow]{escape(text)}[/]"),
                       soft_wrap=True)

@@ -160,6 +160,9 @@ class DataFit:
         says; NaN when ``n`` is 0.
     verdict : str
         ``"fits"``, or what is wrong and what to do.
+    noise_sd, discrepancy_sd : float
+        RMS over the points of the noise sd and of the discrepancy sd (0 without one)
+        the residuals were scaled by, modelled scale.
     """
 
     dataset: str
@@ -168,6 +171,8 @@ class DataFit:
     rms: float
     max_abs: float
     verdict: str
+    noise_sd: float = math.nan
+    discrepancy_sd: float = 0.0
 
     @property
     def fits(self) -> bool:
@@ -176,7 +181,22 @@ class DataFit:
     def to_dict(self) -> dict:
         return {"dataset": self.dataset, "observes": self.observes, "n": self.n,
                 "rms": _num(self.rms), "max_abs": _num(self.max_abs),
-                "rms_limit": FIT_RMS, "verdict": self.verdict}
+                "rms_limit": FIT_RMS, "noise_sd": _num(self.noise_sd),
+                "discrepancy_sd": _num(self.discrepancy_sd), "verdict": self.verdict}
+
+    def summary(self) -> str:
+        """One line for the command line: the verdict, and for a fit how much of the
+        scale the discrepancy made (a large discrepancy can hide a model's misfit)."""
+        if not self.fits:
+            return self.verdict
+        text = (f"the simulator fits its observations at the posterior (RMS {self.rms:.2f} "
+                f"sds of noise and discrepancy over {self.n} points)")
+        if self.discrepancy_sd > 2 * self.noise_sd:
+            text += (f", within a discrepancy {self.discrepancy_sd / self.noise_sd:.0f} "
+                     f"times the noise (sd {self.discrepancy_sd:.3g} against "
+                     f"{self.noise_sd:.3g}): the model alone misses these data by about "
+                     "that much")
+        return text
 
 
 @dataclass(frozen=True)
@@ -336,6 +356,7 @@ def data_fits(network: Network, posterior: NetworkPosterior, points: Sequence[Ve
 
     by_point = {(p.surrogate, p.point): p for p in points}
     residuals: dict[str, list[float]] = {}
+    scales: dict[str, list[tuple[float, float]]] = {}
     for i, row in enumerate(rows):
         if row is None:
             continue
@@ -349,12 +370,14 @@ def data_fits(network: Network, posterior: NetworkPosterior, points: Sequence[Ve
         residuals.setdefault(name, [])
         if p.status != "ok" or (known is None and "se2" not in hyper):
             continue
-        var = float(known[j]) if known is not None else _at(hyper["se2"], p.draw)
-        if "sd2" in hyper:
-            var += _at(hyper["sd2"], p.draw)
+        noise = float(known[j]) if known is not None else _at(hyper["se2"], p.draw)
+        disc = _at(hyper["sd2"], p.draw) if "sd2" in hyper else 0.0
         observed = float(modelled(network, data)[j])
-        residuals[name].append((observed - p.simulator) / math.sqrt(max(var, 1e-300)))
-    return {name: _fit(name, posterior.data[name].observes, np.asarray(r))
+        residuals[name].append((observed - p.simulator) / math.sqrt(max(noise + disc, 1e-300)))
+        scales.setdefault(name, []).append((noise, disc))
+    return {name: _fit(name, posterior.data[name].observes, np.asarray(r),
+                       np.asarray(scales.get(name, [(math.nan, 0.0)])),
+                       not network.dataset(name).discrepancy.enabled)
             for name, r in residuals.items()}
 
 
@@ -363,17 +386,24 @@ def _at(draws: np.ndarray, draw: int | None) -> float:
     return float(np.mean(draws) if draw is None else draws[draw])
 
 
-def _fit(name: str, observes: str, r: np.ndarray) -> DataFit:
+def _fit(name: str, observes: str, r: np.ndarray, scales: np.ndarray,
+         no_discrepancy: bool) -> DataFit:
     if r.size == 0:
         return DataFit(name, observes, 0, math.nan, math.nan,
                        "not checked: no run at its settings gave a value")
     rms, top = float(np.sqrt(np.mean(r**2))), float(np.abs(r).max())
+    noise, disc = (float(np.sqrt(np.mean(scales[:, c]))) for c in (0, 1))
     verdict = "fits" if rms <= FIT_RMS else (
         f"the simulator at the posterior misses these observations: RMS {rms:.1f} sds of "
         f"the calibration's noise and discrepancy over {r.size} points (about 1 for a "
-        "fit): the chains may have settled in a wrong mode (run calnet run again with "
-        "another seed) or the surrogates misled the calibration (more campaign runs)")
-    return DataFit(name, observes, int(r.size), rms, top, verdict)
+        "fit): the model may not describe these data"
+        + (" (its spec sets discrepancy: none, so nothing absorbs a model-form error; "
+           "the default discrepancy would)" if no_discrepancy else "")
+        + "; where the surrogates above agree and calnet run did not warn of a misfit, "
+        "the chains may have settled in a wrong mode (run calnet run again with another "
+        "seed); where they disagree, the surrogates misled the calibration (more "
+        "campaign runs)")
+    return DataFit(name, observes, int(r.size), rms, top, verdict, noise, disc)
 
 
 def summarise(key: str, transform: str | None, points: Sequence[VerifyPoint]) -> SurrogateCheck:
