@@ -418,6 +418,34 @@ def test_a_plausible_point_far_from_every_chain_is_an_unvisited_mode():
     assert unvisited_mode(pos, lp, cands, lp_c) is None
 
 
+def test_chains_in_separate_modes_are_said_to_be_so():
+    """Three chains at t = 0.6 and one at -0.6 (sd 0.004 each): R-hat fails, and the
+    message says the chains sit in separate modes that more draws will not join; chains
+    that merely drift (one mode) get the advice to sample longer."""
+    import arviz as az
+
+    from calnet.calibration.diagnostics import convergence_problems
+
+    rng = np.random.default_rng(0)
+    split = np.array([0.6, 0.6, 0.6, -0.6])[:, None] + 0.004 * rng.standard_normal((4, 500))
+    drift = np.linspace(0, 1, 500)[None, :] * np.array([0.0, 0.1, 0.2, 0.3])[:, None] \
+        + 0.05 * rng.standard_normal((4, 500))
+    said = {}
+    for name, draws in (("split", split), ("drift", drift)):
+        idata = az.from_dict(posterior={"theta": draws[..., None]},
+                             sample_stats={"diverging": np.zeros((4, 500), bool)},
+                             dims={"theta": ["theta_dim"]}, coords={"theta_dim": ["t"]},
+                             attrs={"model": "M"})
+        said[name] = " ".join(convergence_problems(summarize(idata, warn=False)))
+    apart = np.ptp(split.mean(axis=1)) / split.std(axis=1).max()  # about 1.2 / 0.004
+    assert 250 < apart < 350
+    assert (f"the chains sit in separate modes (their means lie {apart:.0f} within-chain "
+            "sds apart)") in said["split"], said["split"]
+    assert "raise settings.sampler.warmup" not in said["split"]
+    assert "chains disagree - raise settings.sampler.warmup and draws" in said["drift"], \
+        said["drift"]
+
+
 def test_chains_of_one_mode_are_not_run_again(oracle_run):
     assert oracle_run[3].posterior.sizes["chain"] == 4
     assert oracle_run[3].posterior.attrs["chains_restarted"] == ""

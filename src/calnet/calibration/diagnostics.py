@@ -64,6 +64,7 @@ class ParameterSummary:
     ess_bulk: float
     ess_tail: float
     mcse_mean: float
+    chains_apart: float = 0.0  # spread of the chains' means over the largest within-chain sd
 
     def to_dict(self) -> dict:
         d = {k: getattr(self, k) for k in ("mean", "sd", "mode", "r_hat", "ess_bulk",
@@ -166,7 +167,8 @@ def summarize(idata, *, hdi_probs: tuple[float, ...] = (0.94, 0.95), warn: bool 
                 hdi={p: tuple(float(v) for v in hdis[p][var].sel(sel).values)
                      for p in hdi_probs},
                 r_hat=float(rhat[var].sel(sel)), ess_bulk=float(ess_b[var].sel(sel)),
-                ess_tail=float(ess_t[var].sel(sel)), mcse_mean=float(mcse[var].sel(sel))))
+                ess_tail=float(ess_t[var].sel(sel)), mcse_mean=float(mcse[var].sel(sel)),
+                chains_apart=_apart(draws)))
     ss = idata.sample_stats
     summary = PosteriorSummary(
         model=str(post.attrs.get("model", "model")), parameters=tuple(params),
@@ -178,6 +180,19 @@ def summarize(idata, *, hdi_probs: tuple[float, ...] = (0.94, 0.95), warn: bool 
         for message in convergence_problems(summary):
             warnings.warn(message, CalibrationWarning, stacklevel=stacklevel)
     return summary
+
+
+SEPARATE_MODES = 10.0  # chains whose means lie this many within-chain sds apart
+
+
+def _apart(draws: np.ndarray) -> float:
+    """Spread of the chains' means of ``draws`` (chain, draw) in units of the largest
+    within-chain sd (0 for one chain)."""
+    draws = np.asarray(draws, dtype=float)
+    if draws.ndim != 2 or draws.shape[0] < 2:
+        return 0.0
+    means, sds = draws.mean(axis=1), draws.std(axis=1)
+    return float(np.ptp(means) / max(float(sds.max()), 1e-300))
 
 
 def _halves(post):
@@ -286,6 +301,11 @@ def convergence_problems(summary: PosteriorSummary) -> list[str]:
         what = ("the two halves of the only chain disagree - raise settings.sampler.warmup "
                 "and draws, and run several chains (settings.sampler.chains), which also "
                 "show modes that one chain never leaves" if summary.n_chains == 1 else
+                f"the chains sit in separate modes (their means lie {worst.chains_apart:.0f} "
+                "within-chain sds apart): more draws will not join them, and each mode's "
+                "share of the draws is the share of the chains that landed in it, not its "
+                "mass; compare runs with other seeds, and add data or bounds that tell the "
+                "modes apart" if worst.chains_apart > SEPARATE_MODES else
                 "chains disagree - raise settings.sampler.warmup and draws; chains that "
                 "still disagree sit in separate modes the data cannot tell apart")
         out.append(f"{m}: R-hat {rhat_text(worst.r_hat)} > {RHAT_MAX} for "
