@@ -355,30 +355,31 @@ def data_fits(network: Network, posterior: NetworkPosterior, points: Sequence[Ve
     from calnet.calibration.terms import known_noise_var, modelled
 
     by_point = {(p.surrogate, p.point): p for p in points}
-    residuals: dict[str, list[float]] = {}
-    scales: dict[str, list[tuple[float, float]]] = {}
+    # per data set: its observations on the modelled scale and known noise variances,
+    # then one (residual, noise variance, discrepancy variance) per point
+    sets = {name: (modelled(network, posterior.data[name]),
+                   known_noise_var(network, posterior.data[name]))
+            for name in {row[0] for row in rows if row is not None}}
+    found: dict[str, list[tuple[float, float, float]]] = {}
     for i, row in enumerate(rows):
         if row is None:
             continue
         name, j = row
-        data = posterior.data[name]
-        p = by_point.get((data.observes, i))
-        hyper = posterior.hyper.get(name, {})
-        known = known_noise_var(network, data)
+        p = by_point.get((posterior.data[name].observes, i))
         if p is None:
             continue
-        residuals.setdefault(name, [])
+        found.setdefault(name, [])
+        observed, known = sets[name]
+        hyper = posterior.hyper.get(name, {})
         if p.status != "ok" or (known is None and "se2" not in hyper):
             continue
         noise = float(known[j]) if known is not None else _at(hyper["se2"], p.draw)
         disc = _at(hyper["sd2"], p.draw) if "sd2" in hyper else 0.0
-        observed = float(modelled(network, data)[j])
-        residuals[name].append((observed - p.simulator) / math.sqrt(max(noise + disc, 1e-300)))
-        scales.setdefault(name, []).append((noise, disc))
-    return {name: _fit(name, posterior.data[name].observes, np.asarray(r),
-                       np.asarray(scales.get(name, [(math.nan, 0.0)])),
+        r = (float(observed[j]) - p.simulator) / math.sqrt(max(noise + disc, 1e-300))
+        found[name].append((r, noise, disc))
+    return {name: _fit(name, posterior.data[name].observes, np.asarray(v).reshape(-1, 3),
                        not network.dataset(name).discrepancy.enabled)
-            for name, r in residuals.items()}
+            for name, v in found.items()}
 
 
 def _at(draws: np.ndarray, draw: int | None) -> float:
@@ -386,13 +387,14 @@ def _at(draws: np.ndarray, draw: int | None) -> float:
     return float(np.mean(draws) if draw is None else draws[draw])
 
 
-def _fit(name: str, observes: str, r: np.ndarray, scales: np.ndarray,
-         no_discrepancy: bool) -> DataFit:
+def _fit(name: str, observes: str, found: np.ndarray, no_discrepancy: bool) -> DataFit:
+    """``found`` (n, 3): each point's residual in sds, noise and discrepancy variances."""
+    r = found[:, 0]
     if r.size == 0:
         return DataFit(name, observes, 0, math.nan, math.nan,
                        "not checked: no run at its settings gave a value")
     rms, top = float(np.sqrt(np.mean(r**2))), float(np.abs(r).max())
-    noise, disc = (float(np.sqrt(np.mean(scales[:, c]))) for c in (0, 1))
+    noise, disc = (float(np.sqrt(np.mean(found[:, c]))) for c in (1, 2))
     verdict = "fits" if rms <= FIT_RMS else (
         f"the simulator at the posterior misses these observations: RMS {rms:.1f} sds of "
         f"the calibration's noise and discrepancy over {r.size} points (about 1 for a "

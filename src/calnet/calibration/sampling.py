@@ -400,17 +400,24 @@ def _logdensity_fn(spec):
 _LOGDENSITY: OrderedDict = OrderedDict()
 
 
+def _per_spec(cache: OrderedDict, spec, build: Callable):
+    """``cache[spec]``, built by ``build(spec)`` on first use; at most ``_CACHE_SIZE``
+    entries, the oldest dropped."""
+    if spec not in cache:
+        cache[spec] = build(spec)
+        while len(cache) > _CACHE_SIZE:
+            cache.popitem(last=False)
+    return cache[spec]
+
+
 def best_starts(ld, candidates: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Per chain, the row of ``candidates`` (chains, K, dim) of highest finite log-density
     (the first where none is finite, so that the sampler's check names that chain), and
     every candidate's log-density (chains, K)."""
-    if ld.spec not in _LOGDENSITY:
-        _LOGDENSITY[ld.spec] = _logdensity_fn(ld.spec)
-        while len(_LOGDENSITY) > _CACHE_SIZE:
-            _LOGDENSITY.popitem(last=False)
+    logdensity = _per_spec(_LOGDENSITY, ld.spec, _logdensity_fn)
     chains, k, dim = candidates.shape
-    lps = np.asarray(_LOGDENSITY[ld.spec](ld.data, device_array(candidates.reshape(-1, dim),
-                                                                 float))).reshape(chains, k)
+    lps = np.asarray(logdensity(ld.data, device_array(candidates.reshape(-1, dim),
+                                                      float))).reshape(chains, k)
     best = np.argmax(np.where(np.isfinite(lps), lps, -np.inf), axis=1)
     return candidates[np.arange(chains), best], lps
 
@@ -425,11 +432,8 @@ _CONSTRAIN: OrderedDict = OrderedDict()
 
 def _constrain_draws(ld, positions) -> dict[str, np.ndarray]:
     """Constrained draws (chain, draw, ...) from unconstrained positions (chain, draw, dim)."""
-    if ld.spec not in _CONSTRAIN:
-        _CONSTRAIN[ld.spec] = _constrain_fn(ld.spec)
-        while len(_CONSTRAIN) > _CACHE_SIZE:
-            _CONSTRAIN.popitem(last=False)
-    return jax.tree.map(np.asarray, _CONSTRAIN[ld.spec](ld.data, device_array(positions, float)))
+    constrain = _per_spec(_CONSTRAIN, ld.spec, _constrain_fn)
+    return jax.tree.map(np.asarray, constrain(ld.data, device_array(positions, float)))
 
 
 def _where(ld, positions, chains) -> dict[int, str]:
