@@ -399,7 +399,7 @@ def surrogates(
                   "95% coverage")
     for key, s in sur.items.items():
         cv = s.cv.metrics() if s.cv else {}
-        table.add_row(surrogate_label(network, key, s.gp.transform), str(s.n_runs),
+        table.add_row(surrogate_label(network, key, s.gp.transform, s.gp.mean), str(s.n_runs),
                       str(s.n_excluded), str(cv.get("k", "-")),
                       *(f"{cv[k]:.4g}" if cv.get(k) is not None else "-"
                         for k in ("mape", "rmse", "coverage95")))

@@ -16,7 +16,7 @@ from calnet.calibration.terms import make_term
 from calnet.chain import ChainPlan
 from calnet.spec import load_spec, read_all
 from calnet.surrogates.fit_network import OutputSurrogate, Surrogates
-from calnet.surrogates.gp import FittedGP, condition
+from calnet.surrogates.gp import FittedGP, condition, constant_mean
 
 DATA = Path(__file__).parent / "data" / "koh_anchor.npz"
 # koh_anchor: u = [logit theta (7), log ell (2), log sd2, log se2] and the NumPy reference
@@ -54,7 +54,7 @@ def _anchor_gp(P) -> FittedGP:
     return FittedGP(x_train=f(P["Xtr"]), alpha=f(P["c"] / amp), chol=f(np.linalg.cholesky(K)),
                     lengthscales=f(P["ls"]), signal_var=f(amp), nugget=f(P["noise"]),
                     lower=f(np.zeros(9)), upper=f(np.ones(9)), y_mean=f(P["mu0"]),
-                    y_std=f(1.0), nlml=f(np.nan), name="y")
+                    y_std=f(1.0), nlml=f(np.nan), name="y", **constant_mean(len(P["Xtr"])))
 
 
 @pytest.fixture(scope="module")

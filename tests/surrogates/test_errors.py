@@ -106,7 +106,7 @@ def test_load_errors(tmp_path):
         load_gp(tmp_path / "missing.npz")
     (tmp_path / "bad.npz").write_bytes(b"")
     (tmp_path / "bad.json").write_text('{"format": "other"}')
-    with pytest.raises(SurrogateError, match="not a calnet.FittedGP version 1 sidecar"):
+    with pytest.raises(SurrogateError, match="not a calnet.FittedGP sidecar of version 1 or 2"):
         load_gp(tmp_path / "bad.npz")
 
 

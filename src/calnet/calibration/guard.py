@@ -272,7 +272,9 @@ def variance_rate(gp, *, seed: int = 0, most: int = 800, repeats: int = 4) -> fl
     v_all) / log 2``. The held-out runs sit where the campaign put runs, so the rate is
     that of the design's own region. Matern 3/2 with space-filling runs falls as
     ``n^(-3/d)`` in ``d`` inputs at worst; a smooth response or inactive inputs (long
-    length scales) fall faster. At most ``most`` runs are used (a random subset).
+    length scales) fall faster. At most ``most`` runs are used (a random subset). The
+    variance is the kernel's; a linear mean's share (its coefficients' uncertainty, which
+    falls as ``1/n``) is left out.
     Returns 0 where the variance does not fall (length scales short against the runs'
     spacing), None where it cannot be measured (fewer than 8 runs, a singular matrix).
     """

@@ -130,11 +130,13 @@ def _output_unit(network, key: str) -> str:
     return network.model(model).output(output).unit
 
 
-def surrogate_label(network, key: str, transform: str | None) -> str:
-    """``"melt_pool.W (um), GP on ln"``: a surrogate's output with its unit, and the scale
-    its GP models where that is not the output's own (its errors are on the output's)."""
+def surrogate_label(network, key: str, transform: str | None, mean: str = "constant") -> str:
+    """``"melt_pool.W (um), GP on ln, linear mean"``: a surrogate's output with its unit,
+    the scale its GP models where that is not the output's own (its errors are on the
+    output's), and a mean function other than the constant one."""
     label = with_unit(key, _output_unit(network, key))
-    return label + (", GP on ln" if transform == "log" else "")
+    return (label + (", GP on ln" if transform == "log" else "")
+            + (f", {mean} mean" if mean != "constant" else ""))
 
 
 def _predicted_units(ctx, results: RunResults) -> dict[str, str]:
@@ -257,7 +259,7 @@ def _sections(ctx, results: RunResults) -> list[Section]:
         "keep one sign and stay within a factor 100 of each other, or the GP is on ln)",
         ["output (unit)", "training runs", "runs left out (not ok or non-finite)",
          "CV folds k", "CV MAPE %", "CV RMSE (output's unit)", "CV 95% coverage"],
-        [[surrogate_label(net, k, s.gp.transform), s.n_runs, s.n_excluded,
+        [[surrogate_label(net, k, s.gp.transform, s.gp.mean), s.n_runs, s.n_excluded,
           *_cv_cells(s.cv)] for k, s in results.surrogates.items.items()])],
         figures=pick("cv "))
     rows = []

@@ -13,19 +13,21 @@ import warnings
 
 import jax
 import numpy as np
+from scipy.linalg import solve_triangular
 from scipy.optimize import minimize
 
 from calnet._jax import device_array
 from calnet.errors import SurrogateError, SurrogateWarning
 from calnet.surrogates.gp import FittedGP, condition
-from calnet.surrogates.likelihood import (
-    nlml_value_and_grad,
-)
+from calnet.surrogates.likelihood import MEANS, basis, nlml_value_and_grad
 
 LENGTHSCALE_BOUNDS = (1e-2, 1e2)  # unit-cube units
 SIGNAL_VAR_BOUNDS = (1e-3, 1e3)  # standardised-output units
 NUGGET_BOUNDS = (1e-8, 1e-1)  # standardised-output units; the lower end is the floor
 TRANSFORMS = (None, "log")
+#: ``fit_gp``'s ``mean``: a mean function, or ``"auto"``, the one of higher leave-one-out
+#: predictive density
+MEAN_CHOICES = (*MEANS, "auto")
 _PENALTY = 1e10  # objective value reported to L-BFGS-B where K is not positive definite
 _NUGGET_RETRIES = 3
 
@@ -96,10 +98,10 @@ def _starts(d, n_restarts, rng, ell_b, s2_b, nug_b) -> np.ndarray:
     return np.vstack([default, rng.uniform(lo, hi, size=(n_restarts, d + 2))])
 
 
-def _optimise(xs, ys, starts, bounds):
+def _optimise(xs, ys, starts, bounds, H=None):
     """Run L-BFGS-B from each start; return (best log_params, best value)."""
     def fun(p):
-        v, g = _value_and_grad(device_array(p, float), xs, ys)
+        v, g = _value_and_grad(device_array(p, float), xs, ys, H)
         v = float(v)
         if not np.isfinite(v):
             return _PENALTY, np.zeros_like(p)
@@ -129,12 +131,14 @@ def fit_gp(
     name: str = "",
     min_points: int = 0,
     init=None,
+    mean: str = "constant",
 ) -> FittedGP:
     """Fit a Matern 3/2 ARD GP surrogate to one output by maximum marginal likelihood.
 
     Inputs are scaled to the unit cube with ``lower``/``upper``; outputs are transformed
     (``transform``) and standardised. Hyperparameters maximise the log marginal
-    likelihood with L-BFGS-B from a default start plus ``n_restarts`` seeded random ones.
+    likelihood (the restricted one with a linear mean) with L-BFGS-B from a default
+    start plus ``n_restarts`` seeded random ones.
 
     Parameters
     ----------
@@ -166,6 +170,13 @@ def fit_gp(
         Log hyperparameters ``(log ell_1..d, log signal_var, log nugget)`` to start from
         instead of the default start (e.g. a fit on more data: CV folds warm-start from
         the full-data optimum); the ``n_restarts`` random starts are added as usual.
+    mean : {"constant", "linear", "auto"}, default "constant"
+        Mean function (:mod:`calnet.surrogates.gp`): the outputs' mean, a linear trend in
+        the inputs with its coefficients' uncertainty in the variance, or ``"auto"``:
+        both fitted, the one whose leave-one-out predictive density of the training
+        outputs (closed form, :func:`loo_log_density`) is higher kept (the constant one
+        on a tie). A smooth output with a trend across the box gets a far smaller, and
+        honest, variance from the linear mean.
 
     Returns
     -------
@@ -209,23 +220,64 @@ def fit_gp(
             raise SurrogateError(f"{_label(name)}: init must be {d + 2} finite log "
                                  f"hyperparameters, got shape {init.shape}")
         starts[0] = np.clip(init, [b[0] for b in bounds], [b[1] for b in bounds])
-    p, _ = _optimise(xs, ys, starts, bounds)
-    return _condition_with_retries(x, y, xs, ys, p, lower=lower, upper=upper,
-                                   transform=transform, name=name)
+    if mean not in MEAN_CHOICES:
+        raise SurrogateError(f"{_label(name)}: mean must be one of {list(MEAN_CHOICES)}, got "
+                             f"{mean!r}")
+    if mean == "linear" and x.shape[0] < d + 3:
+        raise SurrogateError(f"{_label(name)}: a linear mean needs at least d + 3 = {d + 3} "
+                             f"training points, got {x.shape[0]}; use mean='constant'")
+    fits = []
+    tries = ("constant", "linear") if mean == "auto" and x.shape[0] >= d + 3 else (
+        ("constant",) if mean == "auto" else (mean,))
+    for form in tries:
+        H = None if form == "constant" else basis(xs, form)
+        p, _ = _optimise(xs, ys, starts, bounds, H)
+        fits.append(_condition_with_retries(x, y, xs, ys, p, lower=lower, upper=upper,
+                                            transform=transform, name=name, mean=form))
+    if len(fits) == 1:
+        return fits[0]
+    scores = [loo_log_density(gp) for gp in fits]
+    return fits[int(np.argmax(scores))]  # the constant mean on a tie
 
 
-def _condition_with_retries(x, y, xs, ys, p, *, lower, upper, transform, name) -> FittedGP:
+def loo_log_density(gp: FittedGP) -> float:
+    """Leave-one-out log predictive density of ``gp``'s training outputs (standardised
+    scale, hyperparameters fixed), from the closed form ``mu_-i = y_i - (P y)_i / P_ii``,
+    ``var_-i = 1 / P_ii`` (Rasmussen and Williams 2006, eq. 5.12), ``P = K^-1`` for a
+    constant mean and the restricted projection for a linear one, whose coefficients are
+    then re-estimated without the point (Dubrule 1983). NaN where ``K`` did not factorise.
+    """
+    chol = np.asarray(gp.chol, float)
+    if not np.all(np.isfinite(chol)):
+        return float("nan")
+    l_inv = solve_triangular(chol, np.eye(chol.shape[0]), lower=True)
+    prec = l_inv.T @ l_inv  # K^-1
+    if gp.beta.shape[0]:
+        w = np.asarray(gp.basis_solve, float)  # L^-1 H
+        c = np.linalg.solve(np.asarray(gp.basis_chol, float), (l_inv.T @ w).T)  # R^-1 H^T K^-1
+        prec = prec - c.T @ c
+    diag = np.diag(prec)
+    if not np.all(diag > 0):
+        return float("nan")
+    resid = np.asarray(gp.alpha, float) / diag  # alpha = P y_s
+    return float(np.sum(-0.5 * np.log(2 * np.pi / diag) - 0.5 * resid**2 * diag))
+
+
+
+def _condition_with_retries(x, y, xs, ys, p, *, lower, upper, transform, name,
+                            mean: str = "constant") -> FittedGP:
     """Condition at ``p``; if ``K`` will not factorise, raise the nugget tenfold and retry."""
     ell, s2, nugget = np.exp(p[:-2]), float(np.exp(p[-2])), float(np.exp(p[-1]))
     for attempt in range(_NUGGET_RETRIES + 1):
         gp = condition(x, y, lower=lower, upper=upper, lengthscales=ell, signal_var=s2,
-                       nugget=nugget, transform=transform, name=name)
+                       nugget=nugget, transform=transform, name=name, mean=mean)
         if np.isfinite(np.asarray(gp.alpha)).all():
             if attempt:
                 warnings.warn(f"{_label(name)}: nugget raised to {nugget:.3g} to factorise K",
                               SurrogateWarning, stacklevel=3)
             # the value half of the optimiser's program: a value-only one would compile again
-            nlml, _ = _value_and_grad(device_array(np.log(np.r_[ell, s2, nugget]), float), xs, ys)
+            nlml, _ = _value_and_grad(device_array(np.log(np.r_[ell, s2, nugget]), float), xs,
+                                      ys, None if mean == "constant" else basis(xs, mean))
             return dataclasses.replace(gp, nlml=nlml)
         nugget *= 10.0
     raise SurrogateError(f"{_label(name)}: the covariance matrix is not positive definite "

@@ -48,7 +48,7 @@ class OutputSurrogate:
     def summary(self) -> dict:
         """JSON-ready metrics (for ``metrics.json``)."""
         doc = {"model": self.model, "output": self.output, "transform": self.transform,
-               "n_runs": self.n_runs, "n_excluded": self.n_excluded,
+               "mean": self.gp.mean, "n_runs": self.n_runs, "n_excluded": self.n_excluded,
                "nlml": float(self.gp.nlml) if self.gp.nlml is not None else None}
         if self.cv is not None:
             doc["cv"] = self.cv.metrics()
@@ -158,7 +158,7 @@ def _jobs(network: Network, stores, seed: int, restarts: int | None,
                                      "--retry-failed (or calnet run SPEC --fresh)")
             kw = dict(lower=lower, upper=upper, transform=out.transform,
                       n_restarts=min(restarts or settings.restarts, settings.restarts),
-                      seed=seed, name=f"{name}.{out.name}")
+                      seed=seed, name=f"{name}.{out.name}", mean=settings.mean)
             folds = min(cv_folds or settings.cv_folds, settings.cv_folds, int(ok.sum()))
             jobs.append(_Job(name, out.name, x[ok], y[ok], kw, folds,
                              runs.n_excluded + int((~ok).sum())))
@@ -168,7 +168,9 @@ def _jobs(network: Network, stores, seed: int, restarts: int | None,
 def _cross_validate(job: _Job, gp: FittedGP, before_fold=None) -> CVResult:
     # folds re-optimise from the full-data optimum (one start each): k refits at the cost
     # of about k / (restarts + 1) full fits
-    return cross_validate(job.x, job.y, k=job.folds, **{**job.kw, "n_restarts": 0},
+    # with the full fit's mean function ("auto" chose it once, on all the runs)
+    return cross_validate(job.x, job.y, k=job.folds,
+                          **{**job.kw, "n_restarts": 0, "mean": gp.mean},
                           init=np.asarray(gp.log_params), before_fold=before_fold)
 
 

@@ -7,6 +7,13 @@ Scales: inputs are given in physical units and scaled to the unit cube with the
 ``lower``/``upper`` bounds; outputs are transformed (``log`` or not) to the *modelled*
 scale, then standardised. ``predict`` returns mean and variance on the modelled scale;
 :meth:`FittedGP.to_natural` maps them back.
+
+Mean function: zero on the standardised scale (``mean="constant"``, the outputs' mean), or
+linear in the unit-cube inputs (``mean="linear"``, ``h(x)^T beta`` with ``h = [1, x]``):
+``beta`` is the generalised least-squares estimate and the predictive variance carries
+its uncertainty, ``u^T (H^T K^-1 H)^-1 u`` with ``u = h(x) - H^T K^-1 k(X, x)`` (universal
+kriging; Rasmussen and Williams 2006, eq. 2.42). A trend that a stationary kernel would
+have to carry as a large, long-range signal variance then costs no variance at all.
 """
 
 from __future__ import annotations
@@ -26,11 +33,20 @@ from calnet.surrogates.kernels import (
     matern32_from_sqdist,
     scaled_sqdist,
 )
-from calnet.surrogates.likelihood import neg_log_marginal_likelihood, predictive_solve
+from calnet.surrogates.likelihood import basis, neg_log_marginal_likelihood, predictive_solve
 
 ARRAY_FIELDS = ("x_train", "alpha", "chol", "lengthscales", "signal_var", "nugget",
-                "lower", "upper", "y_mean", "y_std", "nlml")
+                "lower", "upper", "y_mean", "y_std", "nlml", "beta", "basis_solve",
+                "basis_chol")
+#: the arrays of the mean function, empty for a constant mean (files without them load so)
+TREND_FIELDS = ("beta", "basis_solve", "basis_chol")
 META_FIELDS = ("transform", "name")
+
+
+def constant_mean(n_train: int) -> dict[str, jax.Array]:
+    """The :data:`TREND_FIELDS` of a constant mean (no basis column) for ``n_train`` runs."""
+    return {"beta": jnp.zeros(0), "basis_solve": jnp.zeros((n_train, 0)),
+            "basis_chol": jnp.zeros((0, 0))}
 
 
 @dataclass(frozen=True)
@@ -42,7 +58,7 @@ class FittedGP:
     x_train : array, shape (n_train, d)
         Training inputs scaled to the unit cube.
     alpha : array, shape (n_train,)
-        ``K^-1 y_s``, with ``y_s`` the standardised training outputs.
+        ``K^-1 (y_s - H beta)``, with ``y_s`` the standardised training outputs.
     chol : array, shape (n_train, n_train)
         Lower Cholesky factor of ``K = s2 * Matern(x_train) + nugget * I``.
     lengthscales : array, shape (d,)
@@ -55,7 +71,15 @@ class FittedGP:
         Standardisation of the modelled-scale output.
     nlml : scalar array
         Negative log marginal likelihood of the standardised outputs at these
-        hyperparameters (``nan`` if the hyperparameters were given, not fitted).
+        hyperparameters, restricted (REML) with a linear mean (``nan`` if the
+        hyperparameters were given, not fitted).
+    beta : array, shape (p,)
+        Coefficients of the mean function on the standardised scale: ``p = 0`` for a
+        constant mean, ``d + 1`` (intercept, then one per unit-cube input) for a linear one.
+    basis_solve : array, shape (n_train, p)
+        ``L^-1 H``, ``H`` the mean function's basis at the training inputs.
+    basis_chol : array, shape (p, p)
+        Lower Cholesky factor of ``H^T K^-1 H``.
     transform : {None, "log"}
         Output transform: the modelled scale is ``log(y)`` when ``"log"``.
     name : str
@@ -73,8 +97,16 @@ class FittedGP:
     y_mean: jax.Array
     y_std: jax.Array
     nlml: jax.Array
+    beta: jax.Array
+    basis_solve: jax.Array
+    basis_chol: jax.Array
     transform: str | None = None
     name: str = ""
+
+    @property
+    def mean(self) -> str:
+        """``"constant"`` or ``"linear"``: the mean function."""
+        return "linear" if self.beta.shape[0] else "constant"
 
     @property
     def n_train(self) -> int:
@@ -119,7 +151,11 @@ class FittedGP:
         k_star = matern32(zs, self.x_train, self.lengthscales, self.signal_var)
         v = predictive_solve(self.chol, k_star)  # (n_train, m)
         cov = matern32(zs, zs, self.lengthscales, self.signal_var) - v.T @ v
-        return self.y_mean + self.y_std * (k_star @ self.alpha), self.y_std**2 * cov
+        if self.beta.shape[0]:
+            q = self._trend_solve(zs, v)
+            cov = cov + q.T @ q
+        return (self.y_mean + self.y_std * (self._trend(zs) + k_star @ self.alpha),
+                self.y_std**2 * cov)
 
     def at_controls(self, x: jax.Array) -> dict[str, jax.Array]:
         """What :meth:`moments_at` needs at fixed control inputs ``x`` (m, d_x), already
@@ -127,8 +163,9 @@ class FittedGP:
         the scaled squared distances to the training points ``r2_train`` (m, n_train)
         and among the points ``r2_among`` (m, m), and the parameter columns of the
         training inputs rescaled so that a parameter vector needs one multiply,
-        ``theta_train`` (n_train, d_theta) and ``theta_scale`` (d_theta,), and the mean's
-        weights on the modelled scale ``weights`` (n_train,). The predictive at many
+        ``theta_train`` (n_train, d_theta) and ``theta_scale`` (d_theta,), the mean's
+        weights on the modelled scale ``weights`` (n_train,) and the control inputs on
+        the unit cube ``x_unit`` (m, d_x), for the mean function. The predictive at many
         parameter values then costs the parameter part only."""
         dx = x.shape[1]
         span = self.upper - self.lower
@@ -139,7 +176,8 @@ class FittedGP:
                 "theta_train": self.x_train[:, dx:] / self.lengthscales[dx:]
                 + self.lower[dx:] * scale,
                 "theta_scale": scale,
-                "weights": self.y_std * self.signal_var * self.alpha}
+                "weights": self.y_std * self.signal_var * self.alpha,
+                "x_unit": xs}
 
     def moments_at(self, fixed: dict[str, jax.Array], theta: jax.Array, *,
                    cov: bool) -> tuple[jax.Array, jax.Array | None]:
@@ -149,12 +187,19 @@ class FittedGP:
         r2t = jnp.sum((theta * fixed["theta_scale"] - fixed["theta_train"]) ** 2, axis=-1)
         corr = _matern32_corr(fixed["r2_train"] + r2t[None, :])
         mean = self.y_mean + corr @ fixed["weights"]
+        zs = None
+        if self.beta.shape[0]:
+            zs = self._with_theta(fixed["x_unit"], theta)
+            mean = mean + self.y_std * self._trend(zs)
         if not cov:
             return mean, None
         k = self.signal_var * corr
         v = predictive_solve(self.chol, k)
-        kss = matern32_from_sqdist(fixed["r2_among"], self.signal_var)
-        return mean, self.y_std**2 * (kss - v.T @ v)
+        kss = matern32_from_sqdist(fixed["r2_among"], self.signal_var) - v.T @ v
+        if zs is not None:
+            q = self._trend_solve(zs, v)
+            kss = kss + q.T @ q
+        return mean, self.y_std**2 * kss
 
     def predict_split(
         self, x: jax.Array, theta: jax.Array, *, include_nugget: bool = False
@@ -190,13 +235,16 @@ class FittedGP:
             ``f(theta)`` with theta shape (d_theta,) returning the modelled-scale mean,
             shape (m,).
         """
-        r2_x, to_r2 = self._split_distances(x)
+        r2_x, to_r2, xs = self._split_distances(x)
         coef = self.y_std * self.signal_var * self.alpha
         y_mean = self.y_mean
 
         def mean(theta: jax.Array) -> jax.Array:
             corr = matern32_from_sqdist(r2_x + to_r2(theta), 1.0)
-            return y_mean + corr @ coef
+            out = y_mean + corr @ coef
+            if self.beta.shape[0]:
+                out = out + self.y_std * self._trend(self._with_theta(xs, theta))
+            return out
 
         return mean
 
@@ -214,11 +262,11 @@ class FittedGP:
             ``f(theta)`` with theta shape (d_theta,) returning the modelled-scale
             variance, shape (m,).
         """
-        r2_x, to_r2 = self._split_distances(x)
+        r2_x, to_r2, xs = self._split_distances(x)
 
         def var(theta: jax.Array) -> jax.Array:
             k_star = matern32_from_sqdist(r2_x + to_r2(theta), self.signal_var)
-            return self._moments(k_star, include_nugget)[1]
+            return self._moments(self._with_theta(xs, theta), k_star, include_nugget)[1]
 
         return var
 
@@ -263,10 +311,34 @@ class FittedGP:
 
     # -- internals ---------------------------------------------------------------------
 
-    def _moments(self, k_star: jax.Array, include_nugget: bool) -> tuple[jax.Array, jax.Array]:
-        mean_s = k_star @ self.alpha
+    def _trend(self, zs: jax.Array) -> jax.Array | float:
+        """The mean function at unit-cube inputs ``zs`` (m, d), standardised scale."""
+        if not self.beta.shape[0]:
+            return 0.0
+        return self.beta[0] + zs @ self.beta[1:]
+
+    def _trend_solve(self, zs: jax.Array, v: jax.Array) -> jax.Array:
+        """``R^-1 u`` (p, m) with ``u = h(zs) - H^T K^-1 k_*`` (``v = L^-1 k_*``, (n, m))
+        and ``R R^T = H^T K^-1 H``: the mean function's share of the variance is
+        ``sum(q**2, axis=0)``, standardised scale."""
+        u = basis(zs, self.mean).T - self.basis_solve.T @ v
+        return jax.scipy.linalg.solve_triangular(self.basis_chol, u, lower=True)
+
+    def _with_theta(self, xs: jax.Array, theta: jax.Array) -> jax.Array:
+        """Unit-cube inputs (m, d): control inputs ``xs`` (m, d_x), already on the unit
+        cube, and one physical parameter vector ``theta`` (d_theta,)."""
+        dx = xs.shape[1]
+        t = (theta - self.lower[dx:]) / (self.upper[dx:] - self.lower[dx:])
+        return jnp.concatenate([xs, jnp.broadcast_to(t, (xs.shape[0], t.shape[0]))], axis=1)
+
+    def _moments(self, zs: jax.Array, k_star: jax.Array, include_nugget: bool
+                 ) -> tuple[jax.Array, jax.Array]:
+        mean_s = self._trend(zs) + k_star @ self.alpha
         v = predictive_solve(self.chol, k_star)
-        var_s = jnp.maximum(self.signal_var - jnp.sum(v * v, axis=0), 0.0)
+        var_s = self.signal_var - jnp.sum(v * v, axis=0)
+        if self.beta.shape[0]:
+            var_s = var_s + jnp.sum(self._trend_solve(zs, v) ** 2, axis=0)
+        var_s = jnp.maximum(var_s, 0.0)
         if include_nugget:
             var_s = var_s + self.nugget
         return self.y_mean + self.y_std * mean_s, self.y_std**2 * var_s
@@ -293,7 +365,7 @@ class FittedGP:
             diff = xt - t
             return jnp.sum(diff * diff, axis=-1)[None, :]  # (1, n)
 
-        return r2_x, to_r2
+        return r2_x, to_r2, xs
 
 
 jax.tree_util.register_dataclass(FittedGP, data_fields=list(ARRAY_FIELDS),
@@ -304,25 +376,37 @@ jax.tree_util.register_dataclass(FittedGP, data_fields=list(ARRAY_FIELDS),
 def _predict(gp: FittedGP, z: jax.Array, include_nugget: bool):
     zs = gp.scale_inputs(jnp.atleast_2d(z))
     k_star = matern32(zs, gp.x_train, gp.lengthscales, gp.signal_var)
-    return gp._moments(k_star, include_nugget)
+    return gp._moments(zs, k_star, include_nugget)
 
 
 @jax.jit
 def _log_marginal_likelihood(gp: FittedGP, log_params: jax.Array) -> jax.Array:
-    y_s = gp.chol @ (gp.chol.T @ gp.alpha)  # K alpha: the standardised training outputs
-    return -neg_log_marginal_likelihood(log_params, gp.x_train, y_s)
+    H = basis(gp.x_train, gp.mean)
+    # K alpha + H beta: the standardised training outputs
+    y_s = gp.chol @ (gp.chol.T @ gp.alpha) + gp._trend(gp.x_train)
+    return -neg_log_marginal_likelihood(log_params, gp.x_train, y_s, H)
 
 
-@partial(jax.jit, static_argnums=7)
-def _condition_arrays(x, y, lower, upper, ell, s2, nug, log: bool):
+@partial(jax.jit, static_argnums=(7, 8))
+def _condition_arrays(x, y, lower, upper, ell, s2, nug, log: bool, mean: str):
     xs = (x - lower) / (upper - lower)
     z = jnp.log(y) if log else y
     y_mean, y_std = jnp.mean(z), jnp.std(z)
     ys = (z - y_mean) / y_std
     k = matern32(xs, xs, ell, s2) + nug * jnp.eye(xs.shape[0], dtype=xs.dtype)
     chol = jnp.linalg.cholesky(k)
+    H = basis(xs, mean)
+    p = H.shape[1]
+    if p:  # generalised least squares: beta = (H^T K^-1 H)^-1 H^T K^-1 y_s
+        w = jax.scipy.linalg.solve_triangular(chol, H, lower=True)
+        r = jnp.linalg.cholesky(w.T @ w)
+        a = jax.scipy.linalg.solve_triangular(chol, ys, lower=True)
+        beta = jax.scipy.linalg.cho_solve((r, True), w.T @ a)
+        ys = ys - H @ beta
+    else:
+        w, r, beta = H, jnp.zeros((0, 0), xs.dtype), jnp.zeros(0, xs.dtype)
     alpha = jax.scipy.linalg.cho_solve((chol, True), ys)
-    return xs, alpha, chol, y_mean, y_std
+    return xs, alpha, chol, y_mean, y_std, beta, w, r
 
 
 def condition(
@@ -337,6 +421,7 @@ def condition(
     transform: str | None = None,
     name: str = "",
     nlml: float = float("nan"),
+    mean: str = "constant",
 ) -> FittedGP:
     """Condition a GP with *given* hyperparameters on training data (no optimisation).
 
@@ -358,6 +443,9 @@ def condition(
     name : str
     nlml : float
         Recorded as the attribute of the same name.
+    mean : {"constant", "linear"}, default "constant"
+        Mean function (module docstring); a linear one's coefficients are the
+        generalised least-squares estimate at these hyperparameters.
 
     Returns
     -------
@@ -367,8 +455,9 @@ def condition(
     """
     f64 = partial(jnp.asarray, dtype=jnp.float64)
     lower, upper, ell, s2, nug = (f64(v) for v in (lower, upper, lengthscales, signal_var, nugget))
-    xs, alpha, chol, y_mean, y_std = _condition_arrays(f64(x), f64(y), lower, upper, ell, s2, nug,
-                                                       transform == "log")
+    xs, alpha, chol, y_mean, y_std, beta, w, r = _condition_arrays(
+        f64(x), f64(y), lower, upper, ell, s2, nug, transform == "log", mean)
     return FittedGP(x_train=xs, alpha=alpha, chol=chol, lengthscales=ell, signal_var=s2,
                     nugget=nug, lower=lower, upper=upper, y_mean=y_mean, y_std=y_std,
-                    nlml=f64(nlml), transform=transform, name=name)
+                    nlml=f64(nlml), beta=beta, basis_solve=w, basis_chol=r,
+                    transform=transform, name=name)

@@ -8,6 +8,14 @@ with length scales in unit-cube units and both variances in standardised-output 
 Everything here is a pure JAX function; a numerical failure (a Cholesky factor with NaN)
 gives ``+inf`` for the negative log likelihood instead of an exception, so that inside
 jitted code an optimizer or sampler rejects the step rather than stopping.
+
+A mean function ``h(x)^T beta`` with basis ``H`` (n, p) (:func:`basis`) is integrated out
+under a flat prior on ``beta``: the likelihood is then the restricted (REML) one,
+``0.5 y^T P y + 0.5 log|K| + 0.5 log|H^T K^-1 H| + 0.5 (n - p) log(2 pi)`` with
+``P = K^-1 - K^-1 H (H^T K^-1 H)^-1 H^T K^-1`` (Rasmussen and Williams 2006, section 2.7;
+Harville 1977), and its gradient the same closed form as without a mean function with
+``P`` in place of ``K^-1`` and ``P y`` in place of ``alpha``. With ``p = 0`` (no column:
+the outputs' standardisation is the mean) both are the plain marginal likelihood's.
 """
 
 from __future__ import annotations
@@ -29,6 +37,27 @@ def unpack(log_params: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
     return p[:-2], p[-2], p[-1]
 
 
+MEANS = ("constant", "linear")
+
+
+def basis(x: jax.Array, mean: str) -> jax.Array:
+    """Basis ``H`` (n, p) of the mean function at unit-cube inputs ``x`` (n, d): no column
+    for ``"constant"`` (the standardised outputs' zero mean), ``[1, x]`` for ``"linear"``."""
+    if mean == "constant":
+        return jnp.zeros((x.shape[0], 0), dtype=x.dtype)
+    if mean == "linear":
+        return jnp.concatenate([jnp.ones((x.shape[0], 1), dtype=x.dtype), x], axis=1)
+    raise ValueError(f"mean must be one of {MEANS}, got {mean!r}")
+
+
+def _restricted(chol, alpha, H):
+    """``(P y, log|H^T K^-1 H|^(1/2), K^-1 H, cholesky(H^T K^-1 H))`` for the REML terms."""
+    k_inv_h = cho_solve((chol, True), H)
+    r = jnp.linalg.cholesky(H.T @ k_inv_h)
+    beta = cho_solve((r, True), H.T @ alpha)
+    return alpha - k_inv_h @ beta, jnp.sum(jnp.log(jnp.diag(r))), k_inv_h, r
+
+
 def _factor(log_params, x, y):
     """Shared pieces: Cholesky factor, alpha, exp(-sqrt3 r), noise-free K, hyperparameters."""
     ell, s2, nugget = unpack(log_params)
@@ -42,14 +71,16 @@ def _factor(log_params, x, y):
     return chol, alpha, e, k_free, s2, nugget, ell
 
 
-def _value(chol, alpha, y):
-    # Rasmussen and Williams (2006) eq. (2.30), sign flipped.
+def _value(chol, alpha, y, log_det_a=0.0, p: int = 0):
+    # Rasmussen and Williams (2006) eq. (2.30), sign flipped; REML with p basis columns
     n = y.shape[0]
-    val = 0.5 * jnp.dot(y, alpha) + jnp.sum(jnp.log(jnp.diag(chol))) + 0.5 * n * LOG_2PI
+    val = (0.5 * jnp.dot(y, alpha) + jnp.sum(jnp.log(jnp.diag(chol))) + log_det_a
+           + 0.5 * (n - p) * LOG_2PI)
     return jnp.where(jnp.isfinite(val), val, jnp.inf)
 
 
-def neg_log_marginal_likelihood(log_params: jax.Array, x: jax.Array, y: jax.Array) -> jax.Array:
+def neg_log_marginal_likelihood(log_params: jax.Array, x: jax.Array, y: jax.Array,
+                                H: jax.Array | None = None) -> jax.Array:
     """Negative log marginal likelihood of standardised outputs.
 
     Parameters
@@ -60,19 +91,25 @@ def neg_log_marginal_likelihood(log_params: jax.Array, x: jax.Array, y: jax.Arra
         Training inputs scaled to the unit cube.
     y : array, shape (n,)
         Standardised training outputs (zero mean, unit variance).
+    H : array, shape (n, p), optional
+        Basis of the mean function (:func:`basis`); none: zero mean.
 
     Returns
     -------
     scalar array
-        ``0.5 y^T K^-1 y + 0.5 log|K| + 0.5 n log(2 pi)``; ``+inf`` when ``K`` is not
-        numerically positive definite.
+        ``0.5 y^T K^-1 y + 0.5 log|K| + 0.5 n log(2 pi)`` (the restricted likelihood of the
+        module docstring with a basis); ``+inf`` when ``K`` is not numerically positive
+        definite.
     """
     chol, alpha, *_ = _factor(log_params, x, y)
-    return _value(chol, alpha, y)
+    if H is None or H.shape[1] == 0:
+        return _value(chol, alpha, y)
+    py, log_det_a, *_ = _restricted(chol, alpha, H)
+    return _value(chol, py, y, log_det_a, H.shape[1])
 
 
 def nlml_value_and_grad(
-    log_params: jax.Array, x: jax.Array, y: jax.Array
+    log_params: jax.Array, x: jax.Array, y: jax.Array, H: jax.Array | None = None
 ) -> tuple[jax.Array, jax.Array]:
     """Negative log marginal likelihood and its gradient with respect to ``log_params``.
 
@@ -87,6 +124,8 @@ def nlml_value_and_grad(
     log_params : array, shape (d + 2,)
     x : array, shape (n, d)
     y : array, shape (n,)
+    H : array, shape (n, p), optional
+        Basis of the mean function: the restricted likelihood, ``P`` for ``K^-1``.
 
     Returns
     -------
@@ -97,6 +136,12 @@ def nlml_value_and_grad(
     chol, alpha, e, k_free, s2, nugget, ell = _factor(log_params, x, y)
     n = y.shape[0]
     k_inv = cho_solve((chol, True), jnp.eye(n, dtype=x.dtype))
+    log_det_a, p = 0.0, 0
+    if H is not None and H.shape[1]:  # REML: P y and P for alpha and K^-1
+        p = H.shape[1]
+        alpha, log_det_a, k_inv_h, r = _restricted(chol, alpha, H)
+        c = solve_triangular(r, k_inv_h.T, lower=True)  # (p, n)
+        k_inv = k_inv - c.T @ c
     w = jnp.outer(alpha, alpha) - k_inv  # W = alpha alpha^T - K^-1
     g_s2 = -0.5 * jnp.sum(w * k_free)  # dK/d log s2 = K_f
     g_nug = -0.5 * nugget * jnp.trace(w)  # dK/d log nugget = nugget I
@@ -106,7 +151,7 @@ def nlml_value_and_grad(
     quad = 2.0 * (rows @ (x * x)) - 2.0 * jnp.sum(x * (m @ x), axis=0)
     g_ell = -1.5 * s2 * quad / (ell * ell)
     grad = jnp.concatenate([g_ell, jnp.stack([g_s2, g_nug])])
-    val = _value(chol, alpha, y)
+    val = _value(chol, alpha, y, log_det_a, p)
     grad = jnp.where(jnp.isfinite(val), grad, 0.0)
     return val, grad
 

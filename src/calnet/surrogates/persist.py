@@ -16,10 +16,12 @@ import numpy as np
 
 from calnet.errors import SurrogateError
 from calnet.files import make_folder, replacing
-from calnet.surrogates.gp import ARRAY_FIELDS, FittedGP
+from calnet.surrogates.gp import ARRAY_FIELDS, TREND_FIELDS, FittedGP, constant_mean
 
 FORMAT = "calnet.FittedGP"
-VERSION = 1
+#: version 2 adds the mean function's arrays; version 1 files (constant mean) still load
+VERSION = 2
+READABLE = (1, 2)
 
 
 def _paths(path: str | Path) -> tuple[Path, Path]:
@@ -65,6 +67,7 @@ def save_gp(gp: FittedGP, path: str | Path) -> Path:
         "signal_var": float(arrays["signal_var"]),
         "nugget": float(arrays["nugget"]),
         "nlml": float(arrays["nlml"]),
+        "mean": gp.mean,
         "lower": arrays["lower"].tolist(),
         "upper": arrays["upper"].tolist(),
     }
@@ -87,15 +90,19 @@ def load_gp(path: str | Path) -> FittedGP:
         if not p.is_file():
             raise SurrogateError(f"{p}: surrogate file not found; write it with gp.save()")
     meta = json.loads(sidecar.read_text())
-    if meta.get("format") != FORMAT or meta.get("version") != VERSION:
-        raise SurrogateError(f"{sidecar}: not a {FORMAT} version {VERSION} sidecar; refit "
-                             "and save the surrogate with this calnet version")
+    if meta.get("format") != FORMAT or meta.get("version") not in READABLE:
+        raise SurrogateError(f"{sidecar}: not a {FORMAT} sidecar of version "
+                             f"{' or '.join(map(str, READABLE))}; refit and save the surrogate "
+                             "with this calnet version")
+    n, d = meta["n_train"], meta["n_inputs"]
+    need = ARRAY_FIELDS if meta["version"] >= 2 else tuple(
+        f for f in ARRAY_FIELDS if f not in TREND_FIELDS)
     with np.load(npz, allow_pickle=False) as data:
-        missing = [f for f in ARRAY_FIELDS if f not in data.files]
+        missing = [f for f in need if f not in data.files]
         if missing:
             raise SurrogateError(f"{npz}: arrays {missing} missing; refit and save again")
-        arrays = {f: jnp.asarray(data[f]) for f in ARRAY_FIELDS}
-    n, d = meta["n_train"], meta["n_inputs"]
+        arrays = {f: jnp.asarray(data[f]) for f in need}
+    arrays = {**constant_mean(n), **arrays}
     if arrays["x_train"].shape != (n, d) or arrays["chol"].shape != (n, n):
         raise SurrogateError(f"{npz}: array shapes do not match {sidecar.name} "
                              f"(n_train={n}, n_inputs={d}); the pair is inconsistent")
