@@ -51,7 +51,7 @@ def test_a_calibrated_run_writes_every_stage():
                                     "baselines_test": {"training_mean": {"n": 1}}}
     assert m["comparison"]["d"]["spec"]["draws"] == 600
     assert m["calibration"] == {"mode": "joint", "plug": "-", "sampler": {"chains": 4},
-                                "models": {"M": {}}, "datasets": {}, "notes": ["n"],
+                                "models": {"M": {}}, "datasets": {}, "notes": ["n"], "info": [],
                                 "surrogate_check": {}}
     assert m["maps"] == {"d": {"value": 2}}  # only the explorations with a map
     assert m["warnings"] == ["a", "b"]

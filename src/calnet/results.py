@@ -202,7 +202,10 @@ class CalibrationResult:
     sampler : dict
         The NUTS settings used (chains, warm-up, draws, ...).
     notes : tuple of str
-        What the user should know about how the posterior was obtained.
+        Problems of the posterior (warned by ``calnet run``).
+    info : tuple of str
+        How the calibration was set up where a user may not expect it (segmented mode's
+        placement of a shared parameter or of a model without data); not a problem.
     surrogate_check : dict of data set -> dict
         The surrogates' sd at the posterior against the data's.
     datasets : dict of data set -> dict
@@ -222,11 +225,13 @@ class CalibrationResult:
     notes: tuple[str, ...] = ()
     surrogate_check: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
     datasets: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
+    info: tuple[str, ...] = ()
 
     def to_dict(self) -> dict[str, Any]:
         """The ``calibration`` entry of metrics.json."""
         return {"mode": self.mode, "plug": self.plug, "sampler": self.sampler,
                 "models": self.models, "datasets": self.datasets, "notes": list(self.notes),
+                "info": list(self.info),
                 "surrogate_check": self.surrogate_check}
 
 

@@ -197,7 +197,8 @@ def psis_loo(network: Network, surrogates: Surrogates, posterior: NetworkPosteri
             "training_mean": metrics(full.y, naive, y_range=y_range,
                                      relative=bool(cond.log), mape_y=mape_y),
             "mean": mean.tolist(), "lower95": lo.tolist(), "upper95": hi.tolist(),
-            "pit": pit.tolist(), "pit_check": pit_check(dataset, pit),
+            "pit": pit.tolist(),
+            "pit_check": pit_check(dataset, pit, fixed=_nothing_estimated(network, dataset)),
             "elpd_loo": float(loo["elpd_loo"]), "elpd_se": float(loo["se"]),
             "p_loo": float(loo["p_loo"]),
             "elpd_pointwise": pointwise.tolist(), "pareto_k": khat.tolist(),
@@ -209,13 +210,22 @@ def psis_loo(network: Network, surrogates: Surrogates, posterior: NetworkPosteri
 PIT_P_MIN = 0.01  # a Kolmogorov-Smirnov p-value of the PIT below this flags the model
 
 
-def pit_check(name: str, pit) -> dict:
+def _nothing_estimated(network: Network, dataset: str) -> bool:
+    """Whether data set ``dataset``'s noise is known and it has no discrepancy: neither
+    term of its likelihood has a prior that could be too generous."""
+    ds = network.dataset(dataset)
+    return bool(ds.noise.known and not ds.discrepancy.enabled)
+
+
+def pit_check(name: str, pit, *, fixed: bool = False) -> dict:
     """Whether the predictive is calibrated for data set ``name``, from its PIT values:
     a Kolmogorov-Smirnov test against the uniform distribution (bias, too wide), and a
     binomial test of the number of points outside the central 95 % band (too narrow;
     the KS test is weak against PIT values piled at both ends), and one of the number
-    inside the central 50 % band (too wide). Returns ``dict(ks_pvalue, outside95,
-    outside_pvalue, inside50, inside50_pvalue, flagged, too_wide, message)``."""
+    inside the central 50 % band (too wide). ``fixed``: the noise is known and there is
+    no discrepancy, so a too-wide predictive is not put down to their priors. Returns
+    ``dict(ks_pvalue, outside95, outside_pvalue, inside50, inside50_pvalue, flagged,
+    too_wide, message)``."""
     pit = np.asarray(pit, float)
     n, outside, p_out = _outside95(pit)
     inside50 = int(np.sum(np.abs(pit - 0.5) <= 0.25))
@@ -227,11 +237,14 @@ def pit_check(name: str, pit) -> dict:
     too_wide = bool(flagged and p_out >= PIT_P_MIN and (p_wide < PIT_P_MIN or np.mean(
         np.abs(pit - 0.5) < 0.25) > 0.75))
     if too_wide:
+        why = ("the declared noise sd may be larger than these data's scatter (or, with "
+               "few points, it may be chance)" if fixed else
+               "its noise or discrepancy is larger than these data need (their priors may "
+               "be too generous)")
         message = (f"{name}: the leave-one-out predictive is too wide ({inside50} of {n} "
                    f"points inside its central 50 % band where {0.5 * n:.1f} are expected, "
-                   f"p = {p_wide:.2g}; PIT uniformity p = {p_ks:.2g}); its noise or "
-                   "discrepancy is larger than these data need (their priors may be too "
-                   "generous), so its bands overstate the uncertainty")
+                   f"p = {p_wide:.2g}; PIT uniformity p = {p_ks:.2g}); {why}, so its bands "
+                   "overstate the uncertainty")
     elif flagged:
         shape = ("too narrow: the data fall in its tails" if p_out < PIT_P_MIN else
                  "biased" if abs(float(np.mean(pit)) - 0.5) > 0.15 else "miscalibrated")

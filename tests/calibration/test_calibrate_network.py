@@ -12,6 +12,7 @@ from __future__ import annotations
 import re
 import textwrap
 import warnings
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -134,10 +135,11 @@ def test_twin_values_are_recovered(both):
 
 def test_posterior_round_trips_through_disk(both, indep, tmp_path):
     network = indep[0]
-    seg = both[0]
+    seg = replace(both[0], info=("how a stage was set up",))
     save_posterior(seg, tmp_path)
     back = load_posterior(tmp_path, network)
     assert back.mode == "segmented" and back.plug == "posterior"
+    assert back.info == seg.info and back.notes == seg.notes
     for m in seg.theta:
         np.testing.assert_array_equal(back.theta[m], seg.theta[m])
     for ds in seg.hyper:
@@ -301,9 +303,11 @@ def test_segmented_calibrates_an_upstream_model_without_data_with_the_data_after
     for m in ("up", "down"):
         np.testing.assert_array_equal(post.theta[m], joint.theta[m])
     said = [str(w.message) for w in caught]
+    # how the stage was set up is said (post.info), not warned
     assert any(m.startswith("'up' has no data of its own: its parameters ['a'] are "
                             "calibrated in stage 'up+down' with the data of 'down' "
-                            "downstream") for m in said), said
+                            "downstream") for m in post.info), post.info
+    assert not any("has no data of its own" in m for m in said), said
     assert any(m.startswith("up+down: ") for m in said), said  # the stage's own warnings
     from calnet.calibration.summary import posterior_summary
 

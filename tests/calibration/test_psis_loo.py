@@ -201,6 +201,11 @@ def test_pit_check_on_known_pit_values():
     assert half["flagged"] and half["message"].startswith(
         "d: the leave-one-out predictive is too wide (26 of 30 points inside its central "
         "50 % band where 15.0 are expected"), half["message"]
+    assert "priors may be too generous" in half["message"]
+    # a known noise and no discrepancy: no prior to blame
+    known = pit_check("d", np.r_[np.linspace(0.26, 0.74, 26), 0.1, 0.2, 0.8, 0.9], fixed=True)
+    assert known["too_wide"] and "priors" not in known["message"]
+    assert "the declared noise sd may be larger than these data's scatter" in known["message"]
 
 
 def test_fit_check_on_known_pit_values():

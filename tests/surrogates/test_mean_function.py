@@ -46,13 +46,22 @@ def _k(a, b):
     return S2 * (1.0 + r) * np.exp(-r)
 
 
-def _universal_kriging(u, ys, ut):
+def _h(u, quadratic=False):
+    """The basis written out: ``[1, u]``, and the centred products ``(u_i - 1/2)(u_j - 1/2)``,
+    ``i <= j``, for a quadratic trend; (p, n), the book's ``H``."""
+    cols = [np.ones(len(u)), *u.T]
+    if quadratic:
+        d = u.shape[1]
+        cols += [(u[:, i] - 0.5) * (u[:, j] - 0.5) for i in range(d) for j in range(i, d)]
+    return np.array(cols)
+
+
+def _universal_kriging(u, ys, ut, quadratic=False):
     """Rasmussen and Williams (2006) eqs. 2.41-2.42 in dense NumPy: mean and latent
-    variance at ``ut`` with a flat prior on the coefficients of ``h = [1, u]``."""
+    variance at ``ut`` with a flat prior on the coefficients of the basis ``h``."""
     K = _k(u, u) + NUG * np.eye(len(u))
     Ki = np.linalg.inv(K)
-    H = np.c_[np.ones(len(u)), u].T  # (p, n), the book's H
-    Hs = np.c_[np.ones(len(ut)), ut].T
+    H, Hs = _h(u, quadratic), _h(ut, quadratic)
     A = H @ Ki @ H.T
     beta = np.linalg.solve(A, H @ Ki @ ys)
     Ks = _k(u, ut)
@@ -106,6 +115,36 @@ def test_linear_mean_predictive_is_universal_kriging():
     plain = np.diag(_k(ut, ut) - _k(u, ut).T @ np.linalg.solve(_k(u, u) + NUG * np.eye(30),
                                                                 _k(u, ut)))
     assert np.all(np.asarray(var) > sd**2 * plain)
+
+
+def test_quadratic_mean_predictive_is_universal_kriging():
+    x, u, y = _data(40, 11, _smooth)
+    gp = condition(x, y, lower=LOWER, upper=UPPER, lengthscales=ELL, signal_var=S2,
+                   nugget=NUG, mean="quadratic")
+    assert gp.mean == "quadratic" and gp.beta.shape == (10,)
+    xt, ut, _ = _data(6, 12, _smooth)
+    m_ref, c_ref, beta_ref = _universal_kriging(u, (y - y.mean()) / y.std(), ut, True)
+    np.testing.assert_allclose(gp.beta, beta_ref, rtol=1e-7)
+    sd = float(gp.y_std)
+    mean, cov = gp.predict_cov(xt)
+    np.testing.assert_allclose(mean, float(gp.y_mean) + sd * m_ref, rtol=1e-9)
+    np.testing.assert_allclose(cov, sd**2 * c_ref, rtol=1e-6, atol=1e-12)
+
+
+def test_an_interaction_of_input_and_parameter_gets_the_quadratic_trend():
+    """``w = 1 + a x + 0.2 x^2`` (a parameter that scales a control input): no linear
+    trend fits it, the quadratic one does exactly, and ``auto`` finds it."""
+    lo, hi = np.zeros(2), np.ones(2)
+    rng = np.random.default_rng(13)
+    x, xt = rng.random((30, 2)), rng.random((500, 2))
+
+    def w(z):
+        return 1.0 + z[:, 1] * z[:, 0] + 0.2 * z[:, 0] ** 2
+
+    gp = fit_gp(x, w(x), lower=lo, upper=hi, n_restarts=2, mean="auto")
+    assert gp.mean == "quadratic"
+    err = np.asarray(gp.predict(xt)[0]) - w(xt)
+    assert np.max(np.abs(err)) < 1e-8
 
 
 def test_split_predictions_agree_with_predict_for_a_linear_mean():
@@ -167,21 +206,36 @@ def test_a_linear_output_gets_an_exact_mean_and_a_small_honest_variance():
     assert auto.mean == "linear"
 
 
-def test_auto_keeps_the_constant_mean_where_a_trend_does_not_help():
-    x, _, y = _data(60, 7, _wiggly)
+def test_auto_keeps_the_mean_of_highest_loo_density():
+    x, _, y = _data(60, 7, _wiggly)  # 60 runs: 5 per coefficient of every mean in 3 inputs
     gps = {m: fit_gp(x, y, lower=LOWER, upper=UPPER, n_restarts=2, mean=m)
-           for m in ("constant", "linear", "auto")}
-    scores = {m: loo_log_density(gps[m]) for m in ("constant", "linear")}
+           for m in ("constant", "linear", "quadratic", "auto")}
+    scores = {m: loo_log_density(gps[m]) for m in ("constant", "linear", "quadratic")}
     best = max(scores, key=scores.get)
     assert gps["auto"].mean == best
     np.testing.assert_allclose(gps["auto"].predict(x[:3])[0], gps[best].predict(x[:3])[0])
 
 
+def test_auto_tries_a_trend_only_with_five_runs_per_coefficient():
+    """18 runs in 5 inputs: a linear trend has 6 coefficients, 3 runs each; auto keeps
+    the constant mean whatever the leave-one-out density says."""
+    u = np.random.default_rng(14).random((18, 5))
+    y = 1.0 + u @ np.arange(1.0, 6.0)  # linear: the trend would win on density
+    lo, hi = np.zeros(5), np.ones(5)
+    assert fit_gp(u, y, lower=lo, upper=hi, n_restarts=1, mean="auto").mean == "constant"
+    assert fit_gp(u[:12, :2], y[:12], lower=lo[:2], upper=hi[:2], n_restarts=1,
+                  mean="auto").mean == "constant"  # 12 runs, 3 coefficients: 4 each
+    assert fit_gp(u[:15, :2], u[:15, :2] @ [1.0, 2.0], lower=lo[:2], upper=hi[:2],
+                  n_restarts=1, mean="auto").mean == "linear"  # 15 runs: 5 each
+
+
 def test_mean_function_errors_and_too_few_points_for_a_trend():
     x, _, y = _data(6, 8, _linear)
     with pytest.raises(SurrogateError, match="mean must be one of"):
-        fit_gp(x, y, lower=LOWER, upper=UPPER, mean="quadratic")
-    with pytest.raises(SurrogateError, match="a linear mean needs at least d \\+ 3 = 6"):
+        fit_gp(x, y, lower=LOWER, upper=UPPER, mean="cubic")
+    with pytest.raises(SurrogateError, match="a linear mean in 3 inputs has 4 coefficients "
+                       "and needs at least 6 runs, got 5; run more simulations, or set the "
+                       "model's surrogate: {mean: constant}"):
         fit_gp(x[:5], y[:5], lower=LOWER, upper=UPPER, mean="linear")
     assert fit_gp(x[:5], y[:5], lower=LOWER, upper=UPPER, mean="auto",
                   n_restarts=1).mean == "constant"

@@ -101,7 +101,8 @@ class NetworkPosterior:
         Segmented: the values of the model's parameters held fixed in later stages (the
         KDE mode for ``plug="mode"``, the posterior mean for ``plug="posterior"``).
     notes : tuple of str
-        What the user should know about how the posterior was obtained.
+        Problems of the posterior that a calibration without warnings kept (convergence,
+        surrogate checks, bounds); with warnings on they are warned instead.
     checks : tuple of SurrogateCheck
         Per data set, the surrogates' sd at the posterior against the data's
         (:mod:`calnet.calibration.guard`).
@@ -118,6 +119,9 @@ class NetworkPosterior:
     plugged: Mapping[str, np.ndarray] = field(default_factory=dict)
     notes: tuple[str, ...] = ()
     checks: tuple = ()
+    #: how the calibration was set up where a user may not expect it (segmented mode: which
+    #: stage calibrates a shared parameter or a model without data): said, not warned
+    info: tuple[str, ...] = ()
 
     @property
     def n_draws(self) -> int:
@@ -426,7 +430,7 @@ def _needed_keys(network: Network, model: str) -> list[str]:
 
 def _segmented(network, surrogates, data, plan, seed, sampler, emu, plug, progress, warn,
                compiled=None):
-    stages, draws, prior_only, notes = [], {}, [], []
+    stages, draws, prior_only, notes, info = [], {}, [], [], []
     n = sampler.chains * (sampler.draws // sampler.thin)
     owners = _owners(network, data)
     plug_at: dict[str, float] = {}
@@ -473,7 +477,7 @@ def _segmented(network, surrogates, data, plan, seed, sampler, emu, plug, progre
             if "." not in k:
                 users = [m for m in network.order if k in parameter_keys(network, m)]
                 fixed_in = [u for u in users if u not in models]
-                notes.append(f"shared parameter '{k}' is calibrated in stage "
+                info.append(f"shared parameter '{k}' is calibrated in stage "
                              f"'{stage_name}' with the data of '{name}' (the first model "
                              "with data that it acts on)"
                              + (f" and held fixed in {fixed_in}" if fixed_in else "")
@@ -481,14 +485,14 @@ def _segmented(network, surrogates, data, plan, seed, sampler, emu, plug, progre
         for m in models[:-1]:
             keys_m = [k for k in parameter_keys(network, m) if k in free and "." in k]
             if keys_m:
-                notes.append(f"'{m}' has no data of its own: its parameters "
+                info.append(f"'{m}' has no data of its own: its parameters "
                              f"{[k.split('.', 1)[1] for k in keys_m]} are calibrated in "
                              f"stage '{stage_name}' with the data of '{name}' downstream "
                              "(segmented mode)")
     plugged = {m: np.array([plug_at.get(k, np.nan) for k in parameter_keys(network, m)])
                for m in network.order if any(k in plug_at for k in parameter_keys(network, m))}
     return _posterior(network, "segmented", plug, tuple(stages), draws, data,
-                      tuple(prior_only), plugged, tuple(notes))
+                      tuple(prior_only), plugged, tuple(notes), tuple(info))
 
 
 def _prior_draws(network: Network, key: str, n: int, seed: int) -> np.ndarray:
@@ -573,7 +577,7 @@ def _unconstrain(ld: KOHDensity, values: Mapping[str, np.ndarray]) -> np.ndarray
 
 
 def _posterior(network, mode, plug, stages, draws, data, prior_only, plugged,
-               notes) -> NetworkPosterior:
+               notes, info=()) -> NetworkPosterior:
     n = max((len(v) for v in draws.values()), default=0)
     theta = {m: np.column_stack([np.resize(draws[k], n) for k in parameter_keys(network, m)])
              for m in network.order if network.model(m).parameters}
@@ -586,7 +590,7 @@ def _posterior(network, mode, plug, stages, draws, data, prior_only, plugged,
     timings = {f"stage_{k}": float(a.get("sampling_time", 0.0)) + float(a.get("compile_time", 0.0))
                for k, a in attrs.items()}
     return NetworkPosterior(mode, plug, stages, theta, hyper, dict(data), prior_only,
-                            timings, plugged, notes)
+                            timings, plugged, notes, info=tuple(info))
 
 
 def with_stage(post: NetworkPosterior, stage: StageResult,

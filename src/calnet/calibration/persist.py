@@ -57,6 +57,7 @@ def save_posterior(post, folder: str | Path, network: Network | None = None) -> 
             "hyper": {ds: list(h) for ds, h in post.hyper.items()},
             "data": data_meta,
             "plugged": list(post.plugged), "notes": list(post.notes),
+            "info": list(post.info),
             "timings": dict(post.timings)}
     path = folder / f"{FILE}.json"
     path.write_text(json.dumps(meta, indent=1))
@@ -93,7 +94,7 @@ def load_posterior(folder: str | Path, network: Network | None = None):
     plugged = {m: arrays[f"plugged/{m}"] for m in meta["plugged"]}
     post = NetworkPosterior(meta["mode"], meta["plug"], (), theta, hyper, data,
                             tuple(meta["prior_only"]), meta.get("timings", {}), plugged,
-                            tuple(meta["notes"]))
+                            tuple(meta["notes"]), info=tuple(meta.get("info", ())))
     if network is not None:
         _check_spec(meta.get("spec"), network, folder)
         _check_matches(post, network, folder, meta["data"])

@@ -214,6 +214,7 @@ def calibration_result(network: Network, post: NetworkPosterior, *,
     return CalibrationResult(
         mode=post.mode, plug=post.plug, calibrated=post.calibrated, models=summary,
         theta=post.theta, panels=panels, sampler=sampler.model_dump(), notes=tuple(post.notes),
+        info=tuple(post.info),
         surrogate_check={c.dataset: c.to_dict() for c in post.checks},
         datasets=data_set_summary(network, post) if post.calibrated else {},
         rhat_max=RHAT_MAX, ess_min=ESS_MIN)

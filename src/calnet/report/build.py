@@ -254,7 +254,13 @@ def _sections(ctx, results: RunResults) -> list[Section]:
                       [[k, c.n_total, c.n_ok, c.n_excluded, _statuses(c.status_counts)]
                        for k, c in results.campaigns.items()])],
         figures=pick("network") + pick("data"))
-    sur = Section("Surrogates (k-fold cross-validation)", tables=[Table(
+    sur = Section("Surrogates (k-fold cross-validation)", paragraphs=[
+        "Each GP has a Matern 3/2 kernel and a mean function: the constant one unless the "
+        "label names a linear or quadratic trend in the inputs, whose coefficients' "
+        "uncertainty is part of its variance. With the model's surrogate: {mean: auto} "
+        "(the default) it is the one of highest leave-one-out predictive density of the "
+        "runs, among those with at least 5 runs per coefficient (docs/method.md, "
+        "section 2)."], tables=[Table(
         "GP surrogates (simulator runs per output; CV MAPE only where the runs' outputs "
         "keep one sign and stay within a factor 100 of each other, or the GP is on ln)",
         ["output (unit)", "training runs", "runs left out (not ok or non-finite)",
@@ -286,7 +292,8 @@ def _sections(ctx, results: RunResults) -> list[Section]:
     cal = Section("Calibration", paragraphs=[
         "The table gives each parameter's posterior mode (KDE"
         + (", as the reference study reports" if ref else "")
-        + ") and mean (the summary box gives means); intervals are central 95 %."], tables=[
+        + ") and mean (the summary box gives means); intervals are central 95 %.",
+        *cal.info], tables=[
         Table("Posterior summary", ["model", "parameter", "range", "mode", "mean", "95% interval",
                                     "unit", "R-hat", "bulk ESS"], rows),
         *terms,

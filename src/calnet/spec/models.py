@@ -129,7 +129,7 @@ class SurrogateSettings(Frozen):
     #: the GP's mean function: "constant", "linear" (a trend in the inputs, its
     #: coefficients' uncertainty in the variance) or "auto" (the one of higher
     #: leave-one-out predictive density; calnet.surrogates.fit_gp)
-    mean: Literal["constant", "linear", "auto"] = "auto"
+    mean: Literal["constant", "linear", "quadratic", "auto"] = "auto"
 
 
 class Model(Frozen):

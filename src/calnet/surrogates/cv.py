@@ -153,8 +153,11 @@ def check_folds(k, n: int, d: int, *, name: str = "") -> None:
         raise SurrogateError(f"{lab}: {k}-fold CV needs at least {k} points, got {n}")
     smallest_train = n - math.ceil(n / k)
     if smallest_train < d + 2:
+        fix = ("run more simulations (calnet campaign SPEC --model MODEL --runs N)"
+               if k >= n else "use more folds (the model's surrogate: {cv_folds: K}) or run "
+               "more simulations")
         raise SurrogateError(f"{lab}: {k}-fold CV on {n} points leaves {smallest_train} "
-                             f"training points, need d + 2 = {d + 2}; use more folds or points")
+                             f"training points, need d + 2 = {d + 2}; {fix}")
 
 
 def cross_validate(

@@ -19,15 +19,20 @@ from scipy.optimize import minimize
 from calnet._jax import device_array
 from calnet.errors import SurrogateError, SurrogateWarning
 from calnet.surrogates.gp import FittedGP, condition
-from calnet.surrogates.likelihood import MEANS, basis, nlml_value_and_grad
+from calnet.surrogates.likelihood import MEANS, basis, n_basis, nlml_value_and_grad
 
 LENGTHSCALE_BOUNDS = (1e-2, 1e2)  # unit-cube units
 SIGNAL_VAR_BOUNDS = (1e-3, 1e3)  # standardised-output units
 NUGGET_BOUNDS = (1e-8, 1e-1)  # standardised-output units; the lower end is the floor
 TRANSFORMS = (None, "log")
-#: ``fit_gp``'s ``mean``: a mean function, or ``"auto"``, the one of higher leave-one-out
+#: ``fit_gp``'s ``mean``: a mean function, or ``"auto"``, the one of highest leave-one-out
 #: predictive density
 MEAN_CHOICES = (*MEANS, "auto")
+#: ``mean="auto"`` tries a trend only with at least this many runs per coefficient: with
+#: fewer, the closed-form leave-one-out density (hyperparameters held at the full fit's)
+#: favoured a linear trend in 5 inputs on 18 runs whose refitted folds predicted worse
+#: (benchmarks/README.md, "Mean function")
+AUTO_RUNS_PER_COEFFICIENT = 5
 _PENALTY = 1e10  # objective value reported to L-BFGS-B where K is not positive definite
 _NUGGET_RETRIES = 3
 
@@ -170,13 +175,16 @@ def fit_gp(
         Log hyperparameters ``(log ell_1..d, log signal_var, log nugget)`` to start from
         instead of the default start (e.g. a fit on more data: CV folds warm-start from
         the full-data optimum); the ``n_restarts`` random starts are added as usual.
-    mean : {"constant", "linear", "auto"}, default "constant"
-        Mean function (:mod:`calnet.surrogates.gp`): the outputs' mean, a linear trend in
-        the inputs with its coefficients' uncertainty in the variance, or ``"auto"``:
-        both fitted, the one whose leave-one-out predictive density of the training
-        outputs (closed form, :func:`loo_log_density`) is higher kept (the constant one
-        on a tie). A smooth output with a trend across the box gets a far smaller, and
-        honest, variance from the linear mean.
+    mean : {"constant", "linear", "quadratic", "auto"}, default "constant"
+        Mean function (:mod:`calnet.surrogates.gp`): the outputs' mean, a linear or a
+        quadratic (all products of two inputs) trend in the inputs with its
+        coefficients' uncertainty in the variance, or ``"auto"``: each of them that has
+        at least :data:`AUTO_RUNS_PER_COEFFICIENT` (5) runs per coefficient fitted, and
+        the one whose
+        leave-one-out predictive density of the training outputs (closed form,
+        :func:`loo_log_density`) is highest kept (the simpler on a tie). A smooth output
+        with a trend across the box gets a far smaller, and honest, variance from a
+        trend.
 
     Returns
     -------
@@ -223,12 +231,16 @@ def fit_gp(
     if mean not in MEAN_CHOICES:
         raise SurrogateError(f"{_label(name)}: mean must be one of {list(MEAN_CHOICES)}, got "
                              f"{mean!r}")
-    if mean == "linear" and x.shape[0] < d + 3:
-        raise SurrogateError(f"{_label(name)}: a linear mean needs at least d + 3 = {d + 3} "
-                             f"training points, got {x.shape[0]}; use mean='constant'")
+    n = x.shape[0]
+    if mean != "auto" and n < n_basis(mean, d) + 2:
+        raise SurrogateError(
+            f"{_label(name)}: a {mean} mean in {d} inputs has {n_basis(mean, d)} coefficients "
+            f"and needs at least {n_basis(mean, d) + 2} runs, got {n}; run more "
+            "simulations, or set the model's surrogate: {mean: constant} (fit_gp: "
+            "mean='constant')")
+    tries = (tuple(m for m in MEANS if n >= AUTO_RUNS_PER_COEFFICIENT * n_basis(m, d))
+             if mean == "auto" else (mean,))
     fits = []
-    tries = ("constant", "linear") if mean == "auto" and x.shape[0] >= d + 3 else (
-        ("constant",) if mean == "auto" else (mean,))
     for form in tries:
         H = None if form == "constant" else basis(xs, form)
         p, _ = _optimise(xs, ys, starts, bounds, H)
@@ -237,7 +249,7 @@ def fit_gp(
     if len(fits) == 1:
         return fits[0]
     scores = [loo_log_density(gp) for gp in fits]
-    return fits[int(np.argmax(scores))]  # the constant mean on a tie
+    return fits[int(np.argmax(np.nan_to_num(scores, nan=-np.inf)))]  # the simpler on a tie
 
 
 def loo_log_density(gp: FittedGP) -> float:

@@ -9,7 +9,8 @@ scale, then standardised. ``predict`` returns mean and variance on the modelled 
 :meth:`FittedGP.to_natural` maps them back.
 
 Mean function: zero on the standardised scale (``mean="constant"``, the outputs' mean), or
-linear in the unit-cube inputs (``mean="linear"``, ``h(x)^T beta`` with ``h = [1, x]``):
+a trend in the unit-cube inputs, ``h(x)^T beta`` with ``h = [1, x]`` (``"linear"``) or
+``[1, x, x_i x_j]`` (``"quadratic"``, :func:`~calnet.surrogates.likelihood.basis`):
 ``beta`` is the generalised least-squares estimate and the predictive variance carries
 its uncertainty, ``u^T (H^T K^-1 H)^-1 u`` with ``u = h(x) - H^T K^-1 k(X, x)`` (universal
 kriging; Rasmussen and Williams 2006, eq. 2.42). A trend that a stationary kernel would
@@ -33,7 +34,12 @@ from calnet.surrogates.kernels import (
     matern32_from_sqdist,
     scaled_sqdist,
 )
-from calnet.surrogates.likelihood import basis, neg_log_marginal_likelihood, predictive_solve
+from calnet.surrogates.likelihood import (
+    basis,
+    mean_of,
+    neg_log_marginal_likelihood,
+    predictive_solve,
+)
 
 ARRAY_FIELDS = ("x_train", "alpha", "chol", "lengthscales", "signal_var", "nugget",
                 "lower", "upper", "y_mean", "y_std", "nlml", "beta", "basis_solve",
@@ -71,11 +77,12 @@ class FittedGP:
         Standardisation of the modelled-scale output.
     nlml : scalar array
         Negative log marginal likelihood of the standardised outputs at these
-        hyperparameters, restricted (REML) with a linear mean (``nan`` if the
+        hyperparameters, restricted (REML) with a trend (``nan`` if the
         hyperparameters were given, not fitted).
     beta : array, shape (p,)
         Coefficients of the mean function on the standardised scale: ``p = 0`` for a
-        constant mean, ``d + 1`` (intercept, then one per unit-cube input) for a linear one.
+        constant mean, ``d + 1`` (intercept, then one per unit-cube input) for a linear
+        one, ``(d + 1)(d + 2) / 2`` for a quadratic one.
     basis_solve : array, shape (n_train, p)
         ``L^-1 H``, ``H`` the mean function's basis at the training inputs.
     basis_chol : array, shape (p, p)
@@ -105,8 +112,8 @@ class FittedGP:
 
     @property
     def mean(self) -> str:
-        """``"constant"`` or ``"linear"``: the mean function."""
-        return "linear" if self.beta.shape[0] else "constant"
+        """``"constant"``, ``"linear"`` or ``"quadratic"``: the mean function."""
+        return mean_of(self.beta.shape[0], self.x_train.shape[1])
 
     @property
     def n_train(self) -> int:
@@ -315,7 +322,7 @@ class FittedGP:
         """The mean function at unit-cube inputs ``zs`` (m, d), standardised scale."""
         if not self.beta.shape[0]:
             return 0.0
-        return self.beta[0] + zs @ self.beta[1:]
+        return basis(zs, self.mean) @ self.beta
 
     def _trend_solve(self, zs: jax.Array, v: jax.Array) -> jax.Array:
         """``R^-1 u`` (p, m) with ``u = h(zs) - H^T K^-1 k_*`` (``v = L^-1 k_*``, (n, m))
@@ -443,9 +450,9 @@ def condition(
     name : str
     nlml : float
         Recorded as the attribute of the same name.
-    mean : {"constant", "linear"}, default "constant"
-        Mean function (module docstring); a linear one's coefficients are the
-        generalised least-squares estimate at these hyperparameters.
+    mean : {"constant", "linear", "quadratic"}, default "constant"
+        Mean function (module docstring); a trend's coefficients are the generalised
+        least-squares estimate at these hyperparameters.
 
     Returns
     -------

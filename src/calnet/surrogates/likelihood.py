@@ -24,6 +24,7 @@ import math
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jax.scipy.linalg import cho_solve, solve_triangular
 
 from calnet.surrogates.kernels import SQRT3, scaled_sqdist
@@ -37,17 +38,37 @@ def unpack(log_params: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
     return p[:-2], p[-2], p[-1]
 
 
-MEANS = ("constant", "linear")
+MEANS = ("constant", "linear", "quadratic")
+
+
+def n_basis(mean: str, d: int) -> int:
+    """Columns of :func:`basis` for ``d`` inputs."""
+    return {"constant": 0, "linear": d + 1, "quadratic": (d + 1) * (d + 2) // 2}[mean]
+
+
+def mean_of(p: int, d: int) -> str:
+    """The mean function whose basis has ``p`` columns for ``d`` inputs."""
+    for mean in MEANS:
+        if n_basis(mean, d) == p:
+            return mean
+    raise ValueError(f"no mean function has {p} basis columns for {d} inputs")
 
 
 def basis(x: jax.Array, mean: str) -> jax.Array:
     """Basis ``H`` (n, p) of the mean function at unit-cube inputs ``x`` (n, d): no column
-    for ``"constant"`` (the standardised outputs' zero mean), ``[1, x]`` for ``"linear"``."""
+    for ``"constant"`` (the standardised outputs' zero mean), ``[1, x]`` for ``"linear"``,
+    and ``[1, x, x_i x_j (i <= j)]`` for ``"quadratic"`` (the products centred on the
+    cube's middle, for conditioning)."""
     if mean == "constant":
         return jnp.zeros((x.shape[0], 0), dtype=x.dtype)
-    if mean == "linear":
-        return jnp.concatenate([jnp.ones((x.shape[0], 1), dtype=x.dtype), x], axis=1)
-    raise ValueError(f"mean must be one of {MEANS}, got {mean!r}")
+    cols = [jnp.ones((x.shape[0], 1), dtype=x.dtype), x]
+    if mean == "quadratic":
+        c = x - 0.5
+        i, j = np.triu_indices(x.shape[1])
+        cols.append(c[:, i] * c[:, j])
+    elif mean != "linear":
+        raise ValueError(f"mean must be one of {MEANS}, got {mean!r}")
+    return jnp.concatenate(cols, axis=1)
 
 
 def _restricted(chol, alpha, H):
