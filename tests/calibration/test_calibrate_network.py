@@ -401,6 +401,11 @@ def test_each_data_set_s_noise_and_discrepancy_are_summarised(both, indep):
             assert out[ds][name]["mean"] == pytest.approx(sd.mean(), rel=1e-12)
             assert out[ds][name]["q97.5"] == pytest.approx(np.percentile(sd, 97.5), rel=1e-12)
         assert out[ds]["scale"] == "linear"
+        # the priors in words, the defaults too (the report states them)
+        spec, var = network.dataset(ds), network.observed(network.dataset(ds))
+        assert out[ds]["priors"] == (f"{spec.noise.text(var.unit, False)}; "
+                                     f"{spec.discrepancy.text()}")
+        assert "prior" in out[ds]["priors"]
     # the discrepancy lives on the observed model's inputs
     assert list(out["ydata"]["length_scales"]) == ["x"]
     assert list(out["wdata"]["length_scales"]) == ["s"]

@@ -133,7 +133,8 @@ def data_set_summary(network: Network, post: NetworkPosterior) -> dict:
     """Per data set, how its noise and discrepancy came out: the noise sd (known, or its
     posterior mean and 95 % interval), the discrepancy sd and length scales (posterior,
     or ``None`` without a discrepancy), in the output's units on its modelled scale
-    (``ln y`` for ``transform: log``), with ``unit`` saying which."""
+    (``ln y`` for ``transform: log``), with ``unit`` saying which, and ``priors``: the
+    spec's noise and discrepancy terms and their priors in words (the defaults too)."""
     draws: dict[str, np.ndarray] = {}
     coords: dict[str, list[str]] = {}  # the length scales' inputs
     for stage in post.stages:
@@ -150,7 +151,8 @@ def data_set_summary(network: Network, post: NetworkPosterior) -> dict:
         var = network.observed(ds)
         log = var.transform == "log"
         row: dict = {"unit": f"ln({var.unit})" if log else var.unit,
-                     "scale": "log" if log else "linear"}
+                     "scale": "log" if log else "linear",
+                     "priors": f"{ds.noise.text(var.unit, log)}; {ds.discrepancy.text()}"}
         if f"se2_{ds.name}" in draws:
             row["noise_sd"] = _interval(np.sqrt(draws[f"se2_{ds.name}"]))
         else:

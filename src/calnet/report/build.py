@@ -293,6 +293,7 @@ def _sections(ctx, results: RunResults) -> list[Section]:
         "The table gives each parameter's posterior mode (KDE"
         + (", as the reference study reports" if ref else "")
         + ") and mean (the summary box gives means); intervals are central 95 %.",
+        *(f"{ds}: {d['priors']}." for ds, d in cal.datasets.items() if d.get("priors")),
         *cal.info], tables=[
         Table("Posterior summary", ["model", "parameter", "range", "mode", "mean", "95% interval",
                                     "unit", "R-hat", "bulk ESS"], rows),
