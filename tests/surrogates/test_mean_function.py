@@ -261,3 +261,10 @@ def test_a_linear_mean_survives_save_and_load_and_old_files_load(tmp_path):
     old = load_gp(path)
     assert old.mean == "constant"
     np.testing.assert_array_equal(old.predict(x[:4])[0], const.predict(x[:4])[0])
+    # a trend whose coefficients match no mean function: one line, not a traceback
+    bad = save_gp(gp, tmp_path / "bad.npz")
+    with np.load(bad) as data:
+        arrays = {k: data[k] for k in data.files}
+    np.savez(bad, **{**arrays, "beta": arrays["beta"][:3]})
+    with pytest.raises(SurrogateError, match="array shapes do not match"):
+        load_gp(bad)

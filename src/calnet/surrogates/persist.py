@@ -17,6 +17,7 @@ import numpy as np
 from calnet.errors import SurrogateError
 from calnet.files import make_folder, replacing
 from calnet.surrogates.gp import ARRAY_FIELDS, TREND_FIELDS, FittedGP, constant_mean
+from calnet.surrogates.likelihood import MEANS, n_basis
 
 FORMAT = "calnet.FittedGP"
 #: version 2 adds the mean function's arrays; version 1 files (constant mean) still load
@@ -103,7 +104,10 @@ def load_gp(path: str | Path) -> FittedGP:
             raise SurrogateError(f"{npz}: arrays {missing} missing; refit and save again")
         arrays = {f: jnp.asarray(data[f]) for f in need}
     arrays = {**constant_mean(n), **arrays}
-    if arrays["x_train"].shape != (n, d) or arrays["chol"].shape != (n, n):
+    p = arrays["beta"].shape[0] if arrays["beta"].ndim == 1 else -1
+    if (arrays["x_train"].shape != (n, d) or arrays["chol"].shape != (n, n)
+            or p not in {n_basis(m, d) for m in MEANS}
+            or arrays["basis_solve"].shape != (n, p) or arrays["basis_chol"].shape != (p, p)):
         raise SurrogateError(f"{npz}: array shapes do not match {sidecar.name} "
                              f"(n_train={n}, n_inputs={d}); the pair is inconsistent")
     return FittedGP(**arrays, transform=meta["transform"], name=meta["name"])
