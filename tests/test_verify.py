@@ -243,11 +243,31 @@ def test_a_fit_within_a_large_discrepancy_says_how_large():
     plain = DataFit("d", "M.y", 8, 0.9, 1.5, "fits", noise_sd=0.02, discrepancy_sd=0.03)
     assert plain.summary() == ("the simulator fits its observations at the posterior (RMS "
                                "0.90 sds of noise and discrepancy over 8 points)")
-    wide = DataFit("d", "M.y", 8, 0.6, 1.1, "fits", noise_sd=0.02, discrepancy_sd=0.48)
+    wide = DataFit("d", "M.y", 8, 0.6, 1.1, "fits", noise_sd=0.02, discrepancy_sd=0.48,
+                   rms_noise=14.4)
     assert wide.summary().endswith(", within a discrepancy 24 times the noise (sd 0.48 "
                                    "against 0.02): the model alone misses these data by "
-                                   "about that much")
+                                   "about that much (RMS 14.4 noise sds)")
     assert wide.to_dict()["discrepancy_sd"] == 0.48
+    # a large discrepancy the data do not need (the simulator fits within the noise): its
+    # size is its prior's, and the line says so rather than blaming the model
+    unneeded = DataFit("d", "M.y", 8, 0.05, 0.1, "fits", noise_sd=0.02,
+                       discrepancy_sd=0.48, rms_noise=1.1)
+    assert unneeded.summary().endswith(
+        "; it fits within the noise alone too (RMS 1.10 noise sds), so these data do not "
+        "ask for a discrepancy 24 times the noise (sd 0.48 against 0.02): its size comes "
+        "from its prior (few points, or a generous prior)"), unneeded.summary()
+
+
+def test_residuals_in_noise_sds_come_from_the_noise_share():
+    """``rms_noise`` rescales each residual from noise-and-discrepancy sds to noise sds."""
+    from calnet.verify import _fit
+
+    # residuals 1 and -1 sds of sqrt(0.04 + 0.12) = 0.4: 0.4 and -0.4 in units, i.e.
+    # 2 noise sds (noise sd 0.2)
+    found = np.array([[1.0, 0.04, 0.12], [-1.0, 0.04, 0.12]])
+    fit = _fit("d", "M.y", found, no_discrepancy=False)
+    assert fit.rms == pytest.approx(1.0) and fit.rms_noise == pytest.approx(2.0)
 
 
 def test_a_data_set_without_a_noise_level_is_not_fitted(good):

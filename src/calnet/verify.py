@@ -163,6 +163,9 @@ class DataFit:
     noise_sd, discrepancy_sd : float
         RMS over the points of the noise sd and of the discrepancy sd (0 without one)
         the residuals were scaled by, modelled scale.
+    rms_noise : float
+        RMS of the residuals in sds of the noise alone: whether the simulator needs the
+        discrepancy to fit these data.
     """
 
     dataset: str
@@ -173,6 +176,7 @@ class DataFit:
     verdict: str
     noise_sd: float = math.nan
     discrepancy_sd: float = 0.0
+    rms_noise: float = math.nan
 
     @property
     def fits(self) -> bool:
@@ -182,7 +186,8 @@ class DataFit:
         return {"dataset": self.dataset, "observes": self.observes, "n": self.n,
                 "rms": _num(self.rms), "max_abs": _num(self.max_abs),
                 "rms_limit": FIT_RMS, "noise_sd": _num(self.noise_sd),
-                "discrepancy_sd": _num(self.discrepancy_sd), "verdict": self.verdict}
+                "discrepancy_sd": _num(self.discrepancy_sd),
+                "rms_noise": _num(self.rms_noise), "verdict": self.verdict}
 
     def summary(self) -> str:
         """One line for the command line: the verdict, and for a fit how much of the
@@ -192,10 +197,15 @@ class DataFit:
         text = (f"the simulator fits its observations at the posterior (RMS {self.rms:.2f} "
                 f"sds of noise and discrepancy over {self.n} points)")
         if self.discrepancy_sd > 2 * self.noise_sd:
-            text += (f", within a discrepancy {self.discrepancy_sd / self.noise_sd:.0f} "
-                     f"times the noise (sd {self.discrepancy_sd:.3g} against "
-                     f"{self.noise_sd:.3g}): the model alone misses these data by about "
-                     "that much")
+            ratio = (f"a discrepancy {self.discrepancy_sd / self.noise_sd:.0f} times the "
+                     f"noise (sd {self.discrepancy_sd:.3g} against {self.noise_sd:.3g})")
+            if self.rms_noise <= FIT_RMS:
+                text += (f"; it fits within the noise alone too (RMS {self.rms_noise:.2f} "
+                         f"noise sds), so these data do not ask for {ratio}: its size "
+                         "comes from its prior (few points, or a generous prior)")
+            else:
+                text += (f", within {ratio}: the model alone misses these data by about "
+                         f"that much (RMS {self.rms_noise:.1f} noise sds)")
         return text
 
 
@@ -395,6 +405,9 @@ def _fit(name: str, observes: str, found: np.ndarray, no_discrepancy: bool) -> D
                        "not checked: no run at its settings gave a value")
     rms, top = float(np.sqrt(np.mean(r**2))), float(np.abs(r).max())
     noise, disc = (float(np.sqrt(np.mean(found[:, c]))) for c in (1, 2))
+    # the residuals in sds of the noise alone
+    r_noise = r * np.sqrt((found[:, 1] + found[:, 2]) / np.maximum(found[:, 1], 1e-300))
+    rms_noise = float(np.sqrt(np.mean(r_noise**2)))
     verdict = "fits" if rms <= FIT_RMS else (
         f"the simulator at the posterior misses these observations: RMS {rms:.1f} sds of "
         f"the calibration's noise and discrepancy over {r.size} points (about 1 for a "
@@ -405,7 +418,7 @@ def _fit(name: str, observes: str, found: np.ndarray, no_discrepancy: bool) -> D
         "the chains may have settled in a wrong mode (run calnet run again with another "
         "seed); where they disagree, the surrogates misled the calibration (more "
         "campaign runs)")
-    return DataFit(name, observes, int(r.size), rms, top, verdict, noise, disc)
+    return DataFit(name, observes, int(r.size), rms, top, verdict, noise, disc, rms_noise)
 
 
 def summarise(key: str, transform: str | None, points: Sequence[VerifyPoint]) -> SurrogateCheck:

@@ -64,3 +64,21 @@ def test_too_few_runs_for_the_folds_is_said_before_any_fit(tmp_path, monkeypatch
         sn.check_cross_validation(net)
     with pytest.raises(SurrogateError, match="4-fold CV on 4 points"):
         sn.fit_surrogates(net)  # as the fits with their cross-validation say
+
+
+def test_a_trend_with_too_few_runs_per_fold_is_said_before_any_fit(tmp_path, monkeypatch):
+    """An explicit quadratic mean in (x, a) has 6 coefficients and needs 8 runs: 9 runs are
+    enough for the full fit, but 3 folds leave 6 training runs each; the check says so
+    before anything is fitted, naming the mean function."""
+    net = one_model_campaign(tmp_path, monkeypatch, "later_quad",
+                             "1 + inputs['x'] * inputs['a']",
+                             "parameters: {a: {lower: 0, upper: 2}}, campaign: {runs: 9}, "
+                             "surrogate: {cv_folds: 3, restarts: 1, mean: quadratic}")
+    with pytest.raises(SurrogateError, match=r"'m.y': its quadratic mean has 6 coefficients, "
+                       r"so each cross-validation fold needs at least 8 training runs, but "
+                       r"3-fold CV on 9 runs leaves 6; run more simulations"):
+        sn.check_cross_validation(net)
+    with pytest.raises(SurrogateError, match="its quadratic mean has 6 coefficients"):
+        sn.fit_surrogates(net)  # said before the full fit, not by a fold
+    fitted = sn.fit_surrogates(net, cv=False)  # the full fit has its 9 >= 8 runs
+    assert fitted.items["m.y"].gp.mean == "quadratic"

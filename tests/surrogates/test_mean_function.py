@@ -235,7 +235,7 @@ def test_mean_function_errors_and_too_few_points_for_a_trend():
         fit_gp(x, y, lower=LOWER, upper=UPPER, mean="cubic")
     with pytest.raises(SurrogateError, match="a linear mean in 3 inputs has 4 coefficients "
                        "and needs at least 6 runs, got 5; run more simulations, or set the "
-                       "model's surrogate: {mean: constant}"):
+                       "model's surrogate: {mean: auto} or {mean: constant}"):
         fit_gp(x[:5], y[:5], lower=LOWER, upper=UPPER, mean="linear")
     assert fit_gp(x[:5], y[:5], lower=LOWER, upper=UPPER, mean="auto",
                   n_restarts=1).mean == "constant"

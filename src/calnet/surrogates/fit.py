@@ -234,10 +234,10 @@ def fit_gp(
     n = x.shape[0]
     if mean != "auto" and n < n_basis(mean, d) + 2:
         raise SurrogateError(
-            f"{_label(name)}: a {mean} mean in {d} inputs has {n_basis(mean, d)} coefficients "
-            f"and needs at least {n_basis(mean, d) + 2} runs, got {n}; run more "
-            "simulations, or set the model's surrogate: {mean: constant} (fit_gp: "
-            "mean='constant')")
+            f"{_label(name)}: a {mean} mean in {d} input{'s' if d != 1 else ''} has "
+            f"{n_basis(mean, d)} coefficients and needs at least {n_basis(mean, d) + 2} "
+            f"runs, got {n}; run more simulations, or set the model's surrogate: "
+            "{mean: auto} or {mean: constant}")
     tries = (tuple(m for m in MEANS if n >= AUTO_RUNS_PER_COEFFICIENT * n_basis(m, d))
              if mean == "auto" else (mean,))
     fits = []

@@ -8,6 +8,7 @@ Inputs declared ``scale: log`` enter the GP as ``ln x``.
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -22,6 +23,7 @@ from calnet.spec import Network
 from calnet.surrogates.cv import CVResult, check_folds, cross_validate
 from calnet.surrogates.fit import fit_gp
 from calnet.surrogates.gp import FittedGP
+from calnet.surrogates.likelihood import n_basis
 from calnet.surrogates.persist import load_gp, save_gp
 from calnet.surrogates.space import gp_bounds, gp_space
 
@@ -203,6 +205,8 @@ def fit_surrogates(network: Network, *, stores: Mapping[str, Path] | None = None
     """
     seed = network.settings.seed if seed is None else seed
     jobs = _jobs(network, stores, seed, restarts, cv_folds)
+    if cv:  # before any fit: the folds' runs against the mean functions' coefficients
+        check_cross_validation(network, stores=stores, cv_folds=cv_folds)
 
     def fit(job: _Job) -> OutputSurrogate:
         if progress:
@@ -220,8 +224,22 @@ def check_cross_validation(network: Network, *, stores: Mapping[str, Path] | Non
     """Raise :class:`~calnet.errors.SurrogateError` where :func:`cross_validate_surrogates`
     would: an output with too few ok runs for its folds."""
     for job in _jobs(network, stores, 0, None, cv_folds):
-        if job.folds:
-            check_folds(job.folds, *job.x.shape, name=job.kw["name"])
+        if not job.folds:
+            continue
+        n, d = job.x.shape
+        check_folds(job.folds, n, d, name=job.kw["name"])
+        mean = job.kw.get("mean", "auto")
+        if mean in ("auto", "constant"):  # auto's choice has 5 runs per coefficient
+            continue
+        need = n_basis(mean, d) + 2
+        smallest = n - math.ceil(n / job.folds)
+        if smallest < need:
+            raise SurrogateError(
+                f"output {job.kw['name']!r}: its {mean} mean has {n_basis(mean, d)} "
+                f"coefficients, so each cross-validation fold needs at least {need} "
+                f"training runs, but {job.folds}-fold CV on {n} runs leaves {smallest}; "
+                "run more simulations, use more folds (surrogate: {cv_folds: K}, at most "
+                "the runs), or set surrogate: {mean: auto}")
 
 
 def cross_validate_surrogates(network: Network, surrogates: Surrogates, *,
