@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import threading
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 
@@ -13,6 +14,9 @@ import calnet.calibration.calibrate_network as calibrate_network
 import calnet.pipeline as pipeline
 from calnet.spec import load_spec
 from calnet.surrogates.fit_network import Surrogates
+
+#: what the stubbed calibration returns: a posterior with no set-up notes
+POSTERIOR = SimpleNamespace(info=())
 
 NINB = Path(__file__).resolve().parents[1] / "examples" / "ninb"
 
@@ -34,7 +38,7 @@ def context(tmp_path, monkeypatch):
     monkeypatch.setattr(pipeline, "parity_plots",
                         lambda network, sur, folder: {"m.y": folder / "cv_m.y.png"})
     monkeypatch.setattr(pipeline, "record_calibration", lambda *a, **k: "recorded")
-    monkeypatch.setattr(calibrate_network, "calibrate", lambda *a, **k: "posterior")
+    monkeypatch.setattr(calibrate_network, "calibrate", lambda *a, **k: POSTERIOR)
     return ctx, fitted
 
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import threading
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 
@@ -14,6 +15,9 @@ import calnet.pipeline as pipeline
 import calnet.validation as validation
 from calnet.errors import CalibrationError, CalibrationWarning
 from calnet.spec import load_spec
+
+#: what the stubbed calibration returns: a posterior with no set-up notes
+POSTERIOR = SimpleNamespace(info=())
 
 NINB = Path(__file__).resolve().parents[1] / "examples" / "ninb"
 
@@ -37,7 +41,7 @@ def test_variants_wait_for_the_spec_sampler_to_compile(context, monkeypatch):
         compiled()
         assert variants_done.wait(30)  # and they run beside the spec's chains
         events.append("spec sampled")
-        return "posterior"
+        return POSTERIOR
 
     def variants(network, sur, train, names, **kwargs):
         events.append("variants")
@@ -60,7 +64,7 @@ def test_the_variants_run_beside_the_stages_after_the_calibration(context, monke
 
     def spec(network, sur, *, compiled, **kwargs):
         compiled()
-        return "posterior"
+        return POSTERIOR
 
     def variants(network, sur, train, names, **kwargs):
         assert go.wait(30)
@@ -97,7 +101,7 @@ def test_a_run_stopped_early_says_it_waits_for_the_variants_in_flight(context, m
 
     def spec(network, sur, *, compiled, **kwargs):
         compiled()
-        return "posterior"
+        return POSTERIOR
 
     def variants(network, sur, train, names, **kwargs):
         started.set()
@@ -156,7 +160,7 @@ def test_a_variant_that_changes_nothing_is_not_calibrated(context, monkeypatch):
 
     def spec(network, sur, *, compiled, **kwargs):
         compiled()
-        return "posterior"
+        return POSTERIOR
 
     def variants(network, sur, train, names, **kwargs):
         asked.extend(names)

@@ -430,7 +430,7 @@ class _Context:
                 raise
             finally:
                 compiled.set()
-        for text in getattr(self.post, "info", ()):  # segmented mode's set-up: not a problem
+        for text in self.post.info:  # segmented mode's set-up: not a problem
             note(text)
         self.collect_cv()
         self.calibrated = record_calibration(self.network, self.post,

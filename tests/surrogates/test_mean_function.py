@@ -95,40 +95,30 @@ def test_restricted_likelihood_matches_the_dense_formula_and_its_gradient():
     assert float(v0) == pytest.approx(float(neg_log_marginal_likelihood(lp, xs, yj)), rel=1e-14)
 
 
-def test_linear_mean_predictive_is_universal_kriging():
-    x, u, y = _data(30, 1, _smooth)
+@pytest.mark.parametrize("mean, n, seeds, p, rtol_beta, rtol_cov", [
+    ("linear", 30, (1, 2), 4, 1e-8, 1e-7),
+    ("quadratic", 40, (11, 12), 10, 1e-7, 1e-6),
+])
+def test_trend_predictive_is_universal_kriging(mean, n, seeds, p, rtol_beta, rtol_cov):
+    x, u, y = _data(n, seeds[0], _smooth)
     gp = condition(x, y, lower=LOWER, upper=UPPER, lengthscales=ELL, signal_var=S2,
-                   nugget=NUG, mean="linear")
-    assert gp.mean == "linear" and gp.beta.shape == (4,)
-    xt, ut, _ = _data(7, 2, _smooth)
-    ys = (y - y.mean()) / y.std()
-    m_ref, c_ref, beta_ref = _universal_kriging(u, ys, ut)
-    np.testing.assert_allclose(gp.beta, beta_ref, rtol=1e-8)
+                   nugget=NUG, mean=mean)
+    assert gp.mean == mean and gp.beta.shape == (p,)
+    xt, ut, _ = _data(7, seeds[1], _smooth)
+    m_ref, c_ref, beta_ref = _universal_kriging(u, (y - y.mean()) / y.std(), ut,
+                                                mean == "quadratic")
+    np.testing.assert_allclose(gp.beta, beta_ref, rtol=rtol_beta)
     sd = float(gp.y_std)
-    mean, var = gp.predict(xt)
-    np.testing.assert_allclose(mean, float(gp.y_mean) + sd * m_ref, rtol=1e-9)
-    np.testing.assert_allclose(var, sd**2 * np.diag(c_ref), rtol=1e-7)
+    mean_p, var = gp.predict(xt)
+    np.testing.assert_allclose(mean_p, float(gp.y_mean) + sd * m_ref, rtol=1e-9)
+    np.testing.assert_allclose(var, sd**2 * np.diag(c_ref), rtol=rtol_cov)
     mean_c, cov = gp.predict_cov(xt)
-    np.testing.assert_allclose(mean_c, mean, rtol=1e-12)
-    np.testing.assert_allclose(cov, sd**2 * c_ref, rtol=1e-7, atol=1e-12)
+    np.testing.assert_allclose(mean_c, mean_p, rtol=1e-12)
+    np.testing.assert_allclose(cov, sd**2 * c_ref, rtol=rtol_cov, atol=1e-12)
     # the coefficients' uncertainty is part of it: the plain GP formula gives less
-    plain = np.diag(_k(ut, ut) - _k(u, ut).T @ np.linalg.solve(_k(u, u) + NUG * np.eye(30),
+    plain = np.diag(_k(ut, ut) - _k(u, ut).T @ np.linalg.solve(_k(u, u) + NUG * np.eye(n),
                                                                 _k(u, ut)))
     assert np.all(np.asarray(var) > sd**2 * plain)
-
-
-def test_quadratic_mean_predictive_is_universal_kriging():
-    x, u, y = _data(40, 11, _smooth)
-    gp = condition(x, y, lower=LOWER, upper=UPPER, lengthscales=ELL, signal_var=S2,
-                   nugget=NUG, mean="quadratic")
-    assert gp.mean == "quadratic" and gp.beta.shape == (10,)
-    xt, ut, _ = _data(6, 12, _smooth)
-    m_ref, c_ref, beta_ref = _universal_kriging(u, (y - y.mean()) / y.std(), ut, True)
-    np.testing.assert_allclose(gp.beta, beta_ref, rtol=1e-7)
-    sd = float(gp.y_std)
-    mean, cov = gp.predict_cov(xt)
-    np.testing.assert_allclose(mean, float(gp.y_mean) + sd * m_ref, rtol=1e-9)
-    np.testing.assert_allclose(cov, sd**2 * c_ref, rtol=1e-6, atol=1e-12)
 
 
 def test_an_interaction_of_input_and_parameter_gets_the_quadratic_trend():

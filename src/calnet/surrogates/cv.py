@@ -15,6 +15,7 @@ import numpy as np
 
 from calnet.errors import SurrogateError
 from calnet.surrogates.fit import fit_gp, validate_training_data
+from calnet.surrogates.likelihood import n_basis, trend_runs
 
 Z95 = 1.959963984540054  # standard normal 97.5 % quantile
 
@@ -143,10 +144,12 @@ def _check_k(k, name: str) -> None:
         raise SurrogateError(f"{lab}: k must be an integer >= 2 for k-fold CV, got {k!r}")
 
 
-def check_folds(k, n: int, d: int, *, name: str = "") -> None:
+def check_folds(k, n: int, d: int, *, name: str = "", mean: str = "constant") -> None:
     """Raise :class:`~calnet.errors.SurrogateError` unless ``k``-fold cross-validation of
     ``n`` points in ``d`` dimensions is possible: ``k`` an integer in ``[2, n]`` and each
-    training fold at least ``d + 2`` points."""
+    training fold at least ``d + 2`` points, and as many as a trend ``mean`` (``"linear"``
+    or ``"quadratic"``) needs (:func:`~calnet.surrogates.likelihood.trend_runs`; ``"auto"``
+    tries a trend only with 5 runs per coefficient, so its choice always fits)."""
     _check_k(k, name)
     lab = f"output {name!r}" if name else "output"
     if k > n:
@@ -158,6 +161,13 @@ def check_folds(k, n: int, d: int, *, name: str = "") -> None:
                "more simulations")
         raise SurrogateError(f"{lab}: {k}-fold CV on {n} points leaves {smallest_train} "
                              f"training points, need d + 2 = {d + 2}; {fix}")
+    if mean not in ("constant", "auto") and smallest_train < trend_runs(mean, d):
+        raise SurrogateError(
+            f"{lab}: its {mean} mean has {n_basis(mean, d)} coefficients, so each "
+            f"cross-validation fold needs at least {trend_runs(mean, d)} training runs, but "
+            f"{k}-fold CV on {n} runs leaves {smallest_train}; run more simulations, use more "
+            "folds (surrogate: {cv_folds: K}, at most the runs), or set surrogate: "
+            "{mean: auto}")
 
 
 def cross_validate(
@@ -212,7 +222,7 @@ def cross_validate(
     x, y, lower, upper = validate_training_data(X, y, lower=lower, upper=upper,
                                                 transform=transform, name=name, min_points=k)
     n, d = x.shape
-    check_folds(k, n, d, name=name)
+    check_folds(k, n, d, name=name, mean=fit_kwargs.get("mean", "constant"))
     fold = kfold_indices(n, k, seed)
     mu, var = np.empty(n), np.empty(n)
     for i in range(k):

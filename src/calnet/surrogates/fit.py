@@ -19,7 +19,7 @@ from scipy.optimize import minimize
 from calnet._jax import device_array
 from calnet.errors import SurrogateError, SurrogateWarning
 from calnet.surrogates.gp import FittedGP, condition
-from calnet.surrogates.likelihood import MEANS, basis, n_basis, nlml_value_and_grad
+from calnet.surrogates.likelihood import MEANS, basis, n_basis, nlml_value_and_grad, trend_runs
 
 LENGTHSCALE_BOUNDS = (1e-2, 1e2)  # unit-cube units
 SIGNAL_VAR_BOUNDS = (1e-3, 1e3)  # standardised-output units
@@ -180,11 +180,10 @@ def fit_gp(
         quadratic (all products of two inputs) trend in the inputs with its
         coefficients' uncertainty in the variance, or ``"auto"``: each of them that has
         at least :data:`AUTO_RUNS_PER_COEFFICIENT` (5) runs per coefficient fitted, and
-        the one whose
-        leave-one-out predictive density of the training outputs (closed form,
-        :func:`loo_log_density`) is highest kept (the simpler on a tie). A smooth output
-        with a trend across the box gets a far smaller, and honest, variance from a
-        trend.
+        the one whose leave-one-out predictive density of the training outputs (closed
+        form, :func:`loo_log_density`) is highest kept (the simpler on a tie). A smooth
+        output with a trend across the box gets a far smaller, and honest, variance from
+        a trend.
 
     Returns
     -------
@@ -232,10 +231,10 @@ def fit_gp(
         raise SurrogateError(f"{_label(name)}: mean must be one of {list(MEAN_CHOICES)}, got "
                              f"{mean!r}")
     n = x.shape[0]
-    if mean != "auto" and n < n_basis(mean, d) + 2:
+    if mean != "auto" and n < trend_runs(mean, d):
         raise SurrogateError(
             f"{_label(name)}: a {mean} mean in {d} input{'s' if d != 1 else ''} has "
-            f"{n_basis(mean, d)} coefficients and needs at least {n_basis(mean, d) + 2} "
+            f"{n_basis(mean, d)} coefficients and needs at least {trend_runs(mean, d)} "
             f"runs, got {n}; run more simulations, or set the model's surrogate: "
             "{mean: auto} or {mean: constant}")
     tries = (tuple(m for m in MEANS if n >= AUTO_RUNS_PER_COEFFICIENT * n_basis(m, d))
@@ -256,8 +255,8 @@ def loo_log_density(gp: FittedGP) -> float:
     """Leave-one-out log predictive density of ``gp``'s training outputs (standardised
     scale, hyperparameters fixed), from the closed form ``mu_-i = y_i - (P y)_i / P_ii``,
     ``var_-i = 1 / P_ii`` (Rasmussen and Williams 2006, eq. 5.12), ``P = K^-1`` for a
-    constant mean and the restricted projection for a linear one, whose coefficients are
-    then re-estimated without the point (Dubrule 1983). NaN where ``K`` did not factorise.
+    constant mean and the restricted projection for a trend, whose coefficients are then
+    re-estimated without the point (Dubrule 1983). NaN where ``K`` did not factorise.
     """
     chol = np.asarray(gp.chol, float)
     if not np.all(np.isfinite(chol)):
@@ -273,7 +272,6 @@ def loo_log_density(gp: FittedGP) -> float:
         return float("nan")
     resid = np.asarray(gp.alpha, float) / diag  # alpha = P y_s
     return float(np.sum(-0.5 * np.log(2 * np.pi / diag) - 0.5 * resid**2 * diag))
-
 
 
 def _condition_with_retries(x, y, xs, ys, p, *, lower, upper, transform, name,

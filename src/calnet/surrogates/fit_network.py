@@ -8,7 +8,6 @@ Inputs declared ``scale: log`` enter the GP as ``ln x``.
 from __future__ import annotations
 
 import json
-import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -23,7 +22,6 @@ from calnet.spec import Network
 from calnet.surrogates.cv import CVResult, check_folds, cross_validate
 from calnet.surrogates.fit import fit_gp
 from calnet.surrogates.gp import FittedGP
-from calnet.surrogates.likelihood import n_basis
 from calnet.surrogates.persist import load_gp, save_gp
 from calnet.surrogates.space import gp_bounds, gp_space
 
@@ -224,22 +222,8 @@ def check_cross_validation(network: Network, *, stores: Mapping[str, Path] | Non
     """Raise :class:`~calnet.errors.SurrogateError` where :func:`cross_validate_surrogates`
     would: an output with too few ok runs for its folds."""
     for job in _jobs(network, stores, 0, None, cv_folds):
-        if not job.folds:
-            continue
-        n, d = job.x.shape
-        check_folds(job.folds, n, d, name=job.kw["name"])
-        mean = job.kw.get("mean", "auto")
-        if mean in ("auto", "constant"):  # auto's choice has 5 runs per coefficient
-            continue
-        need = n_basis(mean, d) + 2
-        smallest = n - math.ceil(n / job.folds)
-        if smallest < need:
-            raise SurrogateError(
-                f"output {job.kw['name']!r}: its {mean} mean has {n_basis(mean, d)} "
-                f"coefficients, so each cross-validation fold needs at least {need} "
-                f"training runs, but {job.folds}-fold CV on {n} runs leaves {smallest}; "
-                "run more simulations, use more folds (surrogate: {cv_folds: K}, at most "
-                "the runs), or set surrogate: {mean: auto}")
+        if job.folds:
+            check_folds(job.folds, *job.x.shape, name=job.kw["name"], mean=job.kw["mean"])
 
 
 def cross_validate_surrogates(network: Network, surrogates: Surrogates, *,

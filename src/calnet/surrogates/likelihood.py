@@ -46,6 +46,12 @@ def n_basis(mean: str, d: int) -> int:
     return {"constant": 0, "linear": d + 1, "quadratic": (d + 1) * (d + 2) // 2}[mean]
 
 
+def trend_runs(mean: str, d: int) -> int:
+    """Runs a fit with mean function ``mean`` in ``d`` inputs needs beyond the kernel's
+    own: the trend's coefficients and two more (0 coefficients for a constant mean)."""
+    return n_basis(mean, d) + 2
+
+
 def mean_of(p: int, d: int) -> str:
     """The mean function whose basis has ``p`` columns for ``d`` inputs."""
     for mean in MEANS:
