@@ -426,12 +426,13 @@ def calibrate(
 ) -> None:
     """Calibrate the network (KOH per model, NUTS).
 
-    Writes the posteriors (ArviZ netCDF), a summary table with diagnostics, and
-    prior-vs-posterior plots per model.
+    Writes the posteriors (ArviZ netCDF; draws and summary also as CSV), a summary
+    table with diagnostics, and prior-vs-posterior plots per model.
     """
     from calnet.calibration.calibrate_network import calibrate as run_calibration
     from calnet.pipeline import record_calibration
     from calnet.report.build import posterior_figures
+    from calnet.report.posterior_csv import write_posterior_csv
     from calnet.spec import load_spec
     from calnet.surrogates.fit_network import Surrogates, check_surrogates
 
@@ -447,6 +448,7 @@ def calibrate(
     doc = {**summary, "surrogate_check": result.surrogate_check,
            "seed": network.settings.seed if seed is None else seed}
     (out / "summary.json").write_text(json.dumps(doc, indent=1, default=_json_default))
+    write_posterior_csv(out, result.theta, summary)
     if not post.calibrated:
         kept = (f"the parameters of {', '.join(post.prior_only)} keep their priors "
                 f"({post.n_draws} prior draws)" if post.prior_only
@@ -482,8 +484,9 @@ def calibrate(
     for model, s in summary.items():
         if not s.get("prior_only") and s["divergences"]:
             console.print(f"[yellow]{model}: {s['divergences']} divergent transitions[/]")
-    console.print(f"posteriors (ArviZ netCDF, network_posterior.*), summary.json and "
-                  f"prior-vs-posterior plots written to {out}")
+    console.print(f"posteriors (ArviZ netCDF, network_posterior.*), summary.json, "
+                  f"posterior_draws.csv, posterior_summary.csv and prior-vs-posterior plots "
+                  f"written to {out}")
 
 
 @app.command()

@@ -9,6 +9,7 @@ within Monte Carlo error (tolerances from the effective sample sizes).
 
 from __future__ import annotations
 
+import csv
 import re
 import textwrap
 import warnings
@@ -250,7 +251,8 @@ def test_calibrate_command_writes_posteriors_summary_and_plots(indep, tmp_path):
                                    "--mode", "joint"])
     assert res.exit_code == 0, res.output
     for rel in ("up+down.nc", "network_posterior.json", "network_posterior.npz",
-                "summary.json", "posterior_up.png", "posterior_down.png"):
+                "summary.json", "posterior_up.png", "posterior_down.png",
+                "posterior_draws.csv", "posterior_summary.csv"):
         assert (out / rel).is_file(), rel
     assert "joint calibration" in res.output and "R-hat" in res.output
     # no terminal: progress as plain lines, from the start to the end of each stage
@@ -263,7 +265,15 @@ def test_calibrate_command_writes_posteriors_summary_and_plots(indep, tmp_path):
     row = summary["up"]["parameters"]["a"]
     assert row["lower"] == 0.5 and row["upper"] == 1.5 and row["q2.5"] < row["q97.5"]
     assert summary["seed"] == network.settings.seed  # the chains' seed (--seed changes it)
-    assert load_posterior(out, network).mode == "joint"
+    post = load_posterior(out, network)
+    assert post.mode == "joint"
+    # the CSVs hold the same draws and summary as the posterior and summary.json
+    with open(out / "posterior_draws.csv", newline="") as fh:
+        draws = [float(r["up.a"]) for r in csv.DictReader(fh)]
+    assert np.allclose(draws, np.asarray(post.theta["up"])[:, 0])
+    with open(out / "posterior_summary.csv", newline="") as fh:
+        rows = {(r["model"], r["parameter"]): r for r in csv.DictReader(fh)}
+    assert float(rows["up", "a"]["mean"]) == pytest.approx(row["mean"])
 
 
 @pytest.mark.slow
