@@ -17,6 +17,9 @@ fine_g   fine resolution at 0.3 m/s and 2e7, 5e6 K/m (1e7 K/m is in grid2d)
 seeds    0.3 m/s, 1e7 K/m and 0.3 m/s, 5e6 K/m with seeds 0, 1, 2 of the initial noise
 coarsen  the cell count of one run at 0.3 m/s, 1e7 K/m over 6 freezing-range lengths of
          isotherm travel: does the array coarsen after the steady test accepts it?
+band     the fine (2.5 nm) grid started from an array of 22 cells (the count the 5 nm grid
+         selects) at 0.3 m/s, 1e7 K/m: does it keep it, or go to the 31-34 cells it selects
+         from noise?
 """
 
 from __future__ import annotations
@@ -200,9 +203,10 @@ def height() -> None:
               f"1e7-4e7 K/m = {sg:.2f} (expected -0.5)\n", flush=True)
 
 
-def coarsen() -> None:
+def coarsen(**options) -> None:
     p = phase_field.parameters({"S": 0.3, "G": 1e7, **PARAMS})
-    opts = phase_field.PhaseFieldOptions(min_travel=6.0, steady_travel=4.0)
+    opts = phase_field.PhaseFieldOptions(**{"min_travel": 6.0, "steady_travel": 4.0,
+                                            **options})
     t0 = time.perf_counter()
     rec = run(p, opts)
     length = model.CONSTANTS.freezing_range / p.G / p.S  # time for dT0 / G of travel
@@ -215,6 +219,10 @@ def coarsen() -> None:
         print(f"| {a - 0.5:.1f}-{a:.1f} | {sel.mean():.1f} | {sel.min()} | {sel.max()} | "
               f"{opts.nx * opts.dx * 1e6 / sel.mean():.3f} |")
     print(f"\n{rec.status} after {rec.steps} steps, {time.perf_counter() - t0:.0f} s")
+
+
+def band() -> None:
+    coarsen(resolution="fine", initial_cells=22, min_travel=4.0, steady_travel=2.0)
 
 
 if __name__ == "__main__":

@@ -126,9 +126,10 @@ class SurrogateSettings(Frozen):
 
     cv_folds: int = Field(10, ge=2)
     restarts: int = Field(5, ge=1)
-    #: the GP's mean function: "constant", "linear" (a trend in the inputs, its
-    #: coefficients' uncertainty in the variance) or "auto" (the one of higher
-    #: leave-one-out predictive density; calnet.surrogates.fit_gp)
+    #: the GP's mean function: "constant", "linear" or "quadratic" (a trend in the
+    #: inputs, its coefficients' uncertainty in the variance) or "auto" (the one of
+    #: highest leave-one-out predictive density among those with at least 5 runs per
+    #: coefficient; calnet.surrogates.fit_gp)
     mean: Literal["constant", "linear", "quadratic", "auto"] = "auto"
 
 
