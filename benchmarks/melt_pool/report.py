@@ -121,35 +121,58 @@ def _halves(name: str) -> list[dict]:
     return sorted(by.values(), key=lambda r: int(r["tag"].removeprefix("sample")))
 
 
-def variant_sanity_table(name: str = "sanity_exposure", base: str | None = None) -> str:
+def variant_sanity_table(name: str = "sanity_exposure", base: str | None = None,
+                         keys: tuple[str, ...] = ("W",)) -> str:
     """A variant's sanity runs (phases ``sanity-exposure`` and, from the last row,
     ``sanity-exposure-reverse``, one record per sample) against the default ones, or
-    against those of the variant ``base`` (e.g. ``sanity_exposure``)."""
+    against those of the variant ``base`` (e.g. ``sanity_exposure``); one pair of
+    columns per output in ``keys``."""
     default = {r["tag"]: r for r in (_halves(base) if base else _sanity())}
     recs = _halves(name)
     ref = base or "default"
-    lines = [f"| sample | P (W) | v (m/s) | status {ref} / variant | W (um) {ref} / variant "
-             f"| rel. diff | Newton its {ref} / variant | CPU (s) {ref} / variant |",
-             "|---|---|---|---|---|---|---|---|"]
-    diffs = []
+    head = "".join(f"| {k} {ref} / variant | rel. diff " for k in keys)
+    lines = [f"| sample | P (W) | v (m/s) | status {ref} / variant {head}"
+             f"| Newton its {ref} / variant | CPU (s) {ref} / variant |",
+             "|---|---|---|---|" + "---|---|" * len(keys) + "---|---|"]
+    diffs: dict[str, list[float]] = {k: [] for k in keys}
     for r in recs:
         d = default.get(r["tag"], {})
-        wd, wv = _fmt(d, "W", ".1f"), _fmt(r, "W", ".1f")
-        rel = float("nan")
-        if r["status"] == "ok" and d.get("status") == "ok":
-            rel = r["outputs"]["W"] / d["outputs"]["W"] - 1
-            diffs.append(abs(rel))
+        cells = ""
+        for k in keys:
+            spec = ".1f" if k in ("W", "D", "L") else ".3g"
+            rel = float("nan")
+            if r["status"] == "ok" and d.get("status") == "ok":
+                rel = r["outputs"][k] / d["outputs"][k] - 1
+                diffs[k].append(abs(rel))
+            cells += f"| {_fmt(d, k, spec)} / {_fmt(r, k, spec)} | {rel:+.1%} "
         lines.append(f"| {r['tag'].removeprefix('sample')} | {r['inputs']['P']:g} "
-                     f"| {r['inputs']['v']:g} | {d.get('status')} / {r['status']} "
-                     f"| {wd} / {wv} | {rel:+.1%} "
+                     f"| {r['inputs']['v']:g} | {d.get('status')} / {r['status']} {cells}"
                      f"| {d.get('iterations')} / {r.get('iterations')} "
                      f"| {d.get('cpu_s', float('nan')):.1f} / {r.get('cpu_s', float('nan')):.1f} |")
     ok = sum(r["status"] == "ok" for r in recs)
     cpu = [r["cpu_s"] for r in recs if "cpu_s" in r]
-    lines.append(f"\n{len(recs)} settings run, {ok} converged; |W/W_{ref} - 1| median "
-                 f"{statistics.median(diffs) if diffs else float('nan'):.1%}, max "
-                 f"{max(diffs) if diffs else float('nan'):.1%}; CPU median "
-                 f"{statistics.median(cpu) if cpu else float('nan'):.1f} s.")
+    base_cpu = [default[r["tag"]]["cpu_s"] for r in recs if "cpu_s" in default.get(r["tag"], {})]
+    nan = float("nan")
+    spread = "; ".join(f"|{k}/{k}_{ref} - 1| median "
+                       f"{statistics.median(v) if v else nan:.1%}, max {max(v) if v else nan:.1%}"
+                       for k, v in diffs.items())
+    lines.append(f"\n{len(recs)} settings run, {ok} converged; {spread}; CPU median "
+                 f"{statistics.median(cpu) if cpu else nan:.1f} s (the same settings' "
+                 f"{ref} runs: {statistics.median(base_cpu) if base_cpu else nan:.1f} s), "
+                 f"max {max(cpu) if cpu else nan:.1f} s.")
+    return "\n".join(lines)
+
+
+def path_table() -> str:
+    """Phase ``path``: one setting, the continuation step varied, per consolidation."""
+    lines = ["| consolidation | continuation ratio | status | W (um) | D (um) | L (um) | G0 (K/m) "
+             "| Newton its | CPU (s) |", "|---|---|---|---|---|---|---|---|---|"]
+    for r in _load("path"):
+        o = r.get("options", {})
+        lines.append(f"| {o.get('consolidation')} | {o.get('continuation_ratio'):g} "
+                     f"| {r['status']} | {_fmt(r, 'W', '.3f')} | {_fmt(r, 'D', '.3f')} "
+                     f"| {_fmt(r, 'L', '.2f')} | {_fmt(r, 'G0', '.5g')} | {r.get('iterations')} "
+                     f"| {r.get('cpu_s', float('nan')):.1f} |")
     return "\n".join(lines)
 
 
@@ -234,5 +257,16 @@ if __name__ == "__main__":
                        lambda: variant_sanity_table("sanity_clip", "sanity_exposure")),
                       ("consolidation=\"exposure\": mesh convergence",
                        lambda: convergence_table("convergence_exposure")),
+                      ("The solver's path (152 W / 0.32 m/s, refine_outputs=True)",
+                       path_table),
+                      ("consolidation=\"exposure\", refine_outputs=True: mesh convergence",
+                       lambda: convergence_table("convergence_exposure_refined")),
+                      ("consolidation=\"exposure\", refine_outputs=True at the sanity "
+                       "settings", lambda: variant_sanity_table("sanity_exposure_refined",
+                                                                keys=("W", "G0"))),
+                      ("refine_outputs=True: mesh convergence",
+                       lambda: convergence_table("convergence_refined")),
+                      ("refine_outputs=True at the sanity settings",
+                       lambda: variant_sanity_table("sanity_refined", keys=("W", "G0"))),
                       ("Physical sanity", sanity_table), ("Robustness corners", corners_table)):
         print(f"### {title}\n\n{fn()}\n")

@@ -89,7 +89,8 @@ def _save(name: str, records: list[dict]) -> None:
     (RESULTS / f"{name}.json").write_text(json.dumps(records, indent=1))
 
 
-def convergence(resolutions: tuple[float, ...] = (1.0, 2.0)) -> None:
+def convergence(resolutions: tuple[float, ...] = (1.0, 2.0), name: str = "convergence",
+                options: dict | None = None) -> None:
     """Default resolution and the mesh spacing halved at the five settings (a 900 s
     ``time_limit``; ``max_iter`` 1500 and 3600 s on the halved mesh, whose continuation
     on a default-resolution sizing mesh can take 500 iterations).
@@ -102,7 +103,7 @@ def convergence(resolutions: tuple[float, ...] = (1.0, 2.0)) -> None:
     from calnet.simulators.melt_pool import VERSION
 
     tags = {f"res{res:g}" for res in resolutions}
-    path = RESULTS / "convergence.json"
+    path = RESULTS / f"{name}.json"
     old = json.loads(path.read_text()) if path.exists() else []
     kept = [r for r in old if r.get("tag") not in tags]
     done = {(r["inputs"]["P"], r["inputs"]["v"], r["tag"]): r for r in old
@@ -113,11 +114,11 @@ def convergence(resolutions: tuple[float, ...] = (1.0, 2.0)) -> None:
         tag = f"res{res:g}"
         rec = done.get((P, v, tag))
         if rec is None:
-            opts = {"resolution": res, "time_limit": 900.0} | (
+            opts = (options or {}) | {"resolution": res, "time_limit": 900.0} | (
                 {"max_iter": 1500, "time_limit": 3600.0} if res > 1 else {})
             rec = run_one({"P": P, "v": v}, opts, tag=tag)
         recs.append(rec)
-        _save("convergence", kept + recs)
+        _save(name, kept + recs)
 
 
 def sanity(reverse: bool = False, options: dict | None = None, name: str | None = None,
@@ -217,6 +218,20 @@ def convergence_exposure() -> None:
         _save("convergence_exposure", recs)
 
 
+def path() -> None:
+    """Does the state depend on the solver's path? 152 W / 0.32 m/s with
+    ``refine_outputs``, the continuation in power in steps of at most 1.5 (default), 1.3
+    and 1.2, for the default consolidation and ``"exposure"``, into
+    ``results/path.json``."""
+    recs = []
+    for form, ratio in itertools.product(("monotone", "exposure"), (1.5, 1.3, 1.2)):
+        recs.append(run_one({"P": 152.0, "v": 0.32},
+                            {"refine_outputs": True, "consolidation": form,
+                             "continuation_ratio": ratio, "max_iter": 1500},
+                            tag=f"{form}-{ratio:g}"))
+        _save("path", recs)
+
+
 CLIP = ["solver.CLIP_CELLS=true"]
 CLIP6 = [*CLIP, "solver.CYCLE_PERIODS=6"]
 EXPOSURE = {"consolidation": "exposure"}
@@ -240,7 +255,24 @@ if __name__ == "__main__":
                                                     name="sanity_clip6_reverse", patch=CLIP6),
              "exposure-clip6": lambda: exposure(CLIP6, "exposure_clip6"),
              "convergence-res1": lambda: convergence((1.0,)),
-             "convergence-res2": lambda: convergence((2.0,))}
+             "convergence-res2": lambda: convergence((2.0,)),
+             "sanity-refined": lambda: sanity(options={"refine_outputs": True},
+                                              name="sanity_refined"),
+             "path": path,
+             "sanity-exposure-refined": lambda: sanity(
+                 options={**EXPOSURE, "refine_outputs": True}, name="sanity_exposure_refined"),
+             "sanity-exposure-refined-reverse": lambda: sanity(
+                 True, options={**EXPOSURE, "refine_outputs": True},
+                 name="sanity_exposure_refined_reverse"),
+             "convergence-exposure-refined": lambda: convergence(
+                 name="convergence_exposure_refined",
+                 options={**EXPOSURE, "refine_outputs": True}),
+             "convergence-refined": lambda: convergence(name="convergence_refined",
+                                                        options={"refine_outputs": True}),
+             "convergence-refined-res1": lambda: convergence(
+                 (1.0,), name="convergence_refined", options={"refine_outputs": True}),
+             "convergence-refined-res2": lambda: convergence(
+                 (2.0,), name="convergence_refined", options={"refine_outputs": True})}
     if len(sys.argv) > 2 and sys.argv[1] == "--worker":
         _worker(sys.argv[2])
     elif len(sys.argv) < 2 or not set(sys.argv[1:]) <= set(PHASES):

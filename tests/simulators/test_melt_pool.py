@@ -350,6 +350,57 @@ def test_tail_gradient_of_a_kink_is_the_mean_of_both_sides(offset):
     assert gx == pytest.approx(3e6, rel=1e-3)
 
 
+@pytest.mark.parametrize("resolution", [1.0, 2.0])
+def test_refined_mesh_is_finer_where_the_outputs_are_read(resolution):
+    """``refine_outputs``: the lateral pool edge at REFINED_H_EDGE / resolution, the pool
+    region's x spacing halved and at least 6 * resolution layers across the powder; the
+    rest of the mesh as the default's."""
+    from calnet.simulators.melt_pool import mesh as mesh_mod
+
+    box = pool_box(2.6e-4, 1.2e-4, 8.1e-5, 8.3e-5 + NI5NB.powder_thickness,
+                   resolution=resolution, beam_radius=NI5NB.beam_radius)
+    plain = build_mesh(box, NI5NB, resolution=resolution, powder=True)
+    fine = build_mesh(box, NI5NB, resolution=resolution, powder=True, refine=True)
+    h = box.h
+    assert h > 4 * mesh_mod.REFINED_H_EDGE / resolution  # a large pool: h about 11 um
+
+    def core(faces, lo, hi):  # spacings of the faces inside [lo, hi]
+        f = faces[(faces >= lo) & (faces <= hi)]
+        return np.diff(f)
+
+    # x: the pool region at h / 2 (default h); the far field stretched as before
+    assert core(plain.xf, -box.tail, box.front).max() == pytest.approx(h, rel=0.02)
+    assert core(fine.xf, -box.tail, box.front).max() == pytest.approx(h / 2, rel=0.02)
+    assert fine.xf[[0, -1]] == pytest.approx(plain.xf[[0, -1]])
+    # y: the band around the edge W/2 at 1.25 um / resolution (default 2.5 um)
+    edge = (0.8 * box.edge, 1.1 * box.edge)
+    assert core(plain.yf, *edge).max() == pytest.approx(mesh_mod.H_EDGE / resolution)
+    assert core(fine.yf, *edge).max() == pytest.approx(mesh_mod.REFINED_H_EDGE / resolution)
+    # z: the powder layer in at least 6 * resolution layers, the substrate as before
+    assert plain.n_powder == math.ceil(NI5NB.powder_thickness / h) < 6 * resolution
+    assert fine.n_powder == math.ceil(6 * resolution)
+    assert np.allclose(fine.zf[fine.n_powder:], plain.zf[plain.n_powder:])
+    assert fine.zf[fine.n_powder] == pytest.approx(NI5NB.powder_thickness)
+    # a small pool keeps its own (finer) spacings wherever they are already finer
+    small = pool_box(6e-5, 3e-5, 2.8e-5, 3.0e-5, resolution=1.0,
+                     beam_radius=NI5NB.beam_radius)
+    m = build_mesh(small, NI5NB, resolution=1.0, powder=True, refine=True)
+    assert m.n_powder == max(math.ceil(NI5NB.powder_thickness / small.h), 6)
+
+
+def test_refine_outputs_option_refines_the_final_mesh_only():
+    plain = melt_pool.simulate({"P": 120.0, "v": 1.0}, **COARSE)
+    fine = melt_pool.simulate({"P": 120.0, "v": 1.0}, refine_outputs=True, **COARSE)
+    assert plain.status == fine.status == "ok", (plain.message, fine.message)
+    assert fine.diagnostics["options"]["refine_outputs"] is True
+    sizing = [s for s in fine.diagnostics["stages"] if s["mesh"] == "sizing"]
+    assert [s["n_cells"] for s in sizing] == [
+        s["n_cells"] for s in plain.diagnostics["stages"] if s["mesh"] == "sizing"]
+    assert fine.diagnostics["n_cells"] > 1.5 * plain.diagnostics["n_cells"]
+    for k in ("W", "D"):  # the same pool, resolved better
+        assert fine.outputs[k] == pytest.approx(plain.outputs[k], rel=0.1), k
+
+
 def test_options_validated():
     with pytest.raises(TypeError, match="unknown melt_pool option"):
         melt_pool.simulate({"P": 100.0, "v": 1.0}, resolutoin=2)

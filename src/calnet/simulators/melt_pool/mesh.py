@@ -24,6 +24,10 @@ H_EDGE = 2.5e-6  # m, largest lateral spacing at the pool edge (resolution 1)
 STRETCH = 1.25  # far-field geometric growth ratio at resolution 1
 H_MIN, H_MAX = 2.5e-6, 12e-6  # bounds on the pool-region spacing (resolution 1)
 POWDER_DEPTH_FLOOR = 30e-6  # m: pools shallower than the powder layer are sized by it
+# ``refine=True`` (the simulator's ``refine_outputs``): finer where the outputs are read
+REFINED_H_EDGE = 1.25e-6  # m, lateral spacing at the pool edge (W)
+REFINED_X = 2.0  # the pool region's x spacing is h / REFINED_X (the tail window of G0)
+REFINED_POWDER_LAYERS = 6  # fewest cell layers across the powder layer (L and G0)
 
 
 @dataclass(frozen=True)
@@ -123,7 +127,8 @@ def _axis(lo_len: float, fine_lo: float, fine_hi: float, hi_len: float, h: float
     return np.concatenate(parts)
 
 
-def _lateral_axis(box: PoolBox, resolution: float, ratio: float) -> np.ndarray:
+def _lateral_axis(box: PoolBox, resolution: float, ratio: float, h_edge: float = H_EDGE
+                  ) -> np.ndarray:
     """``y`` faces: spacing ``h`` inside the pool, a band of ``h_e`` around its edge
     (``0.75 W/2`` to ``1.15 W/2 + 3 h_e``), geometric transitions, stretched outside.
 
@@ -132,7 +137,7 @@ def _lateral_axis(box: PoolBox, resolution: float, ratio: float) -> np.ndarray:
     size (W changed by 6 % when halving a 6 um lateral spacing at 152 W, 0.32 m/s).
     """
     h = box.h
-    h_e = min(h / Y_REFINE, H_EDGE / resolution)
+    h_e = min(h / Y_REFINE, h_edge / resolution)
     hi = min(1.15 * box.edge + 3 * h_e, 0.8 * Y_SIDE)
     lo = max(min(0.75 * box.edge, hi - 3 * h_e), 0.0)
     n_band = max(3, math.ceil((hi - lo) / h_e))
@@ -148,16 +153,23 @@ def _lateral_axis(box: PoolBox, resolution: float, ratio: float) -> np.ndarray:
 
 
 def build_mesh(box: PoolBox, mat: AlloyProperties, *, resolution: float,
-               powder: bool) -> Mesh:
-    """Tensor mesh for ``box``; the powder/substrate interface is a face."""
+               powder: bool, refine: bool = False) -> Mesh:
+    """Tensor mesh for ``box``; the powder/substrate interface is a face.
+
+    ``refine``: the lateral spacing at the pool edge ``REFINED_H_EDGE / resolution``
+    instead of ``H_EDGE / resolution``, the pool region's ``x`` spacing ``h /
+    REFINED_X``, and at least ``REFINED_POWDER_LAYERS * resolution`` cell layers across
+    the powder layer (benchmarks/README.md, "Mesh convergence").
+    """
     ratio = STRETCH ** (1.0 / resolution)
     h = box.h
     tail = min(box.tail, 0.8 * X_BEHIND)
     front = min(box.front, 0.8 * X_AHEAD)
-    xf = _axis(X_BEHIND, tail, front, X_AHEAD, h, ratio)
-    yf = _lateral_axis(box, resolution, ratio)
+    xf = _axis(X_BEHIND, tail, front, X_AHEAD, h / REFINED_X if refine else h, ratio)
+    yf = _lateral_axis(box, resolution, ratio, REFINED_H_EDGE if refine else H_EDGE)
     t_p = mat.powder_thickness if powder else 0.0
-    n_p = math.ceil(t_p / h) if powder else 0
+    layers = math.ceil(REFINED_POWDER_LAYERS * resolution) if refine else 1
+    n_p = max(math.ceil(t_p / h), layers) if powder else 0
     zp = np.linspace(0.0, t_p, n_p + 1) if powder else np.zeros(1)
     fine_sub = min(max(box.depth - t_p, h), 0.8 * mat.substrate_thickness)
     zs = _axis(0.0, 0.0, fine_sub, mat.substrate_thickness, h, ratio)

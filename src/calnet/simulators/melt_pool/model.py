@@ -157,7 +157,8 @@ def run(P: float, v: float, theta: dict[str, float], opts: MeltPoolOptions,
     res = opts.resolution * COARSE if opts.adapt_mesh else opts.resolution
     box = pool_box(tail, front, half, half + mat.powder_thickness * opts.powder,
                    resolution=res, beam_radius=mat.beam_radius)
-    mesh = build_mesh(box, mat, resolution=res, powder=opts.powder)
+    mesh = build_mesh(box, mat, resolution=res, powder=opts.powder,  # refined if final
+                      refine=opts.refine_outputs and res == opts.resolution)
     powers = power_ladder(P, v, theta, opts.continuation_ratio, mat)
     T0 = _start(mesh, powers[0], v, theta, opts, mat)
     iterations, dt0, geometry, stages = 0, None, None, []
@@ -205,7 +206,8 @@ def run(P: float, v: float, theta: dict[str, float], opts: MeltPoolOptions,
         box = (_box_from_geometry(geometry, res, mat) if sized else  # else: Rosenthal box
                pool_box(tail, front, half, half + mat.powder_thickness * opts.powder,
                         resolution=res, beam_radius=mat.beam_radius))
-        new_mesh = build_mesh(box, mat, resolution=res, powder=opts.powder)
+        new_mesh = build_mesh(box, mat, resolution=res, powder=opts.powder,
+                              refine=opts.refine_outputs)
         T0, dt0, mesh = _interpolate(report.T, mesh, new_mesh), WARM_DT0, new_mesh
     report = replace(report, iterations=iterations)
     return RunRecord(geometry if report.converged else None, report, mesh, stage,

@@ -85,6 +85,15 @@ class MeltPoolOptions:
         consolidates and the mass it gains enters at the ambient temperature's enthalpy,
         a heat sink at the consolidation front (melt_pool 0.8.0 and earlier; widths
         7-34 % smaller at the 5 benchmark settings, benchmarks/README.md).
+    refine_outputs : bool, default False
+        Refine the final mesh where the outputs are read: the lateral spacing at the
+        pool edge 1.25 um instead of 2.5 um (``W``), the pool region's ``x`` spacing
+        halved (the tail window of ``G0``) and at least 6 cell layers across the powder
+        layer (``L``, ``G0``); all scale with ``resolution``, and the sizing mesh is
+        the default's. 1.5-2.5 times the cells of the default mesh and about 1.5-4
+        times its CPU. At the keyhole-mode settings the default mesh's ``G0`` is up to
+        34 % from the halved mesh's; with this option it is within 1 % at the 5
+        benchmark settings (benchmarks/README.md, "Mesh convergence").
     start : {"rosenthal", "ambient"}, default "rosenthal"
         Initial field of the first continuation stage: the beam-smeared Rosenthal field
         at that stage's power and ``A_0``, or the ambient temperature everywhere. The
@@ -107,6 +116,7 @@ class MeltPoolOptions:
     adapt_mesh: bool = True
     continuation_ratio: float = 1.5
     start: str = "rosenthal"
+    refine_outputs: bool = False
     consolidation: str = "monotone"
     mass_flux: str = "conserved"
 
