@@ -31,7 +31,9 @@ def convergence_table(name: str = "convergence") -> str:
         if tag != "res1" or b is None:
             continue
         if a["status"] != "ok" or b["status"] != "ok":
-            lines.append(f"| {P:g} | {v:g} | {a['status']} / {b['status']} | | | | | | | no |")
+            verdict = "not measured" if "stopped" in (a["status"], b["status"]) else "no"
+            lines.append(f"| {P:g} | {v:g} | {a['status']} / {b['status']} | | | | | | "
+                         f"| {verdict} |")
             continue
         if a.get("version") != b.get("version"):  # a stale res2 record: say so
             lines.append(f"| {P:g} | {v:g} | res1 from {a.get('version', '?')}, res2 from "

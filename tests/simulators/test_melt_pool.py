@@ -501,6 +501,19 @@ def test_exposure_consolidation_is_start_independent_near_the_default():
     assert a.outputs["W"] == pytest.approx(c.outputs["W"], rel=0.05)
 
 
+@pytest.mark.slow
+def test_exposure_consolidation_does_not_depend_on_the_continuation_step():
+    """The exposure form's state solves R(T, frac(T)) = 0: another continuation step (a
+    different path to the same steady problem) reaches it again, at a large pool where
+    the monotone form's width moves by per cents (benchmarks/README.md, "The solver's
+    path")."""
+    inputs = {"P": 152.0, "v": 0.32}  # about 40 s each (on a coarser mesh it cycles)
+    a, b = (melt_pool.simulate(inputs, consolidation="exposure", continuation_ratio=r,
+                               refine_outputs=True, max_iter=1500) for r in (1.5, 1.3))
+    assert a.diagnostics["iterations"] != b.diagnostics["iterations"]  # two paths
+    _close(a, b, rel=1e-6)
+
+
 def test_kink_rule_from_the_edge_stops_in_the_mushy_zone():
     """A cell the kink rule left 1 K below T_S stops 1 K past T_S with ``from_edge``;
     without it the same step crosses the mushy zone to T_L + 1 (and back: a 2-cycle)."""
