@@ -232,6 +232,18 @@ def path() -> None:
         _save("path", recs)
 
 
+def exposure_refined_long() -> None:
+    """``consolidation="exposure"`` with ``refine_outputs`` at ``resolution`` 1 and
+    ``max_iter`` 1500 at the two settings where 500 are too few, into
+    ``results/convergence_exposure_refined_long.json``."""
+    recs = []
+    for P, v in ((243.0, 1.15), (236.0, 0.23)):
+        recs.append(run_one({"P": P, "v": v}, {**EXPOSURE, "refine_outputs": True,
+                                               "resolution": 1.0, "time_limit": 3600.0,
+                                               "max_iter": 1500}, tag="res1-max_iter1500"))
+        _save("convergence_exposure_refined_long", recs)
+
+
 CLIP = ["solver.CLIP_CELLS=true"]
 CLIP6 = [*CLIP, "solver.CYCLE_PERIODS=6"]
 EXPOSURE = {"consolidation": "exposure"}
@@ -259,6 +271,7 @@ if __name__ == "__main__":
              "sanity-refined": lambda: sanity(options={"refine_outputs": True},
                                               name="sanity_refined"),
              "path": path,
+             "convergence-exposure-refined-long": exposure_refined_long,
              "sanity-exposure-refined": lambda: sanity(
                  options={**EXPOSURE, "refine_outputs": True}, name="sanity_exposure_refined"),
              "sanity-exposure-refined-reverse": lambda: sanity(
