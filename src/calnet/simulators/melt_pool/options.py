@@ -90,12 +90,13 @@ class MeltPoolOptions:
         pool edge 1.25 um instead of 2.5 um (``W``), the pool region's ``x`` spacing
         halved (the tail window of ``G0``) and at least 6 cell layers across the powder
         layer (``L``, ``G0``); all scale with ``resolution``, and the sizing mesh is
-        the default's. 1.7-2.4 times the cells of the default mesh and 2.7 times its
+        the default's. 1.7-2.5 times the cells of the default mesh and 2.7 times its
         CPU (median over the 40 ninb settings). At the keyhole-mode settings the default
         mesh's ``G0`` differs from this mesh's by up to 31 %; with it ``G0`` is within
-        7 % of the halved mesh's at the 4 benchmark settings measured, where the default
-        mesh's moves up to 34 % (benchmarks/README.md, "Mesh convergence with
-        ``refine_outputs=True``").
+        7 % of the halved mesh's at the 5 benchmark settings, where the default mesh's
+        moves up to 34 %; ``W`` of the largest pools still moves 3.6-3.7 %, as much as
+        the default consolidation's path dependence (benchmarks/README.md, "Mesh
+        convergence with ``refine_outputs=True``").
     start : {"rosenthal", "ambient"}, default "rosenthal"
         Initial field of the first continuation stage: the beam-smeared Rosenthal field
         at that stage's power and ``A_0``, or the ambient temperature everywhere. The
