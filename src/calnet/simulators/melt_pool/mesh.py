@@ -168,8 +168,9 @@ def build_mesh(box: PoolBox, mat: AlloyProperties, *, resolution: float,
     xf = _axis(X_BEHIND, tail, front, X_AHEAD, h / REFINED_X if refine else h, ratio)
     yf = _lateral_axis(box, resolution, ratio, REFINED_H_EDGE if refine else H_EDGE)
     t_p = mat.powder_thickness if powder else 0.0
-    layers = math.ceil(REFINED_POWDER_LAYERS * resolution) if refine else 1
-    n_p = max(math.ceil(t_p / h), layers) if powder else 0
+    n_p = math.ceil(t_p / h) if powder else 0
+    if powder and refine:
+        n_p = max(n_p, math.ceil(REFINED_POWDER_LAYERS * resolution))
     zp = np.linspace(0.0, t_p, n_p + 1) if powder else np.zeros(1)
     fine_sub = min(max(box.depth - t_p, h), 0.8 * mat.substrate_thickness)
     zs = _axis(0.0, 0.0, fine_sub, mat.substrate_thickness, h, ratio)
