@@ -416,3 +416,45 @@ def test_a_second_ctrl_c_while_the_chains_run_ends_a_command_at_once():
                         "cannot be interrupted; Ctrl-C again ends the process at once)"), err
     assert lines[-1] == ("interrupted (Ctrl-C again while the chains ran): ended at once; "
                          "kept"), err
+
+
+_LEFT_RUNNING = """
+import sys, threading, time
+import jax  # a compiled program may be in flight: the exit must not wait or clean up
+import calnet.cli as cli
+
+def interrupted(prog_name=None):
+    threading.Thread(target=time.sleep, args=(60,)).start()  # work left running
+    print("said before the exit", flush=False)
+    raise SystemExit(CODE)
+
+cli.app = interrupted
+cli.main()
+"""
+
+
+@pytest.mark.parametrize("code", [130, 143])
+def test_the_console_script_ends_at_once_after_an_interrupt(code):
+    """After Ctrl-C (130) or SIGTERM (143) the ``calnet`` script exits at once, with the
+    code, its output flushed: the interpreter's clean-up would wait for (or crash under)
+    work still running in other threads, such as an XLA program. Other exits are left
+    to the interpreter."""
+    import time
+
+    t0 = time.monotonic()
+    out = subprocess.run([sys.executable, "-c", _LEFT_RUNNING.replace("CODE", str(code))],
+                         capture_output=True, text=True, timeout=50)
+    assert out.returncode == code, out.stderr
+    assert out.stdout == "said before the exit\n"
+    assert time.monotonic() - t0 < 30
+
+
+def test_the_console_script_is_main():
+    """``calnet`` and ``python -m calnet`` run :func:`calnet.cli.main`."""
+    from importlib.metadata import entry_points
+
+    (script,) = [e for e in entry_points(group="console_scripts") if e.name == "calnet"]
+    assert script.value == "calnet.cli:main"
+    out = subprocess.run([sys.executable, "-m", "calnet", "--version"], capture_output=True,
+                         text=True, timeout=60)
+    assert out.returncode == 0 and out.stdout.startswith("calnet "), out.stderr

@@ -1,6 +1,6 @@
 """``python -m calnet ...``: the ``calnet`` command."""
 
-from calnet.cli import app
+from calnet.cli import main
 
 if __name__ == "__main__":
-    app(prog_name="calnet")
+    main(prog_name="calnet")

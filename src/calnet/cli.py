@@ -757,9 +757,25 @@ def run(
         _FINISHED.append(out)  # a Ctrl-C from here on comes after a complete run
 
 
-def main() -> None:  # pragma: no cover - console script entry
-    app()
+_INTERRUPTED_EXITS = (130, 143)  # Ctrl-C, SIGTERM
+
+
+def main(prog_name: str | None = None) -> None:
+    """The ``calnet`` console script: :data:`app`, and after an interrupt an immediate
+    exit. An interrupt can leave a compiled (XLA) program running in the background (one
+    dispatched but not yet waited for, or compiling in another thread), and the
+    interpreter's clean-up at a normal exit then crashes under it (a segmentation fault
+    instead of the exit code). What the command keeps is on disk by then: the latch
+    (:func:`calnet.interrupts.latch`) unwinds the work before the exit code is set."""
+    try:
+        app(prog_name=prog_name)
+    except SystemExit as stop:
+        if stop.code in _INTERRUPTED_EXITS and "jax" in sys.modules:
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os._exit(stop.code)
+        raise
 
 
 if __name__ == "__main__":  # pragma: no cover
-    sys.exit(app())
+    main()
