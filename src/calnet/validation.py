@@ -596,7 +596,7 @@ class _Refitter:
             for j, k in enumerate(parameter_keys(network, m)):
                 if k not in self.own:
                     self.fixed[k] = float(np.mean(draws[:, j]))
-        self.scales = {full.name: data_scale(network, full)}
+        self.scales = {full.name: data_scale(network, full, surrogates)}
 
     def predict(self, i: int, seed: int, n_samples: int = 4000):
         """Mean, 95 % bounds, ``n_samples`` predictive samples, the PIT and the log

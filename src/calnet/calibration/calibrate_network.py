@@ -44,7 +44,10 @@ from calnet.calibration.koh import KOHDensity, KOHModel, Term
 from calnet.calibration.priors import parameter_prior
 from calnet.calibration.sampling import sample_nuts
 from calnet.calibration.terms import (
+    data_scale,
     make_term,
+    modelled,
+    no_spread,
     parameter_keys,
 )
 from calnet.chain import ChainPlan
@@ -175,8 +178,12 @@ def build_koh(network: Network, surrogates: Surrogates, *, free: list[str],
     params, theta_index, groups, names = _layout(network, list(free))
     terms, tdata = [], []
     for ds_name, d in datasets.items():
+        scale = (scales or {}).get(ds_name)
+        if scale is None:
+            scale = data_scale(network, d, surrogates)
+            _warn_no_spread(network, d, scale[1], name)
         t, td = make_term(network, d, emulator_variance=emulator_variance, plan=plan,
-                          scale=(scales or {}).get(ds_name))
+                          scale=scale)
         terms.append(t)
         tdata.append(td)
         if t.discrepancy:
@@ -204,6 +211,32 @@ def build_koh(network: Network, surrogates: Surrogates, *, free: list[str],
                       "(calibration parameters and discrepancy hyperparameters); the "
                       "posterior will lean on the priors", CalibrationWarning, stacklevel=2)
     return ld
+
+
+def _warn_no_spread(network: Network, data: ExperimentalData, sd: float, name: str
+                    ) -> None:
+    """Warn where a data set's observations have no spread and a default prior needs
+    their sd (:func:`~calnet.calibration.terms.data_scale`)."""
+    ds = network.dataset(data.name)
+    y = modelled(network, data)
+    if not no_spread(y):
+        return
+    noise = not ds.noise.known and ds.noise.prior is None
+    disc = ds.discrepancy.enabled and ds.discrepancy.sd_prior is None
+    if not (noise or disc):
+        return
+    out = network.observed(ds)
+    what = " and ".join(w for w, used in (("noise", noise), ("discrepancy", disc)) if used)
+    fields = " and ".join(f for f, used in (("noise.prior", noise),
+                                            ("discrepancy.sd_prior", disc)) if used)
+    points = ("its one observation has" if len(y) == 1
+              else f"its {len(y)} observations are equal and have")
+    warnings.warn(f"{name}: data set {data.name}: {points} no spread to scale the default "
+                  f"{what} prior{'s' if noise and disc else ''} with; they take the sd of "
+                  f"{ds.observes} over its simulation runs ({sd:.3g}"
+                  f"{' on the log scale' if out.transform == 'log' else ''}) instead; "
+                  f"declare {fields} to set {'them' if noise and disc else 'it'}",
+                  CalibrationWarning, stacklevel=3)
 
 
 @partial(jax.jit, static_argnums=(0, 1))

@@ -13,7 +13,7 @@ from calnet._jax import FEW_CALLS, device_array
 from calnet.calibration.calibrate_network import NetworkPosterior
 from calnet.calibration.diagnostics import ESS_MIN, RHAT_MAX, import_arviz, kde_mode, summarize
 from calnet.calibration.priors import parameter_prior
-from calnet.calibration.terms import parameter_keys
+from calnet.calibration.terms import modelled, no_spread, parameter_keys
 from calnet.results import CalibrationResult, PriorPanel
 from calnet.spec import Network
 from calnet.spec.models import SamplerSettings
@@ -153,6 +153,11 @@ def data_set_summary(network: Network, post: NetworkPosterior) -> dict:
         row: dict = {"unit": f"ln({var.unit})" if log else var.unit,
                      "scale": "log" if log else "linear",
                      "priors": f"{ds.noise.text(var.unit, log)}; {ds.discrepancy.text()}"}
+        if no_spread(modelled(network, post.data[ds.name])) and "observations' sd" in \
+                row["priors"]:
+            row["priors"] = row["priors"].replace(
+                "the observations' sd", "the simulation runs' sd: the observations have no "
+                "spread")
         if f"se2_{ds.name}" in draws:
             row["noise_sd"] = _interval(np.sqrt(draws[f"se2_{ds.name}"]))
         else:

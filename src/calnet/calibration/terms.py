@@ -15,8 +15,8 @@ from calnet.errors import CalibrationError
 from calnet.spec import ExperimentalData, Network
 from calnet.spec.variables import HalfNormalPrior
 
-__all__ = ["draw_index", "draws_at", "hyper_at", "links_into", "data_scale", "modelled",
-           "known_noise_var", "make_term", "parameter_keys"]
+__all__ = ["draw_index", "draws_at", "hyper_at", "links_into", "data_scale", "no_spread",
+           "modelled", "known_noise_var", "make_term", "parameter_keys"]
 
 
 def draw_index(total: int, n: int) -> np.ndarray:
@@ -66,9 +66,28 @@ def links_into(plan: ChainPlan, model: str) -> tuple[str, ...]:
     return tuple(dict.fromkeys(out))
 
 
-def data_scale(network: Network, data: ExperimentalData) -> tuple[float, float]:
-    """Mean and sd of a data set's observations on the modelled scale."""
-    return standardise(modelled(network, data))
+def data_scale(network: Network, data: ExperimentalData, surrogates=None
+               ) -> tuple[float, float]:
+    """Mean and sd of a data set's observations on the modelled scale: the scale of the
+    default noise and discrepancy priors.
+
+    Observations without spread (one point, or all equal) have no sd; the sd is then the
+    observed output's over its simulation runs (the surrogate's training outputs, from
+    ``surrogates``), so that the default priors keep the output's units; 1 without
+    ``surrogates`` or where the runs have no spread either (:func:`no_spread`)."""
+    y = modelled(network, data)
+    mean, sd = standardise(y)
+    if no_spread(y) and surrogates is not None:
+        key = network.dataset(data.name).observes
+        runs_sd = float(surrogates[key].gp.y_std) if key in surrogates else 0.0
+        if runs_sd > 0 and np.isfinite(runs_sd):
+            sd = runs_sd
+    return mean, sd
+
+
+def no_spread(y: np.ndarray) -> bool:
+    """Whether observations ``y`` (modelled scale) have no sd to scale priors with."""
+    return len(y) < 2 or not float(np.std(y)) > 0
 
 
 def modelled(network: Network, data: ExperimentalData) -> np.ndarray:
