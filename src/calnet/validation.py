@@ -283,6 +283,46 @@ def fit_check(name: str, pit) -> dict:
             "message": message}
 
 
+def held_out_check(name: str, pit, n_samples: int, where: list[str] | None = None) -> dict:
+    """Whether the posterior predictive covers data set ``name``'s test points, which the
+    calibration has not seen: a binomial test of the number outside its central 95 %
+    band, and a test of the most extreme point (its two-sided tail probability
+    ``2 min(PIT, 1 - PIT)`` times the number of points, Bonferroni's bound: a p-value
+    whatever the predictive's shape), which flags one point far in a tail that a count
+    of a few points cannot. A PIT from ``n_samples`` predictive samples resolves tail
+    probabilities down to about ``1 / n_samples``, so a point beyond every sample counts
+    as lying at half a sample's share. ``where`` names the points (their settings).
+    Returns ``dict(outside95, n, outside_pvalue,
+    extreme_pvalue, extreme_index, flagged, message)``."""
+    pit = np.asarray(pit, float)
+    n, outside, p_out = _outside95(pit)
+    if not n:
+        return {"outside95": 0, "n": 0, "outside_pvalue": float("nan"),
+                "extreme_pvalue": float("nan"), "extreme_index": None, "flagged": False,
+                "message": ""}
+    floor = 0.5 / max(int(n_samples), 1)
+    tail = 2.0 * np.minimum(np.clip(pit, floor, 1.0 - floor),
+                            1.0 - np.clip(pit, floor, 1.0 - floor))
+    worst = int(np.argmin(tail))
+    p_extreme = float(min(1.0, n * tail[worst]))
+    flagged = bool(p_out < PIT_P_MIN or p_extreme < PIT_P_MIN)
+    message = ""
+    if flagged:
+        side = "below" if pit[worst] < 0.5 else "above"
+        share = pit[worst] if side == "below" else 1.0 - pit[worst]
+        beyond = ("every sample of its predictive" if share == 0 else
+                  f"{1 - share:.4g} of its predictive's samples")
+        message = (f"{name}: the posterior predictive misses its test points, which the "
+                   f"calibration has not seen ({outside} of {n} outside its 95 % band "
+                   f"where {0.05 * n:.1f} are expected, p = {p_out:.2g}; the test point "
+                   f"at {where[worst] if where else worst + 1} lies {side} {beyond}, "
+                   f"p = {p_extreme:.2g} for the most extreme of {n}); the model, its "
+                   "discrepancy or its noise does not describe these data")
+    return {"outside95": outside, "n": n, "outside_pvalue": p_out,
+            "extreme_pvalue": p_extreme, "extreme_index": worst, "flagged": flagged,
+            "message": message}
+
+
 def misfit_hint(network: Network, name: str, surrogate_warned: bool,
                 unconverged: float | None = None) -> str:
     """What to try when data set ``name``'s predictive checks flag a misfit
@@ -533,6 +573,14 @@ def validate_dataset(network: Network, surrogates: Surrogates, posterior: Networ
         said += (f"; in-sample {fit['outside95']} of {fit['n']} calibration points fall "
                  f"outside the posterior predictive's 95 % band (p = "
                  f"{fit['outside_pvalue']:.2g})")
+    if test is not None:
+        where = [", ".join(f"{k}={v:.4g}" for k, v in zip(data.input_keys, row, strict=True))
+                 for row in data.x[data.is_test]]
+        test["check"] = held_out = held_out_check(data.name, pit[data.is_test],
+                                              pred.samples.shape[0], where)
+        if held_out["flagged"]:
+            said = (said + "; and " + held_out["message"].split(": ", 1)[1] if said
+                    else held_out["message"])
     if said and not (check.get("flagged") and check.get("too_wide")):  # a misfit: hints
         warned = any(c.dataset == data.name and c.message() for c in posterior.checks)
         rhat = max((st.diagnostics.max_r_hat for st in posterior.stages

@@ -312,3 +312,41 @@ def test_the_misfit_hint_names_what_to_try():
     said = misfit_hint(twodata, "d1", surrogate_warned=False, unconverged=1.527)
     assert said.startswith("; its calibration did not converge (R-hat 1.53): these checks "
                            "inherit that, so fix the sampling first; d2 also observes"), said
+
+
+def test_held_out_check_on_known_pit_values():
+    """The held-out check: the count outside the 95 % band and Bonferroni's bound on the
+    most extreme point, whose p-value is the point's two-sided tail probability times
+    the number of points (at least half a sample's share: a PIT from samples)."""
+    from calnet.validation import PIT_P_MIN, held_out_check
+
+    S = 4000
+    # one point beyond every sample among four: p = 4 x 2 x (0.5 / S)
+    far = held_out_check("d", np.r_[0.0, 0.3, 0.5, 0.7], S,
+                         ["x=0.1", "x=0.4", "x=0.6", "x=0.9"])
+    assert far["flagged"] and far["extreme_index"] == 0
+    assert far["extreme_pvalue"] == pytest.approx(4 * 2 * 0.5 / S)
+    assert far["outside95"] == 1 and far["outside_pvalue"] > PIT_P_MIN  # the count misses it
+    assert ("the test point at x=0.1 lies below every sample of its predictive, "
+            f"p = {4 / S:.2g} for the most extreme of 4") in far["message"], far["message"]
+    high = held_out_check("d", np.r_[0.9995, 0.3, 0.5], S)
+    assert high["extreme_pvalue"] == pytest.approx(3 * 2 * 0.0005)
+    assert "at 1 lies above 0.9995 of its predictive's samples" in high["message"]
+    assert not held_out_check("d", np.r_[0.02, 0.5, 0.97], S)["flagged"]
+    assert not held_out_check("d", np.zeros(0), S)["flagged"]
+
+
+def test_held_out_check_keeps_its_false_alarm_rate():
+    """Under a calibrated predictive (uniform PIT values, resolved to 1 / S) the check
+    flags at most about the sum of its two tests' levels, 2 %, at every size; a
+    predictive three times too narrow is flagged most of the time from 10 points."""
+    from calnet.validation import held_out_check
+
+    rng = np.random.default_rng(1)
+    S, reps = 4000, 3000
+    for n in (1, 4, 10, 40):
+        pits = np.floor(rng.uniform(size=(reps, n)) * (S + 1)) / S
+        rate = np.mean([held_out_check("d", p, S)["flagged"] for p in pits])
+        assert rate < 0.02 + 3 * np.sqrt(0.02 / reps), (n, rate)
+    narrow = stats.norm.cdf(3.0 * rng.standard_normal((300, 10)))
+    assert np.mean([held_out_check("d", p, S)["flagged"] for p in narrow]) > 0.8

@@ -89,8 +89,8 @@ def test_a_known_wrong_model_without_discrepancy_is_flagged(tmp_path, monkeypatc
     """A linear model of quadratic data (y = 1 + 2x + 3x^2, noise sd 0.05 declared),
     `discrepancy: none`: the surrogate's variance in the likelihood lets leave-one-out
     predict a point from its neighbours' misfit, but the posterior predictive misses
-    most of its own calibration points, and the warning says so and points to the
-    discrepancy the spec switched off."""
+    most of its own calibration points and of its held-out test points, and the warning
+    says so and points to the discrepancy the spec switched off."""
     work = tmp_path / "wrong"
     shutil.copytree(WRONG, work, ignore=shutil.ignore_patterns("campaigns", "__pycache__"))
     monkeypatch.syspath_prepend(str(work))
@@ -105,3 +105,7 @@ def test_a_known_wrong_model_without_discrepancy_is_flagged(tmp_path, monkeypatc
             and "does not describe these data" in w]
     assert len(said) == 1 and "its spec sets discrepancy: none" in said[0], said
     assert "flagged" in report_text(out)
+    # the held-out points, which the calibration has not seen, say the same
+    held_out = metrics["validation"]["quad"]["test"]["check"]
+    assert held_out["flagged"] and held_out["n"] == 3, held_out
+    assert "the posterior predictive misses its test points" in said[0], said
