@@ -150,6 +150,19 @@ def test_posterior_round_trips_through_disk(both, indep, tmp_path):
         np.testing.assert_array_equal(back.data[ds].y, seg.data[ds].y)
 
 
+def test_a_folder_holds_one_posterior(both, indep, tmp_path):
+    """A joint posterior saved where a segmented one was replaces its stage files (the
+    folder would otherwise hold both modes' netCDFs); other files are left alone."""
+    network = indep[0]
+    seg, joint = both
+    save_posterior(seg, tmp_path, network)
+    assert sorted(p.name for p in tmp_path.glob("*.nc")) == ["down.nc", "up.nc"]
+    (tmp_path / "mine.nc").write_text("a user's file")
+    save_posterior(joint, tmp_path, network)
+    assert sorted(p.name for p in tmp_path.glob("*.nc")) == ["mine.nc", "up+down.nc"]
+    assert load_posterior(tmp_path, network).mode == "joint"
+
+
 def test_loading_a_posterior_checks_the_spec(both, indep, tmp_path):
     network, _, root = indep
     with pytest.raises(CalibrationError, match="no calibrated posterior"):

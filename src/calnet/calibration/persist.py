@@ -27,11 +27,17 @@ def save_posterior(post, folder: str | Path, network: Network | None = None) -> 
     what prediction needs as ``network_posterior.{npz,json}``; returns the JSON path.
     With the ``network`` it was calibrated for, each data set's noise and discrepancy
     settings are recorded too, and :func:`load_posterior` refuses a spec that changed
-    them."""
+    them; the stage files of an earlier calibration of its models in ``folder`` (another
+    mode's stages) are removed, so that the folder holds one posterior."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
+    written = {f"{'+'.join(stage.models)}.nc" for stage in post.stages}
     for stage in post.stages:
         stage.idata.to_netcdf(str(folder / f"{'+'.join(stage.models)}.nc"))
+    if network is not None:  # another mode's stages, from an earlier calibration here
+        for path in folder.glob("*.nc"):
+            if path.name not in written and set(path.stem.split("+")) <= set(network.order):
+                path.unlink()
     arrays: dict[str, np.ndarray] = {}
     for model, draws in post.theta.items():
         arrays[f"theta/{model}"] = np.asarray(draws, float)
