@@ -88,3 +88,20 @@ def test_a_repeated_row_outside_the_bounds_is_counted_once(base_spec, write_spec
     said = [str(w.message) for w in caught]
     assert any("1 of 3 point(s) lie outside the model's input bounds" in m for m in said), said
     assert len(data.y) == 3
+
+
+def test_a_column_of_a_linked_input_is_said_to_be_unread(base_spec, write_spec):
+    """Read by bare names, a data set's columns named like a linked input (of the observed
+    model or one upstream) are not read: the network computes those inputs. Said, so that
+    a measured value a user expects to count is not dropped in silence."""
+    del base_spec["data"]["spacing"]["columns"]
+    path = write_spec(base_spec, spacing="id,P,v,G,S,lam\n1,100,0.5,2e6,0.5,0.3\n"
+                                          "2,150,1.0,3e6,1.0,0.35\n")
+    with pytest.warns(SpecWarning) as said:
+        data = read_all(load_spec(path))["spacing"]
+    text = sorted({str(w.message) for w in said if "not read" in str(w.message)})
+    assert text == ["spacing.csv: data.spacing: columns 'G' (micro.G is linked from heat.G), "
+                    "'S' (micro.S is linked from heat.v) not read: the network computes "
+                    "linked inputs from the models upstream; remove the column, or the link "
+                    "to set the input from the data"], text
+    assert data.input_keys == ("heat.P", "heat.v")

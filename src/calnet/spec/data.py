@@ -96,6 +96,8 @@ def read_dataset(network: Network, ds: Dataset) -> ExperimentalData:
                         "'columns' each input and the observed output are read from the "
                         "column of their own name: rename the columns, or add 'columns: "
                         "{variable: <csv column>, ...}'", file=str(path), field=field)
+    if ds.columns is None:
+        _warn_linked_columns(network, ds, frame.columns, set(resolved.values()), path)
     columns, problems = {}, []
     for key in (*wanted, ds.observes):  # every column's problem, not only the first's
         try:
@@ -123,6 +125,23 @@ def read_dataset(network: Network, ds: Dataset) -> ExperimentalData:
     _check_bounds(network, ds, wanted, data.x, path, field)  # the rows that count
     _check_spread(ds, wanted, data.x, field)
     return data
+
+
+def _warn_linked_columns(network: Network, ds: Dataset, names, used: set[str], path) -> None:
+    """Warn of CSV columns named like a linked input of the observed model or a model
+    upstream of it: the network computes such an input, so a measured value of it in the
+    data set is not read (a user may expect it to be)."""
+    unread = []
+    for m in (*network.ancestors(ds.observed_model), ds.observed_model):
+        for v in network.model(m).inputs:
+            link = network.link_into(m, v.name)
+            if link is not None and v.name in names and v.name not in used:
+                unread.append(f"'{v.name}' ({m}.{v.name} is linked from {link.source})")
+    if unread:
+        warnings.warn(f"{ds.path}: data.{ds.name}: column{'s' if len(unread) > 1 else ''} "
+                      f"{', '.join(unread)} not read: the network computes linked inputs "
+                      "from the models upstream; remove the column, or the link to set the "
+                      "input from the data", SpecWarning, stacklevel=3)
 
 
 def _check_spread(ds: Dataset, keys: list[str], x: np.ndarray, field: str) -> None:
