@@ -183,3 +183,53 @@ def test_check_says_how_each_data_set_and_the_sampler_enter(spec, data, settings
     flat = " ".join(result.output.split())
     for line in said:
         assert line in flat, (line, result.output)
+
+
+def test_check_refuses_a_command_template_field_the_campaign_would(tmp_path):
+    """A ``{name}`` in a command's arguments that is no input, parameter or option: the
+    campaign refuses it, and check says so the same way."""
+    (tmp_path / "network.yaml").write_text(textwrap.dedent("""
+        models:
+          M:
+            simulator: {kind: command, argv: [python3, x.py, "{xx}", "{x}"]}
+            inputs: {x: {lower: 0, upper: 1}}
+            outputs: {y: {}}
+        settings: {predict: [M.y]}
+        """))
+    result = CliRunner().invoke(app, ["check", str(tmp_path)], terminal_width=400)
+    errors = [line for line in result.output.splitlines() if line.startswith("error:")]
+    assert result.exit_code == 2 and len(errors) == 1, result.output
+    assert ("models.M.simulator.argv: command argument '{xx}' names {xx}, which is not an "
+            "input, parameter or option") in errors[0]
+    fixed = (tmp_path / "network.yaml").read_text().replace('"{xx}", ', "")
+    (tmp_path / "network.yaml").write_text(fixed)
+    assert CliRunner().invoke(app, ["check", str(tmp_path)]).exit_code == 0
+
+
+def test_check_gives_up_on_a_module_that_does_not_finish_importing(tmp_path, monkeypatch):
+    """A Python simulator whose module waits at import: check says so after the time
+    limit, and never imports it in its own process (which would wait as long)."""
+    import sys
+    import time
+
+    import calnet.cli
+
+    monkeypatch.setattr(calnet.cli, "IMPORT_LIMIT_S", 1.0)
+    (tmp_path / "waits_at_import.py").write_text(
+        "import time\ntime.sleep(60)\n\n\ndef f(inputs):\n    return {'y': 1.0}\n")
+    (tmp_path / "network.yaml").write_text(textwrap.dedent("""
+        models:
+          Slow:
+            simulator: python:waits_at_import:f
+            inputs: {x: {lower: 0, upper: 1}}
+            outputs: {y: {}}
+        settings: {predict: [Slow.y]}
+        """))
+    t0 = time.monotonic()
+    result = CliRunner().invoke(app, ["check", str(tmp_path)], terminal_width=400)
+    assert time.monotonic() - t0 < 20
+    assert result.exit_code == 1, result.output
+    assert result.output.startswith(
+        "error: Slow: importing module 'waits_at_import' (python:waits_at_import:f) did not "
+        "finish within 1 s, so check stopped before importing it here"), result.output
+    assert "waits_at_import" not in sys.modules

@@ -105,3 +105,38 @@ def test_a_rerun_stopped_early_leaves_no_earlier_report(tmp_path, monkeypatch):
         pipeline.run_pipeline(NINB, out=tmp_path, quick=True)
     assert not [n for n in pipeline.PREVIOUS_RESULTS if (tmp_path / n).exists()]
     assert (tmp_path / INCOMPLETE).is_file() and (tmp_path / "keep.txt").is_file()
+
+
+@pytest.mark.parametrize(("n_ok", "said"), [
+    (1, "M.y: 1 of the 3 runs of 'M' finished ok with a finite value, and a surrogate needs "
+        "at least 3 (its inputs and parameters, 1, plus 2); fix the simulator and run the "
+        "others again (calnet campaign SPEC --model M --retry-failed), or run more "
+        "simulations: calnet campaign SPEC --model M --runs N (N > 3)"),
+    (2, "M.y: 2 of the 3 runs of 'M' finished ok"),
+    (3, "output 'M.y': 3-fold CV on 3 points leaves 2 training points, need d + 2 = 3; run "
+        "more simulations (calnet campaign SPEC --model M --runs N)"),
+])
+def test_a_model_with_too_few_ok_runs_for_a_surrogate_says_which_and_what_to_run(
+        tmp_path, n_ok, said):
+    """``calnet run`` on a model whose design has too few runs that finished ok: one line
+    naming the model and the command that runs more."""
+    from typer.testing import CliRunner
+
+    from calnet.cli import app
+
+    module = f"few_ok_sims_{n_ok}"
+    (tmp_path / f"{module}.py").write_text(
+        "def f(inputs):\n    if inputs['x'] > 0.5:\n        raise ValueError('diverged')\n"
+        "    return {'y': inputs['x']}\n")
+    (tmp_path / "points.csv").write_text(
+        "x\n" + "".join(f"{0.1 * (i + 1)}\n" for i in range(n_ok))
+        + "".join(f"{0.9 - 0.1 * i}\n" for i in range(3 - n_ok)))
+    (tmp_path / "network.yaml").write_text(
+        f"models:\n  M:\n    simulator: python:{module}:f\n"
+        "    inputs: {x: {lower: 0, upper: 1}}\n    outputs: {y: {}}\n"
+        "    campaign: {design: points.csv}\nsettings: {seed: 0, predict: [M.y]}\n")
+    result = CliRunner().invoke(app, ["run", str(tmp_path), "--out", str(tmp_path / "out")],
+                                terminal_width=400)
+    assert result.exit_code == 1, result.output
+    errors = [line for line in result.output.splitlines() if line.startswith("error:")]
+    assert len(errors) == 1 and errors[0].startswith(f"error: {said}"), result.output

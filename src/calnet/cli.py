@@ -240,12 +240,121 @@ def check(spec: SpecArg) -> None:
     from calnet.spec import load_spec
 
     network = load_spec(spec)
+    _imports_finish(network)
     describe_network(network, console)
-    problems = import_problems(network)
+    problems = import_problems(network) + _template_problems(network)
     if problems:
         (field, msg), *others = problems
         raise SpecError(msg, file=network.source, field=field,
                         more=[f"{f}: {m}" for f, m in others])
+
+
+IMPORT_LIMIT_S = 10.0
+"""Seconds that ``calnet check`` gives a Python simulator's module to import."""
+
+_IMPORT_PROBE = """
+import importlib, json, sys
+sys.path[:] = json.loads(sys.argv[1]) + [sys.argv[2]]
+importlib.import_module(sys.argv[3])
+"""
+
+
+def _imports_finish(network: Any) -> None:
+    """Raise :class:`CalnetError` for a Python simulator whose module does not finish
+    importing within :data:`IMPORT_LIMIT_S` in a fresh Python (the search path of this
+    one, then the spec's folder, as a campaign imports it). ``check`` imports the modules
+    to see that their functions exist; one that waits at import would hold it forever."""
+    import subprocess
+
+    root = str(Path(network.root).resolve())
+    probes: dict[str, tuple[str, subprocess.Popen]] = {}
+    for model in network.models:
+        sim = model.simulator
+        module = sim.target.partition(":")[0] if sim.kind == "python" else ""
+        if not module or module in sys.modules or any(m == module for m, _ in
+                                                          probes.values()):
+            continue  # imported here already, or probed for another model
+        probes[model.name] = (module, subprocess.Popen(
+            [sys.executable, "-I", "-c", _IMPORT_PROBE, json.dumps(sys.path), root, module],
+            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+    deadline = time.monotonic() + IMPORT_LIMIT_S
+    slow = []
+    try:
+        for name, (_, proc) in probes.items():
+            try:
+                proc.wait(timeout=max(0.0, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                slow.append(name)
+    finally:
+        for _, proc in probes.values():
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+    if slow:
+        raise CalnetError("; ".join(
+            f"{name}: importing module '{probes[name][0]}' (python:"
+            f"{network.model(name).simulator.target}) did not finish within "
+            f"{IMPORT_LIMIT_S:g} s" for name in slow)
+            + ", so check stopped before importing it here. Move the work the module does "
+            "at import (a sleep, a licence check, a solver start-up) into the function: a "
+            "campaign imports the module too, and would wait as long")
+
+
+def _template_problems(network: Any) -> list[tuple[str, str]]:
+    """``(field, message)`` for each command simulator whose argument template the
+    campaign refuses (a ``{name}`` that is not an input, parameter or option), found
+    as the campaign finds it: by making the simulator, which runs nothing."""
+    from calnet.campaign.runners import make_simulator
+    from calnet.errors import CampaignError
+
+    out = []
+    for model in network.models:
+        if model.simulator.kind != "command":
+            continue
+        try:
+            make_simulator(network, model, workdir=Path(network.root) / "campaigns")
+        except CampaignError as err:
+            out.append((f"models.{model.name}.simulator.argv", str(err)))
+    return out
+
+
+def _blocking_file(path: Path) -> Path | None:
+    """The first of the folders above ``path`` that exists and is not a folder (a file),
+    where nothing can be made; None when there is none."""
+    for parent in reversed(path.parents):
+        if parent.exists() and not parent.is_dir():
+            return parent
+    return None
+
+
+def _folder_option(value: str, flag: str) -> Path:
+    """The path a folder option (``--out DIR``) names; a :class:`UsageError` where it is
+    empty, a file, or inside a file (a folder that does not exist is made later)."""
+    if not value.strip():
+        raise UsageError(f"{flag} is empty; give a folder, e.g. {flag} out")
+    path = Path(value)
+    blocked = _blocking_file(path / "x")
+    if blocked == path:
+        raise UsageError(f"{flag} '{value}' is a file, not a folder; give a folder (one that "
+                         "does not exist is made)")
+    if blocked is not None:
+        raise UsageError(f"{flag} '{value}': '{blocked}' is a file, not a folder; give a "
+                         "path in a folder")
+    return path
+
+
+def _file_option(path: Path | None, flag: str, example: str) -> None:
+    """A :class:`UsageError` where the path a file option (``--store FILE``) names is a
+    folder (an empty value included: Typer reads it as ``.``) or lies inside a file."""
+    if path is None:
+        return
+    if path.is_dir():
+        raise UsageError(f"{flag} '{path}' is a folder, not a file; give a file, e.g. "
+                         f"{flag} {path / example}")
+    blocked = _blocking_file(path)
+    if blocked is not None:
+        raise UsageError(f"{flag} '{path}': '{blocked}' is a file, not a folder; give a "
+                         "path in a folder")
 
 
 def _parse_sets(values: list[str], flag: str = "--set") -> dict[str, float]:
@@ -319,6 +428,7 @@ def simulate(
                          f"{list(info.inputs + info.parameters)}")
     inputs = {**info.defaults(), **values}
     options = _parse_options(option)
+    _check_option_names(name, info.simulate, options)
 
     def unit(k: str) -> str:
         u = info.units.get(k, "1")
@@ -347,8 +457,8 @@ def simulate(
     except (TypeError, ValueError) as err:
         if not options:
             raise
-        raise CalnetError(f"{name} with --option {options}: {err}; fix the option names "
-                          "or values") from None
+        raise UsageError(f"{name} with --option {options}: {err}; fix the option names "
+                         "or values") from None
     if lines.elapsed() >= lines.every_s:  # a run long enough to have reported progress
         lines.note(f"{result.status}")
     doc = {"simulator": name, "version": info.version, "inputs": inputs,
@@ -360,6 +470,21 @@ def simulate(
         raise typer.Exit(1)
 
 
+def _check_option_names(name: str, simulate: Callable[..., Any],
+                        options: dict[str, Any]) -> None:
+    """A :class:`UsageError` for an ``--option`` that the built-in simulator's function
+    does not take: one its signature does not name, where it takes no others
+    (``**options``, which it checks itself), and ``progress``, which calnet passes."""
+    params = list(inspect.signature(simulate).parameters.values())[1:]  # after the inputs
+    named = [p.name for p in params if p.name != "progress"
+             and p.kind in (p.KEYWORD_ONLY, p.POSITIONAL_OR_KEYWORD)]
+    open_ = any(p.kind is p.VAR_KEYWORD for p in params)
+    unknown = [k for k in options if k == "progress" or (k not in named and not open_)]
+    if unknown:
+        takes = f"it takes {named}" if named else "it takes none"
+        raise UsageError(f"'{name}' has no option {unknown}; {takes}")
+
+
 def _json_default(obj: Any) -> Any:
     try:
         return obj.item()
@@ -367,27 +492,69 @@ def _json_default(obj: Any) -> Any:
         return str(obj)
 
 
-def _register_campaign() -> None:
+def _campaign_options(kw: dict[str, Any]) -> None:
+    """Refuse, as usage errors (exit 2), ``calnet campaign`` options that do not go
+    together or name a path no file can have, before the command reads a store."""
+    from calnet.campaign.executors import executor_kind
+    from calnet.campaign.table import check_export
+    from calnet.errors import CampaignError
+
+    model, store, export, import_ = kw["model"], kw["store"], kw["export"], kw["import_"]
+    _file_option(store, "--store", f"{model or 'MODEL'}.sqlite")
+    _file_option(export, "--export", "runs.csv")
+    try:
+        if export:
+            check_export(export)
+        if not kw["export_only"]:  # which it refuses itself, naming them
+            executor_kind(kw["executor"], workers=kw["workers"], scheduler=kw["scheduler"])
+    except CampaignError as err:
+        raise UsageError(str(err)) from None
+    if kw["export_only"]:
+        return
+    if import_ and (kw["fresh"] or kw["retry_failed"] or kw["runs"]):
+        raise UsageError("--import only adds runs to a store; import first, then run "
+                         "`calnet campaign` again for --runs/--retry-failed (or give a new "
+                         "--store for an empty one)")
+    if not model and (import_ or store or export):
+        from calnet.spec import load_spec
+
+        if len(load_spec(kw["spec"]).order) > 1:
+            raise UsageError(("--import reads one model's runs" if import_ else
+                              "--store and --export name one file")
+                             + "; give --model NAME too")
+
+
+def campaign_command() -> Callable[..., Any]:
+    """``calnet campaign`` as the command line runs it: :func:`calnet.campaign.command
+    .campaign` after :func:`_campaign_options`, its errors one line each
+    (:func:`user_errors`)."""
     from calnet.campaign.command import campaign
 
-    app.command("campaign")(user_errors(campaign))
+    @functools.wraps(campaign)
+    def checked(**kwargs: Any) -> Any:
+        _campaign_options(kwargs)
+        return campaign(**kwargs)
+
+    return user_errors(checked)
 
 
-_register_campaign()
+app.command("campaign")(campaign_command())
 
 
 @app.command()
 @user_errors
 def surrogates(
     spec: SpecArg,
-    out: Annotated[Path, typer.Option(
-        metavar="DIR", help="folder for the GPs and parity plots")] = Path("out/surrogates"),
+    folder: Annotated[str, typer.Option(
+        "--out", metavar="DIR", help="folder for the GPs and parity plots")
+    ] = "out/surrogates",
     no_cv: Annotated[bool, typer.Option("--no-cv", help="skip cross-validation")] = False,
 ) -> None:
     """Fit a GP surrogate per output needed; print the CV table."""
     from calnet.pipeline import surrogate_stage
     from calnet.spec import load_spec
 
+    out = _folder_option(folder, "--out")
     network = load_spec(spec)
     out.mkdir(parents=True, exist_ok=True)  # a bad --out fails now, not after the fits
     with _working("fitting surrogates") as note:
@@ -418,8 +585,8 @@ def calibrate(
     surrogates_dir: Annotated[Path, typer.Option(
         "--surrogates", metavar="DIR", help="written by calnet surrogates")
     ] = Path("out/surrogates"),
-    out: Annotated[Path, typer.Option(
-        metavar="DIR", help="folder for posteriors and plots")] = Path("out/posterior"),
+    folder: Annotated[str, typer.Option(
+        "--out", metavar="DIR", help="folder for posteriors and plots")] = "out/posterior",
     seed: Annotated[int | None, typer.Option(
         metavar="SEED", min=0, help="seed of the chains (default: the spec's "
         "settings.seed)")] = None,
@@ -436,6 +603,7 @@ def calibrate(
     from calnet.spec import load_spec
     from calnet.surrogates.fit_network import Surrogates, check_surrogates
 
+    out = _folder_option(folder, "--out")
     network = load_spec(spec)
     sur = Surrogates.load(surrogates_dir)
     check_surrogates(network, sur, surrogates_dir)
@@ -534,6 +702,7 @@ def predict(
     from calnet.predict import predict as run_predict
     from calnet.spec import load_spec
 
+    _file_option(output, "--output", "predictions.csv")
     network = load_spec(spec)
     rows = [_parse_at(a) for a in at] + (_read_points(csv) if csv else [])
     if not rows:
@@ -730,12 +899,12 @@ def verify(
 @user_errors
 def run(
     spec: SpecArg,
-    out: Annotated[Path, typer.Option(metavar="DIR", help="output folder")] = Path("out"),
+    out: Annotated[str, typer.Option(metavar="DIR", help="output folder")] = "out",
     fresh: Annotated[bool, typer.Option(
         "--fresh", help="simulate every model again into OUT/campaigns (deleting the "
-        "stores there; the stores beside the spec are left as they are). Without it, "
-        "OUT/campaigns is used when it holds this network's stores, else the stores "
-        "beside the spec")] = False,
+        "stores there; the stores beside the spec are left as they are, and an OUT "
+        "whose campaigns folder is theirs is refused). Without it, OUT/campaigns is used "
+        "when it holds this network's stores, else the stores beside the spec")] = False,
     quick: Annotated[bool, typer.Option(
         "--quick", help="fewer draws, restarts and folds, for a fast look (the report says "
         "which results are indicative only)")] = False,
@@ -752,9 +921,10 @@ def run(
     from calnet.pipeline import run_pipeline
 
     _FINISHED.clear()
+    folder = _folder_option(out, "--out")
     with sigterm_exit("run", fresh):
-        run_pipeline(spec, out=out, fresh=fresh, quick=quick, console=console, seed=seed)
-        _FINISHED.append(out)  # a Ctrl-C from here on comes after a complete run
+        run_pipeline(spec, out=folder, fresh=fresh, quick=quick, console=console, seed=seed)
+        _FINISHED.append(folder)  # a Ctrl-C from here on comes after a complete run
 
 
 _INTERRUPTED_EXITS = (130, 143)  # Ctrl-C, SIGTERM

@@ -32,7 +32,13 @@ from calnet.calibration.summary import calibration_result
 from calnet.campaign import default_store, load_runs, run_campaign
 from calnet.campaign.failures import common_failures, commonest_failure, store_failure_note
 from calnet.emulation import output_slices
-from calnet.errors import CalibrationWarning, CalnetError, CampaignError, CampaignWarning
+from calnet.errors import (
+    CalibrationWarning,
+    CalnetError,
+    CampaignError,
+    CampaignWarning,
+    UsageError,
+)
 from calnet.explore import explore
 from calnet.files import mark_complete, mark_incomplete
 from calnet.interrupts import latch
@@ -83,9 +89,10 @@ def run_pipeline(spec: str | Path, *, out: Path, fresh: bool = False, quick: boo
     ----------
     fresh : bool
         Delete the stores in ``out/campaigns`` and simulate every model again into them,
-        leaving the stores beside the spec as they are. Without it, the stores in
-        ``out/campaigns`` are used (resumed) when it holds one of this network's, else
-        the stores beside the spec (:func:`campaign_stores`).
+        leaving the stores beside the spec as they are (an ``out`` whose ``campaigns``
+        folder is the spec's own raises :class:`~calnet.errors.UsageError`). Without it,
+        the stores in ``out/campaigns`` are used (resumed) when it holds one of this
+        network's, else the stores beside the spec (:func:`campaign_stores`).
     quick : bool
         Fewer draws, restarts and folds: a fast look (used by the tests).
     console : rich.console.Console, optional
@@ -114,6 +121,8 @@ def run_pipeline(spec: str | Path, *, out: Path, fresh: bool = False, quick: boo
         with warnings.catch_warnings(record=True) as caught:
             network = load_spec(spec)
             out = Path(out)
+            if fresh:
+                _check_fresh(network, out)
             for sub in ("figures", "posterior", "surrogates"):
                 (out / sub).mkdir(parents=True, exist_ok=True)
             # an earlier run's results in this folder: this run writes its own at the
@@ -174,6 +183,22 @@ def campaign_stores(network: Network, models: list[str], out: Path, *,
     if fresh or any(path.is_file() for path in own.values()):
         return own
     return {name: default_store(network, name) for name in models}
+
+
+def _check_fresh(network: Network, out: Path) -> None:
+    """Raise :class:`~calnet.errors.UsageError` where ``fresh`` would delete the stores
+    beside the spec: ``out/campaigns`` is the spec's own campaigns folder (``out`` is the
+    spec's folder)."""
+    names = [n for n in network.order if network.needed_outputs(n)]
+    fresh = campaign_stores(network, names, out, fresh=True)
+    if any(path.resolve() == default_store(network, name).resolve()
+           for name, path in fresh.items()):
+        raise UsageError(
+            f"--fresh simulates every model again into OUT/campaigns, but with --out "
+            f"'{out}' that is the campaigns folder beside the spec "
+            f"('{default_store(network, names[0]).parent}'), whose stores it would delete; "
+            "give another --out (e.g. --out out), or drop --fresh to use and resume "
+            "those stores")
 
 
 def surrogate_stage(network: Network, *, folder: Path, figures: Path, **fit) -> tuple[

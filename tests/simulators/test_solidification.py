@@ -274,7 +274,7 @@ def test_simulate_batch_broadcasts_like_pointwise_calls():
 
 
 @pytest.mark.parametrize(("option", "message"), [
-    ("colour=red", "unexpected keyword argument 'colour'"),  # not an option of it
+    ("colour=red", "'solidification' has no option ['colour']; it takes ['variant']"),
     ("variant=Z", "variant must be one of"),
 ])
 def test_cli_simulate_bad_option_is_a_user_error(option, message):
@@ -283,5 +283,5 @@ def test_cli_simulate_bad_option_is_a_user_error(option, message):
     from calnet.cli import app
 
     result = CliRunner().invoke(app, ["simulate", "solidification", "--option", option])
-    assert result.exit_code == 1, result.output
+    assert result.exit_code == 2, result.output  # a bad option value: a usage error
     assert "internal error" not in result.output and message in result.output

@@ -102,18 +102,19 @@ def test_cli_check_error_is_one_line_exit_2(tmp_path):
     assert "models.a.inputs.x" in lines[0] and "lower (2) must be smaller" in lines[0]
 
 
-def test_cli_out_that_is_a_file_is_a_one_line_error_exit_1(tmp_path):
-    """``--out`` naming a file is the user's path, not an internal error (exit 3)."""
+def test_cli_out_that_is_a_file_is_a_one_line_usage_error(tmp_path):
+    """``--out`` naming a file is the user's path, not an internal error (exit 3): a usage
+    error (exit 2) before anything runs."""
     path = tmp_path / "net.yaml"
     path.write_text("models:\n  a: {simulator: 'python:m:f', inputs: {x: {lower: 0, upper: 1}},"
                     " outputs: {y: {}}}\n")
     (tmp_path / "afile").write_text("")
     result = runner.invoke(app, ["run", str(path), "--out", str(tmp_path / "afile")],
                            terminal_width=400)
-    assert result.exit_code == 1, result.output
+    assert result.exit_code == 2, result.output
     lines = [line for line in result.output.splitlines() if line.strip()]
     assert len(lines) == 1 and "internal error" not in lines[0], result.output
-    assert "Not a directory" in lines[0] and "check the paths given" in lines[0]
+    assert "is a file, not a folder" in lines[0], lines
 
 
 def test_cli_surrogates_checks_out_before_fitting(tmp_path):
@@ -127,7 +128,7 @@ def test_cli_surrogates_checks_out_before_fitting(tmp_path):
     (tmp_path / "afile").write_text("")
     result = runner.invoke(app, ["surrogates", str(path), "--out", str(tmp_path / "afile")],
                            terminal_width=400)
-    assert result.exit_code == 1 and "check the paths given" in result.output, result.output
+    assert result.exit_code == 2 and "is a file, not a folder" in result.output, result.output
 
 
 def test_spec_error_attributes():

@@ -156,7 +156,8 @@ def check_folds(k, n: int, d: int, *, name: str = "", mean: str = "constant") ->
         raise SurrogateError(f"{lab}: {k}-fold CV needs at least {k} points, got {n}")
     smallest_train = n - math.ceil(n / k)
     if smallest_train < d + 2:
-        fix = ("run more simulations (calnet campaign SPEC --model MODEL --runs N)"
+        model = name.split(".")[0] if "." in name else "MODEL"
+        fix = (f"run more simulations (calnet campaign SPEC --model {model} --runs N)"
                if k >= n else "use more folds (the model's surrogate: {cv_folds: K}) or run "
                "more simulations")
         raise SurrogateError(f"{lab}: {k}-fold CV on {n} points leaves {smallest_train} "

@@ -156,6 +156,7 @@ def _jobs(network: Network, stores, seed: int, restarts: int | None,
                                      "gave non-finite values; fix the simulator, then run "
                                      f"them again: calnet campaign SPEC --model {name} "
                                      "--retry-failed (or calnet run SPEC --fresh)")
+            _enough_runs(name, out.name, int(ok.sum()), runs.n_total, x.shape[1])
             kw = dict(lower=lower, upper=upper, transform=out.transform,
                       n_restarts=min(restarts or settings.restarts, settings.restarts),
                       seed=seed, name=f"{name}.{out.name}", mean=settings.mean)
@@ -163,6 +164,21 @@ def _jobs(network: Network, stores, seed: int, restarts: int | None,
             jobs.append(_Job(name, out.name, x[ok], y[ok], kw, folds,
                              runs.n_excluded + int((~ok).sum())))
     return jobs
+
+
+def _enough_runs(model: str, output: str, n_ok: int, n_total: int, d: int) -> None:
+    """Raise :class:`~calnet.errors.SurrogateError` unless ``n_ok`` runs (of ``n_total``)
+    are enough for a GP on ``d`` inputs and parameters: ``d + 2``."""
+    need = d + 2
+    if n_ok >= need:
+        return
+    more = f"calnet campaign SPEC --model {model} --runs N (N > {n_total})"
+    fix = (f"run more simulations: {more}" if n_ok == n_total else
+           f"fix the simulator and run the others again (calnet campaign SPEC --model "
+           f"{model} --retry-failed), or run more simulations: {more}")
+    raise SurrogateError(f"{model}.{output}: {n_ok} of the {n_total} runs of '{model}' "
+                         f"finished ok with a finite value, and a surrogate needs at "
+                         f"least {need} (its inputs and parameters, {d}, plus 2); {fix}")
 
 
 def _cross_validate(job: _Job, gp: FittedGP, before_fold=None) -> CVResult:
