@@ -470,6 +470,21 @@ def simulate(
         raise typer.Exit(1)
 
 
+def _say_run_is_stale(out: Path) -> None:
+    """Warn where ``calnet calibrate`` wrote the posterior of a ``calnet run`` folder
+    (``RUN/posterior``): the run's report and metrics describe the posterior it replaced,
+    while ``calnet predict --run RUN`` reads the new one."""
+    run = out.resolve().parent
+    made = [name for name in ("report.html", "metrics.json") if (run / name).is_file()]
+    if out.resolve().name != "posterior" or not made:
+        return
+    err_console.print(f"[yellow]warning:[/] {escape(str(out))} is the posterior of the run in "
+                      f"'{escape(str(run))}', whose {' and '.join(made)} describe the "
+                      "posterior this calibration replaced (calnet predict --run reads the "
+                      "new one); calnet run SPEC --out "
+                      f"{escape(str(run))} writes them again", soft_wrap=True)
+
+
 def _check_option_names(name: str, simulate: Callable[..., Any],
                         options: dict[str, Any]) -> None:
     """A :class:`UsageError` for an ``--option`` that the built-in simulator's function
@@ -617,6 +632,7 @@ def calibrate(
            "seed": network.settings.seed if seed is None else seed}
     (out / "summary.json").write_text(json.dumps(doc, indent=1, default=_json_default))
     write_posterior_csv(out, result.theta, summary)
+    _say_run_is_stale(out)
     if not post.calibrated:
         kept = (f"the parameters of {', '.join(post.prior_only)} keep their priors "
                 f"({post.n_draws} prior draws)" if post.prior_only

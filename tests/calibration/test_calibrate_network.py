@@ -287,6 +287,18 @@ def test_calibrate_command_writes_posteriors_summary_and_plots(indep, tmp_path):
     with open(out / "posterior_summary.csv", newline="") as fh:
         rows = {(r["model"], r["parameter"]): r for r in csv.DictReader(fh)}
     assert float(rows["up", "a"]["mean"]) == pytest.approx(row["mean"])
+    assert "is the posterior of the run" not in res.output
+    # into a calnet run folder's posterior: the run's report and metrics are now stale
+    (tmp_path / "metrics.json").write_text("{}")
+    res = CliRunner().invoke(app, ["calibrate", str(root), "--surrogates",
+                                   str(tmp_path / "surrogates"), "--out", str(out),
+                                   "--mode", "segmented"], terminal_width=400)
+    assert res.exit_code == 0, res.output
+    assert (f"warning: {out} is the posterior of the run in '{tmp_path.resolve()}', whose "
+            "metrics.json describe the posterior this calibration replaced (calnet predict "
+            "--run reads the new one); calnet run SPEC --out "
+            f"{tmp_path.resolve()} writes them again") in res.stderr, res.stderr
+    assert sorted(p.name for p in out.glob("*.nc")) == ["down.nc", "up.nc"]
 
 
 @pytest.mark.slow
