@@ -20,6 +20,8 @@ coarsen  the cell count of one run at 0.3 m/s, 1e7 K/m over 6 freezing-range len
 band     the fine (2.5 nm) grid started from an array of 22 cells (the count the 5 nm grid
          selects) at 0.3 m/s, 1e7 K/m: does it keep it, or go to the 31-34 cells it selects
          from noise?
+restart  the 5 nm grid's established array (4 dT0/G from noise) continued on the 2.5 nm
+         grid (``solver.run(..., restart=)``, fields interpolated): kept or re-selected?
 """
 
 from __future__ import annotations
@@ -223,6 +225,42 @@ def coarsen(**options) -> None:
 
 def band() -> None:
     coarsen(resolution="fine", initial_cells=22, min_travel=4.0, steady_travel=2.0)
+
+
+def _counts(rec, t0: float, length: float, width_um: float) -> None:
+    """Cell count per half freezing-range length of travel since ``t0``."""
+    print("| travel since the start (dT0/G) | cells (mean) | min | max | lambda (um) |\n"
+          "|---|---|---|---|---|")
+    t = (np.array([s.t for s in rec.history]) - t0) / length
+    cells = np.array([s.cells for s in rec.history])
+    for a in np.arange(0.5, t[-1] + 1e-9, 0.5):
+        sel = cells[(t > a - 0.5) & (t <= a)]
+        if sel.size:
+            print(f"| {a - 0.5:.1f}-{a:.1f} | {sel.mean():.1f} | {sel.min()} | {sel.max()} | "
+                  f"{width_um / sel.mean():.3f} |")
+
+
+def restart() -> None:
+    """The 5 nm grid's established array (from noise, 4 dT0/G of travel) continued on
+    the 2.5 nm grid of the same domain for 3 dT0/G: does the finer grid keep the array
+    or select its own count?"""
+    p = phase_field.parameters({"S": 0.3, "G": 1e7, **PARAMS})
+    length = model.CONSTANTS.freezing_range / p.G / p.S
+    coarse = phase_field.PhaseFieldOptions(min_travel=4.0, steady_travel=2.0,
+                                           max_steps=40000)
+    width = coarse.nx * coarse.dx * 1e6
+    t0 = time.perf_counter()
+    first = run(p, coarse)
+    print(f"5 nm from noise: {first.status} after {first.steps} steps, "
+          f"{time.perf_counter() - t0:.0f} s\n")
+    _counts(first, 0.0, length, width)
+    fine = phase_field.PhaseFieldOptions(resolution="fine", min_travel=3.0,
+                                         steady_travel=2.0)
+    t0 = time.perf_counter()
+    second = run(p, fine, restart=first)
+    print(f"\n2.5 nm from the 5 nm state: {second.status} after {second.steps} steps, "
+          f"{time.perf_counter() - t0:.0f} s\n")
+    _counts(second, first.time, length, width)
 
 
 if __name__ == "__main__":

@@ -449,3 +449,47 @@ def test_a_stable_run_keeps_its_step():
     res = phase_field.simulate(WORKED, max_steps=400)
     assert res.diagnostics["dt_halvings"] == 0
     assert res.diagnostics["dt_s"] == _stable_dt(WORKED)
+
+
+def test_a_restart_on_the_same_grid_goes_on_as_one_run():
+    """Two runs, the second started from the first's final state, give the fields and
+    clock of one run of both budgets: the restart carries the fields, the frame and the
+    time."""
+    p = phase_field.parameters(WORKED)
+    kw = {**TINY, "chunk_cells": 1e-6, "seed": 4}  # chunks of the least 10 steps
+    whole = solver.run(p, PhaseFieldOptions(**{**kw, "max_steps": 300}))
+    first = solver.run(p, PhaseFieldOptions(**{**kw, "max_steps": 150}))
+    second = solver.run(p, PhaseFieldOptions(**{**kw, "max_steps": 150}), restart=first)
+    assert second.time == pytest.approx(whole.time, rel=1e-12)
+    for name in ("phi", "xs", "xl", "y"):
+        np.testing.assert_allclose(second.fields[name], whole.fields[name], rtol=0,
+                                   atol=1e-12 * np.abs(whole.fields[name]).max())
+    assert second.history[-1].t == pytest.approx(whole.history[-1].t, rel=1e-12)
+
+
+def test_regrid_interpolates_onto_a_finer_grid_of_the_same_domain():
+    """A field linear in y and periodic in x, from 5 nm cells onto 2.5 nm cells: linear
+    interpolation between the old centres (periodic across the sides, the nearest row
+    beyond the first and last centres); another domain is refused."""
+    coarse = PhaseFieldOptions(nx=16, ny=16)
+    fine = PhaseFieldOptions(nx=32, ny=32, dx=coarse.dx / 2)
+    dx, L = coarse.dx, coarse.nx * coarse.dx
+    y = 3e-7 + (np.arange(coarse.ny) + 0.5) * dx
+    x = (np.arange(coarse.nx) + 0.5) * dx
+    field = (y[:, None] - 3e-7) / (coarse.ny * dx) + 0.0 * x[None, :]
+    wave = np.broadcast_to(np.cos(2 * np.pi * x / L)[None, :], field.shape)
+    run = {"phi": field, "xs": wave, "xl": 2.0 + wave, "y": y}
+    phi, xs, xl, y_off = solver.regrid(run, fine)
+    assert y_off == pytest.approx(3e-7, rel=1e-12)
+    y_new = y_off + (np.arange(fine.ny) + 0.5) * fine.dx
+    expect = (np.clip(y_new, y[0], y[-1]) - 3e-7) / (coarse.ny * dx)
+    np.testing.assert_allclose(phi, np.broadcast_to(expect[:, None], phi.shape), atol=1e-12)
+    # the first and last fine rows lie beyond the old centres: the nearest row's values
+    assert phi[0, 0] == pytest.approx(1 / 32) and phi[-1, 0] == pytest.approx(1 - 1 / 32)
+    x_new = (np.arange(fine.nx) + 0.5) * fine.dx
+    lin = np.interp(x_new, np.r_[x[-1] - L, x, x[0] + L],
+                    np.cos(2 * np.pi * np.r_[x[-1] - L, x, x[0] + L] / L))
+    np.testing.assert_allclose(xs, np.broadcast_to(lin, xs.shape), atol=1e-12)
+    np.testing.assert_allclose(xl, 2.0 + xs, atol=1e-12)
+    with pytest.raises(ValueError, match="domain width"):
+        solver.regrid(run, PhaseFieldOptions(nx=30, ny=32, dx=coarse.dx / 2))

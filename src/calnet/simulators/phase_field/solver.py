@@ -161,9 +161,49 @@ def diverged(xs: np.ndarray, xl: np.ndarray) -> bool:
     return not (np.isfinite(lo) and np.isfinite(hi) and lo > 1e-8 and hi < 0.5)
 
 
+def regrid(fields: dict[str, np.ndarray], opts: PhaseFieldOptions
+           ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """The final fields of another run (:attr:`PhaseFieldRun.fields`) on the grid of
+    ``opts``: ``phi, xs, xl`` (``(ny, nx)``) and the frame's offset ``y_off`` (m).
+
+    The domain must be the same (width ``nx dx`` and height ``ny dx`` within a part in
+    1e9); the grid spacing may differ. Fields are interpolated linearly between cell
+    centres, periodically in ``x``; the new frame starts where the old one was, and rows
+    beyond the old centres (half an old cell at the bottom and top) take the nearest
+    row's values. The interface keeps its physical width ``eta`` and relaxes to the new
+    grid's profile within a few steps. On the same grid the fields are the state itself."""
+    from scipy.interpolate import RegularGridInterpolator
+
+    phi = np.asarray(fields["phi"], float)
+    ny_o, nx_o = phi.shape
+    y_o = np.asarray(fields["y"], float)
+    dx_o = float(y_o[1] - y_o[0]) if ny_o > 1 else opts.dx
+    for what, old, new in (("width", nx_o * dx_o, opts.nx * opts.dx),
+                           ("height", ny_o * dx_o, opts.ny * opts.dx)):
+        if abs(old - new) > 1e-9 * max(old, new):
+            raise ValueError(f"the restart's domain {what} {old:.6g} m differs from this "
+                             f"grid's {new:.6g} m; give nx, ny and dx of the same domain")
+    y_off = float(y_o[0] - 0.5 * dx_o)
+    if (ny_o, nx_o) == (opts.ny, opts.nx):  # the same grid: the state itself
+        return (phi.copy(), np.array(fields["xs"], float), np.array(fields["xl"], float),
+                y_off)
+    x_o = (np.arange(nx_o) + 0.5) * dx_o
+    x_pad = np.concatenate([[x_o[-1] - nx_o * dx_o], x_o, [x_o[0] + nx_o * dx_o]])
+    y_n = np.clip(y_off + (np.arange(opts.ny) + 0.5) * opts.dx, y_o[0], y_o[-1])
+    x_n = (np.arange(opts.nx) + 0.5) * opts.dx
+    points = np.stack(np.meshgrid(y_n, x_n, indexing="ij"), axis=-1)
+    out = []
+    for name in ("phi", "xs", "xl"):
+        a = np.asarray(fields[name], float)
+        padded = np.concatenate([a[:, -1:], a, a[:, :1]], axis=1)
+        out.append(RegularGridInterpolator((y_o, x_pad), padded)(points))
+    return np.clip(out[0], 0.0, 1.0), out[1], out[2], y_off
+
+
 def run(p: PhysicalParameters, opts: PhaseFieldOptions,
         c: PhaseFieldConstants = CONSTANTS, *, dt_scale: float = 1.0,
-        progress: Callable[[float, str], None] | None = None) -> PhaseFieldRun:
+        progress: Callable[[float, str], None] | None = None,
+        restart: PhaseFieldRun | None = None) -> PhaseFieldRun:
     """Integrate until the front is steady (:func:`~calnet.simulators.phase_field.outputs
     .steady` over the last ``opts.steady_travel`` freezing-range lengths of isotherm
     travel, after at least ``opts.min_travel``) or ``opts.max_steps`` is spent.
@@ -178,17 +218,27 @@ def run(p: PhysicalParameters, opts: PhaseFieldOptions,
     whole, as a run may go on until its front is steady), or of the step budget where
     that is larger: a run that turns steady soon after ``min_travel`` does not end at
     a small share of a budget it never needed.
+
+    ``restart``: go on from the final state of that run (the same parameters and domain,
+    any grid spacing: :func:`regrid`), its clock and frame included; ``min_travel``
+    counts from there. A grid-convergence test of an established array starts the finer
+    grid from the coarser grid's state this way.
     """
     start = time.perf_counter()
     phi, xs, xl, y_front = initial_fields(opts, c, p.S)
+    t0 = y_off0 = 0.0
+    if restart is not None:
+        phi, xs, xl, y_off0 = regrid(restart.fields, opts)
+        t0 = restart.time
     # the flat front starts at the solidus (or, from equilibrium, the liquidus) of c0
     T_ref = c.T0 - (c.freezing_range if opts.start == "solidus" else 0.0)
     par = jnp.array([p.S, p.G, p.sigma, p.mobility, p.permeability, T_ref, y_front])
     target = int(round(opts.front_row * opts.ny))
-    state = (jnp.asarray(phi), jnp.asarray(xs), jnp.asarray(xl), 0.0, 0.0)
+    state = (jnp.asarray(phi), jnp.asarray(xs), jnp.asarray(xl), t0, y_off0)
     history: list[outputs.FrontState] = []
     travel_time = c.freezing_range / p.G / p.S  # isotherms move dT0 / G
-    min_time, window_time = opts.min_travel * travel_time, opts.steady_travel * travel_time
+    min_time = t0 + opts.min_travel * travel_time
+    window_time = opts.steady_travel * travel_time
     steps, status = 0, "budget"
     dt = dt_scale * stable_time_step(p.sigma, p.mobility, opts.dx, c)
     max_steps = int(math.ceil(opts.max_steps / dt_scale))
@@ -209,7 +259,8 @@ def run(p: PhysicalParameters, opts: PhaseFieldOptions,
             phi, xs, xl, y=y, t=t, dx=opts.dx, eta=c.eta, T0=c.T0,
             temperature_at=lambda yy, tt: T_ref + p.G * (yy - y_front - p.S * tt)))
         if progress is not None:  # the earliest end (min_time), else the step budget
-            done = max(steps / max_steps, 0.95 * min(t / min_time, 1.0) if min_time else 0.0)
+            done = max(steps / max_steps, 0.95 * min((t - t0) / (min_time - t0), 1.0)
+                       if min_time > t0 else 0.0)
             progress(done, f"{steps}/{max_steps} steps, {t * 1e6:.2f} us simulated (steady "
                      f"from {min_time * 1e6:.1f} us at the earliest), "
                      f"{history[-1].cells} cells")
