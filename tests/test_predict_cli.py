@@ -221,3 +221,28 @@ def test_a_run_that_did_not_finish_is_refused(run):
     finally:
         mark_complete(out)
     assert _invoke(run, "--at", "x=0.5").exit_code == 0
+
+
+def test_a_data_file_changed_after_the_calibration_is_said(run, tmp_path):
+    """The posterior conditions on the points it was calibrated with; a data file edited
+    since is said to be so (its points are not used), and an unchanged one is not."""
+    import shutil
+
+    root, out = run
+    copy = tmp_path / "spec"
+    shutil.copytree(root, copy, ignore=shutil.ignore_patterns("out", "__pycache__"))
+    args = ["predict", str(copy), "--run", str(out), "--at", "x=1.0"]
+    same = CliRunner().invoke(app, args, terminal_width=400)
+    assert same.exit_code == 0 and "changed after the calibration" not in same.output
+    lines = (copy / "y.csv").read_text().splitlines()
+    lines[3] = lines[3].split(",")[0] + ",0.9"  # one measurement edited
+    (copy / "y.csv").write_text("\n".join(lines) + "\n")
+    edited = CliRunner().invoke(app, args, terminal_width=400)
+    assert edited.exit_code == 0, edited.output
+    assert (f"data set yd: its file changed after the calibration in '{out}' (1 of its 8 "
+            "training points differ from the calibration's); the predictions use the "
+            "calibration's points; calibrate again (calnet run) to use the file as it is"
+            ) in " ".join(edited.stderr.split()), edited.stderr
+    (copy / "y.csv").write_text("\n".join(lines[:-1]) + "\n")  # one fewer
+    fewer = CliRunner().invoke(app, args, terminal_width=400)
+    assert "it now has 7 training points, the calibration had 8" in fewer.stderr, fewer.stderr

@@ -37,7 +37,7 @@ from calnet.calibration.terms import (
     make_term,
 )
 from calnet.chain import ChainPlan
-from calnet.errors import CalnetError, UsageError
+from calnet.errors import CalibrationWarning, CalnetError, UsageError
 from calnet.spec import Network
 from calnet.surrogates.cv import mape_meaningful
 from calnet.surrogates.fit_network import Surrogates, check_surrogates
@@ -746,7 +746,34 @@ def load_run(network: Network, run_dir: str | Path) -> tuple[Surrogates, Network
         post = uncalibrated(network)
     else:
         post = load_posterior(folder, network)
+        _warn_changed_data(network, post, run_dir)
     return sur, post
+
+
+def _warn_changed_data(network: Network, post: NetworkPosterior, run_dir: Path) -> None:
+    """Warn of each data set whose file no longer holds the training points that the
+    posterior in ``run_dir`` was calibrated with: predictions condition on the
+    calibration's points (the discrepancy included), not on the file as it is now."""
+    from calnet.spec import read_all
+
+    with warnings.catch_warnings():  # the data's own warnings were given at calibration
+        warnings.simplefilter("ignore")
+        now = read_all(network)
+    for name, used in post.data.items():
+        if name not in now:
+            continue
+        cur = now[name].train
+        same = (cur.x.shape == used.x.shape and np.array_equal(cur.x, used.x)
+                and np.array_equal(cur.y, used.y))
+        if not same:
+            what = (f"it now has {len(cur.y)} training points, the calibration had "
+                    f"{len(used.y)}" if len(cur.y) != len(used.y) else
+                    f"{int(np.sum(np.any(cur.x != used.x, axis=1) | (cur.y != used.y)))} of "
+                    f"its {len(cur.y)} training points differ from the calibration's")
+            warnings.warn(f"data set {name}: its file changed after the calibration in "
+                          f"'{run_dir}' ({what}); the predictions use the calibration's "
+                          "points; calibrate again (calnet run) to use the file as it is",
+                          CalibrationWarning, stacklevel=3)
 
 
 def prediction_targets(network: Network, surrogates: Surrogates, posterior: NetworkPosterior,
