@@ -296,8 +296,9 @@ def _imports_finish(network: Any) -> None:
             f"{network.model(name).simulator.target}) did not finish within "
             f"{IMPORT_LIMIT_S:g} s" for name in slow)
             + ", so check stopped before importing it here. Move the work the module does "
-            "at import (a sleep, a licence check, a solver start-up) into the function: a "
-            "campaign imports the module too, and would wait as long")
+            "at import (a sleep, a licence check, a solver start-up) into the function: "
+            "each campaign run imports the module, and waits as long (up to the model's "
+            "timeout)")
 
 
 def _template_problems(network: Any) -> list[tuple[str, str]]:

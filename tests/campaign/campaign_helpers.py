@@ -50,11 +50,10 @@ def campaign_app():
     command, so that the app dispatches by name)."""
     import typer
 
-    from calnet.campaign.command import campaign
-    from calnet.cli import user_errors
+    from calnet.cli import campaign_command
 
     app = typer.Typer()
-    app.command("campaign")(user_errors(campaign))
+    app.command("campaign")(campaign_command())
     app.command("other")(lambda: None)
     return app
 

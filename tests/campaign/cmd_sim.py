@@ -10,9 +10,15 @@ Modes (first argument):
   strnum              print outputs on stdout with y a string ("1.5") and a text note
   chatty X A B        like args, between lines of a solver's log (one a JSON object too)
   nojson              print 300 lines of a solver's log and no JSON object
+  killed              kill itself with SIGKILL
+  huge                print outputs on stdout with y an integer too large for a float
+  extra               print outputs on stdout with an undeclared NaN and a text
+  noout               write nothing, exit with code 0
 """
 
 import json
+import os
+import signal
 import sys
 import time
 
@@ -49,6 +55,12 @@ def main(argv: list[str]) -> None:
         print("\n".join(f"iteration {i} residual {1 / (i + 1):.3e}" for i in range(300)))
     elif mode == "hang":
         time.sleep(60)
+    elif mode == "killed":
+        os.kill(os.getpid(), signal.SIGKILL)
+    elif mode == "huge":
+        print('{"y": ' + "9" * 400 + ', "z": 0.0}')
+    elif mode == "extra":
+        print('{"y": 1.5, "z": 0.0, "residual": NaN, "label": "converged"}')
 
 
 if __name__ == "__main__":

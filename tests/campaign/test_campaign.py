@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import sqlite3
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -319,3 +320,75 @@ def test_an_undeclared_output_is_warned_about_once_per_campaign(tmp_path):
         "models.toy.outputs; the store keeps it, calnet uses only the declared outputs "
         "(y, z): declare it to use it, or stop returning it"]
     assert all(w.filename == __file__ for w in caught)  # stacklevel: the caller
+
+
+@pytest.mark.parametrize(("source", "message"), [
+    ('raise RuntimeError("no licence server")\n', "RuntimeError: no licence server (at "),
+    ("def f(inputs):\n    return {'y': 1\n", "SyntaxError: '{' was never closed"),
+    ('import os\n__version__ = os.sep\nraise RuntimeError("no licence server")\n',
+     "RuntimeError: no licence server (at "),  # a version only importing it tells
+])
+def test_a_module_that_raises_at_import_fails_its_runs_not_the_campaign(
+        tmp_path, monkeypatch, source, message):
+    monkeypatch.setattr(sys, "path", list(sys.path))  # the spec's folder is appended
+    name = f"at_import_{abs(hash(source))}"
+    (tmp_path / f"{name}.py").write_text(source)
+    net = toy_network(tmp_path, f"python:{name}:f", runs=2)
+    summary = run_campaign(net, "toy", progress=False, executor="in-process")
+    assert summary.status_counts == {"failed": 2}
+    assert all(m.startswith(f"failed: {message}") for m in summary.failures.values()), \
+        summary.failures
+    with RunStore(summary.store_path, readonly=True) as db:
+        assert db.meta()["simulator_version"] == ""
+
+
+@pytest.mark.timeout(60)
+@pytest.mark.parametrize("version", ["", "__version__ = str(2)\n"])
+def test_a_module_that_hangs_at_import_times_out_its_runs(tmp_path, monkeypatch, version):
+    """The campaign never imports a user's module itself, where no timeout applies: its
+    runs time out, the campaign ends."""
+    monkeypatch.setattr(sys, "path", list(sys.path))
+    name = f"hangs_at_import_{bool(version)}"
+    (tmp_path / f"{name}.py").write_text(
+        f"import time\n{version}time.sleep(600)\n\ndef f(inputs):\n    return {{}}\n")
+    net = toy_network(tmp_path, f"python:{name}:f", runs=2, timeout=1.0)
+    summary = run_campaign(net, "toy", progress=False)
+    assert summary.status_counts == {"timeout": 2}
+    assert name not in sys.modules
+
+
+@pytest.mark.parametrize(("line", "version"), [
+    ('__version__ = "3.1"\nVERSION = "no"\n', "3.1"),  # __version__ first, as on import
+    ("VERSION = 7\n", "7"),
+    ('__version__ = ".".join(["4", "2"])\n', "4.2"),  # computed: imported in a child
+    ("", ""),
+])
+def test_a_modules_version_is_read_without_importing_it_here(tmp_path, monkeypatch, line,
+                                                             version):
+    monkeypatch.setattr(sys, "path", list(sys.path))
+    name = f"versioned_{abs(hash(line))}"
+    (tmp_path / f"{name}.py").write_text(
+        f"{line}\ndef f(inputs):\n    return {{'y': inputs['x'], 'z': inputs['a']}}\n")
+    net = toy_network(tmp_path, f"python:{name}:f", runs=2)
+    path = run_campaign(net, "toy", progress=False, workers=1).store_path
+    with RunStore(path, readonly=True) as db:
+        assert db.meta()["simulator_version"] == version
+        assert db.versions() == {version: 2}
+    assert name not in sys.modules  # the runs ran in a worker process
+
+
+def test_a_simulator_that_changes_directory_moves_no_store(tmp_path, monkeypatch):
+    """In this process (--executor in-process), a simulator's os.chdir: the store stays
+    where the campaign opened it, the working directory is set back."""
+    from calnet.spec import load_spec
+
+    (tmp_path / "elsewhere").mkdir()
+    toy_network(tmp_path, {"kind": "python", "target": "toy_sims:moves",
+                           "options": {"to": str(tmp_path / "elsewhere")}}, runs=3)
+    monkeypatch.chdir(tmp_path)
+    summary = run_campaign(load_spec("network.yaml"), "toy", progress=False,
+                           executor="in-process")
+    assert summary.status_counts == {"ok": 3}
+    assert summary.store_path == tmp_path / "campaigns" / "toy.sqlite"
+    assert Path.cwd() == tmp_path
+    assert load_runs(load_spec("network.yaml"), "toy").n_ok == 3

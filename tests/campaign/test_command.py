@@ -6,6 +6,7 @@ import re
 import sys
 
 import pytest
+import yaml
 from campaign_helpers import HERE, campaign_app, toy_spec
 from typer.testing import CliRunner
 
@@ -43,7 +44,7 @@ def test_a_bad_export_file_is_refused_before_any_run(tmp_path, monkeypatch, name
     spec = toy_spec(tmp_path, runs=4)
     result = CliRunner().invoke(app, ["campaign", str(spec), "--export", str(tmp_path / name),
                                       "--no-progress"])
-    assert result.exit_code == 1
+    assert result.exit_code == 2  # a bad option value: a usage error
     assert message in " ".join(result.output.split())
     assert "runs planned" not in result.output
     assert not (tmp_path / "campaigns").exists()  # nothing was simulated
@@ -266,7 +267,7 @@ def test_a_worker_killed_from_outside_is_said_and_its_runs_run_again(tmp_path):
     text = " ".join(result.output.split())
     assert marker.is_file() and "toy.sqlite:ok4" in "".join(result.output.split())
     # run 1 was only queued behind run 0: it is not suspected, nor named
-    said = ("a worker process died (killed by signal 9) with run 0 running; it is run "
+    said = ("a worker process died (killed by signal SIGKILL (9)) with run 0 running; it is run "
             "again alone (a run that ends its process again is recorded failed)")
     assert f"toy: {said}" in text  # the progress line, as it happens
     assert f"note: {said}" in text  # and the summary
@@ -352,3 +353,101 @@ def test_summaries_are_not_wrapped_off_a_terminal(tmp_path):
                and line.endswith("lhs design)") for line in lines), result.output
     assert any(line.startswith(f"  store {deep}") and line.endswith("ok 4")
                for line in lines), result.output
+
+
+@pytest.mark.parametrize("address", ["localhost", "notanaddr", "tcp://:8786x",
+                                     "tcp://host:99999"])
+def test_a_bad_scheduler_address_is_a_usage_error_before_anything_is_made(tmp_path,
+                                                                          address):
+    spec = toy_spec(tmp_path, runs=2)
+    store = tmp_path / "x.sqlite"
+    result = CliRunner().invoke(app, ["campaign", str(spec), "--store", str(store),
+                                      "--scheduler", address, "--no-progress"])
+    assert result.exit_code == 2, result.output
+    assert (f"--scheduler '{address}' is not the address of a Dask scheduler; give "
+            "tcp://HOST:PORT") in " ".join(result.output.split())
+    assert not store.exists() and not (tmp_path / "campaigns").exists()
+
+
+def test_a_model_whose_module_fails_at_import_does_not_stop_the_others(tmp_path):
+    (tmp_path / "no_licence.py").write_text('raise RuntimeError("no licence server")\n')
+    spec = toy_spec(tmp_path, runs=2)
+    doc = yaml.safe_load(spec.read_text())
+    toy = doc["models"]["toy"]
+    doc["models"] = {"Lic": {"simulator": "python:no_licence:f", "inputs": toy["inputs"],
+                             "outputs": {"w": {}}, "campaign": toy["campaign"]},
+                     "Fine": toy}
+    spec.write_text(yaml.safe_dump(doc, sort_keys=False))
+    result = CliRunner().invoke(app, ["campaign", str(spec), "--no-progress"])
+    said = " ".join(result.output.split())
+    assert result.exit_code == 1, result.output
+    assert "internal error" not in said
+    assert "run 0: failed: RuntimeError: no licence server (at no_licence.py:1)" in said
+    assert "Fine: 2 runs planned" in said and "Fine.sqlite: ok 2" in said
+
+
+def test_a_simulator_that_changes_directory_in_process_leaves_the_campaign_alone(
+        tmp_path, monkeypatch):
+    (tmp_path / "elsewhere").mkdir()
+    toy_spec(tmp_path, {"kind": "python", "target": "toy_sims:moves",
+                        "options": {"to": str(tmp_path / "elsewhere")}}, runs=3)
+    monkeypatch.chdir(tmp_path)
+    result = CliRunner().invoke(app, ["campaign", "network.yaml", "--executor", "in-process",
+                                      "--no-progress"])
+    assert result.exit_code == 0, result.output
+    assert "store campaigns/toy.sqlite: ok 3" in result.output
+
+
+def test_export_only_says_the_counts_of_what_it_wrote(tmp_path, monkeypatch):
+    """A run that a campaign still running finishes while --export-only reads the store
+    is in the file and in the counts said, or in neither."""
+    import csv
+    import json
+
+    from calnet.campaign.runners import RunRecord
+    from calnet.campaign.store import RunStore
+
+    spec = toy_spec(tmp_path, runs=4)
+    assert CliRunner().invoke(app, ["campaign", str(spec), "--no-progress"]).exit_code == 0
+    store = tmp_path / "campaigns" / "toy.sqlite"
+    with RunStore(store) as db:
+        db._db.execute("UPDATE runs SET status = NULL, outputs = NULL WHERE idx > 0")
+    rows = RunStore.rows
+    campaign = RunStore(store)  # the campaign still running, which finishes run 1
+
+    def run_1_finishes(self, **kw):
+        if self.readonly and campaign.status_counts().get("ok") == 1:
+            campaign.record(RunRecord(1, "ok", {"y": 1.0, "z": 1.0}, "", {}, 0.1),
+                            simulator="toy_sims:quadratic", version="toy-1")
+        return rows(self, **kw)
+
+    monkeypatch.setattr(RunStore, "rows", run_1_finishes)
+    out = tmp_path / "runs.csv"
+    try:
+        result = CliRunner().invoke(app, ["campaign", str(spec), "--model", "toy",
+                                          "--export", str(out), "--export-only"])
+    finally:
+        campaign.close()
+    assert result.exit_code == 0, result.output
+    with out.open() as fh:
+        written = sorted(r["status"] for r in csv.DictReader(fh))
+    said = " ".join(result.output.split())
+    counts = {s: written.count(s) for s in set(written)}
+    assert f"({', '.join(f'{k} {n}' for k, n in sorted(counts.items()))})" in said, said
+    meta = json.loads((tmp_path / "runs.meta.json").read_text())
+    assert meta["status_counts"] == counts
+
+
+def test_the_failures_said_are_in_run_order():
+    from rich.console import Console
+
+    from calnet.campaign.campaign import CampaignSummary
+    from calnet.campaign.command import print_summary
+
+    console = Console(width=200, record=True)
+    summary = CampaignSummary("toy", HERE / "toy.sqlite", 4, 0, 4, 0, {"failed": 3, "ok": 1},
+                              {3: "failed: c", 0: "failed: a", 2: "failed: b"}, n_failed=3)
+    print_summary(summary, console)
+    said = [line.split(":")[0].strip() for line in console.export_text().splitlines()
+            if line.strip().startswith("run ")]
+    assert said == ["run 0", "run 2", "run 3"]

@@ -131,3 +131,21 @@ def test_runs_whose_process_died_leave_no_empty_folders(tmp_path):
     assert summary.n_failed > 0
     work = summary.store_path.with_suffix(".work")
     assert not work.exists() or not any(work.iterdir()), sorted(work.rglob("*"))
+
+
+@pytest.mark.parametrize("address", ["tcp://10.0.0.5:8786", "localhost:8786",
+                                     "tls://[::1]:8786", "tcp://node-17.cluster:8786"])
+def test_a_dask_scheduler_address_is_accepted_as_dask_takes_it(address):
+    from calnet.campaign.executors import executor_kind
+
+    assert executor_kind("auto", scheduler=address) == "dask"
+
+
+@pytest.mark.parametrize("address", ["localhost", "tcp://:8786", "tcp://host:8786x",
+                                     "http://host:8786", "host:0", ""])
+def test_a_string_that_is_no_scheduler_address_is_a_usage_error(address):
+    from calnet.campaign.executors import executor_kind
+    from calnet.errors import UsageError
+
+    with pytest.raises(UsageError, match="give tcp://HOST:PORT"):
+        executor_kind("auto", scheduler=address)

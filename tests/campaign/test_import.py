@@ -238,7 +238,7 @@ def test_cli_import(tmp_path):
     assert "Traceback" not in out.output
     both = CliRunner().invoke(app, ["campaign", str(spec), "--import", str(table),
                                     "--runs", "20"])
-    assert both.exit_code == 1 and "--import only adds runs" in both.output
+    assert both.exit_code == 2 and "--import only adds runs" in both.output  # usage
 
 
 def test_retry_failed_keeps_imported_runs_and_says_so(tmp_path):

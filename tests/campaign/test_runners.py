@@ -266,7 +266,7 @@ def test_numpy_scalars_in_a_sim_result_are_numbers():
     assert res.status == "ok" and res.outputs == {"y": 1.5, "z": 2.0}
     assert all(type(v) is float for v in res.outputs.values())
     bad = SimResult({"y": np.float32("nan"), "z": 1.0}).checked(("y", "z"))
-    assert bad.status == "failed" and "non-finite outputs ['y']" in bad.message
+    assert bad.status == "failed" and bad.message == "non-finite outputs: 'y' = nan"
 
 
 @pytest.mark.parametrize(("kind", "message"), [
@@ -274,6 +274,8 @@ def test_numpy_scalars_in_a_sim_result_are_numbers():
     ("none", "output 'y' is NoneType None, expected a number"),
     ("nan", "non-finite outputs: 'y' = nan"),
     ("inf", "non-finite outputs: 'y' = -inf"),
+    ("huge", "output 'y' is an integer of about 1e400, too large for a float (at most "
+     "1.8e+308)"),
 ])
 def test_an_output_that_is_no_finite_number_says_what_it_is(tmp_path, kind, message):
     net = toy_network(tmp_path, {"kind": "python", "target": "toy_sims:odd_outputs",
@@ -354,3 +356,59 @@ def test_what_a_command_prints_goes_to_its_runs_logs(tmp_path):
                                          output_mode="stdout"))
     assert _run(net, index=4).status == "ok"
     assert "solver 2.1 starting" in (tmp_path / "work" / "run-00004" / "stdout.log").read_text()
+
+
+@pytest.mark.parametrize("kind", ["nan", "text", "array", "bool", "none", "huge"])
+def test_an_undeclared_output_that_is_no_finite_number_is_no_failure(tmp_path, kind):
+    """The declared outputs are fine: the run is ok. An undeclared number is kept (NaN
+    where it is none as a float), anything else is left out."""
+    net = toy_network(tmp_path, {"kind": "python", "target": "toy_sims:extras",
+                                 "options": {"kind": kind}})
+    rec = _run(net)
+    assert (rec.status, rec.message) == ("ok", "")
+    assert {k: rec.outputs[k] for k in ("y", "z")} == pytest.approx(EXPECTED)
+    if kind in ("nan", "huge"):
+        assert math.isnan(rec.outputs["extra"])
+    else:
+        assert "extra" not in rec.outputs
+
+
+@pytest.mark.parametrize(("mode", "status", "message"), [
+    ("huge", "failed", "output 'y' is an integer of about 1e400, too large for a float"),
+    ("extra", "ok", ""),
+    ("killed", "failed", "command was killed by signal SIGKILL (9)"),
+])
+def test_command_outputs_and_ends_are_said_plainly(tmp_path, mode, status, message):
+    rec = _run(toy_network(tmp_path, _command(mode, output_mode="stdout")))
+    assert rec.status == status and rec.message.startswith(message), rec.message
+    assert "Error" not in rec.message and "runners.py" not in rec.message
+
+
+def test_a_command_that_writes_no_output_file_is_told_so(tmp_path):
+    rec = _run(toy_network(tmp_path, _command("noout")))
+    assert rec.status == "failed"
+    assert rec.message.startswith("command wrote no output file output.json (in its run "
+                                  "folder); write the outputs to {output_json}"), rec.message
+
+
+@pytest.mark.parametrize(("target", "message"), [
+    ("toy_sims:nosuchfn", "module 'toy_sims' has no 'nosuchfn'; fix the simulator target "
+                          "'toy_sims:nosuchfn'"),
+    ("no_such_toy_module:f", "ModuleNotFoundError: No module named 'no_such_toy_module'; "
+                             "put the module beside the spec or on PYTHONPATH, or fix the "
+                             "simulator target"),
+])
+def test_a_target_that_cannot_be_loaded_is_said_without_calnets_insides(tmp_path, target,
+                                                                        message):
+    rec = _run(toy_network(tmp_path, f"python:{target}"))
+    assert (rec.status, rec.message) == ("failed", message)
+
+
+def test_an_in_process_run_that_changes_directory_changes_it_for_itself(tmp_path,
+                                                                        monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "elsewhere").mkdir()
+    net = toy_network(tmp_path, {"kind": "python", "target": "toy_sims:moves",
+                                 "options": {"to": str(tmp_path / "elsewhere")}})
+    assert _run(net).status == "ok"
+    assert Path.cwd() == tmp_path

@@ -253,6 +253,24 @@ def leaks(inputs):
 
 
 def odd_outputs(inputs, *, kind):
-    """Returns ``y`` as a bool, None, NaN or infinity, by ``kind``."""
-    value = {"bool": True, "none": None, "nan": math.nan, "inf": -math.inf}[kind]
+    """Returns ``y`` as a bool, None, NaN, infinity or an integer too large for a float,
+    by ``kind``."""
+    value = {"bool": True, "none": None, "nan": math.nan, "inf": -math.inf,
+             "huge": 10**400}[kind]
     return {"y": value, "z": 1.0}
+
+
+def extras(inputs, *, kind):
+    """``quadratic`` and an output the spec does not declare that is no finite number
+    (``kind``: NaN, a text, an array, a bool, None, an integer too large for a float)."""
+    import numpy as np
+
+    value = {"nan": math.nan, "text": "converged", "array": np.zeros(3), "bool": True,
+             "none": None, "huge": -(10**400)}[kind]
+    return {**quadratic(inputs), "extra": value}
+
+
+def moves(inputs, *, to):
+    """``quadratic``, after changing the working directory to ``to``."""
+    os.chdir(to)
+    return quadratic(inputs)

@@ -74,6 +74,7 @@ class CampaignSummary:
     ----------
     model : str
     store_path : Path
+        Absolute.
     planned : int
         Runs in the design.
     skipped : int
@@ -86,7 +87,7 @@ class CampaignSummary:
         Over the whole store (``unfinished`` when runs remain).
     failures : dict of int to str
         Run index -> message of the runs of this call that are not ``ok`` (the first
-        :data:`FAILURES_KEPT`).
+        :data:`FAILURES_KEPT` to finish), by index.
     wall_time : float
         Seconds this call took.
     executor : str
@@ -183,7 +184,7 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
     model = _model(network, model_name)
     executor_kind(executor, workers=workers, scheduler=scheduler)  # bad options fail first
     seed = network.settings.seed if seed is None else int(seed)
-    path = Path(store) if store is not None else default_store(network, model_name)
+    path = _store_path(network, model_name, store)
     asked = spec_design(network, model)  # a bad design file or run table fails first
     table = _spec_table(network, model)
     if fresh or _stale_without_results(path, network, model, seed):
@@ -192,7 +193,7 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
             raise CampaignError(held)
         remove_store(path)
     sim = make_simulator(network, model, workdir=path.with_suffix(".work"))
-    version = simulator_version(sim)
+    version = simulator_version(sim, timeout=run_timeout(network, model))
     start = time.perf_counter()
     done = _complete_readonly(path, network, model, seed, runs, sim.name, version,
                               retry_failed or table is not None, start, asked)
@@ -261,8 +262,14 @@ def run_campaign(network: Network, model_name: str, *, runs: int | None = None,
         notes += [note] if note else []
         counts, label = db.status_counts(), db.meta().get("design_kind", "")
     return CampaignSummary(model_name, path, total, skipped, len(todo), in_flight,
-                           counts, failures, time.perf_counter() - start, ex.name, ex.workers,
-                           seed, imported, label, n_failed, tuple(notes))
+                           counts, dict(sorted(failures.items())), time.perf_counter() - start,
+                           ex.name, ex.workers, seed, imported, label, n_failed, tuple(notes))
+
+
+def _store_path(network: Network, model_name: str, store: str | Path | None) -> Path:
+    """The store's absolute path (``store``, else the default one), fixed once: a
+    simulator that changes the working directory does not move it."""
+    return (Path(store) if store is not None else default_store(network, model_name)).absolute()
 
 
 @contextmanager
@@ -371,13 +378,14 @@ def import_runs(network: Network, model_name: str, table: str | Path, *,
     """
     model = _model(network, model_name)
     seed = network.settings.seed if seed is None else int(seed)
-    path = Path(store) if store is not None else default_store(network, model_name)
+    path = _store_path(network, model_name, store)
     runs = read_runs(Path(table), model, strict=network.settings.strict)
     sim = make_simulator(network, model, workdir=path.with_suffix(".work"))
     start = time.perf_counter()
     with store_errors(path), RunStore(path) as db:
         db.take_lease()
-        _claim(db, network, model, seed, sim.name, simulator_version(sim))
+        _claim(db, network, model, seed, sim.name,
+               simulator_version(sim, timeout=run_timeout(network, model)))
         added, _ = import_into(db, runs, seed=seed, model=model)
         planned, counts = db.planned(), db.status_counts()
         label = db.meta().get("design_kind", "")

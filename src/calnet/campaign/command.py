@@ -131,7 +131,7 @@ def _export_only(network: Any, names: list[str], store: Path | None, export: Pat
     exported with a warning that says so."""
     from calnet.campaign.campaign import _difference, _model
     from calnet.campaign.store import RunStore, default_store
-    from calnet.campaign.table import export_runs
+    from calnet.campaign.table import write_export
     from calnet.errors import UsageError
 
     if not export:
@@ -150,7 +150,7 @@ def _export_only(network: Any, names: list[str], store: Path | None, export: Pat
                             + ("" if store else f"; run `calnet campaign {spec} --model "
                                                 f"{names[0]}` first"))
     with RunStore(path, readonly=True) as db:
-        meta, counts = db.meta(), db.status_counts()
+        meta = db.meta()
     if meta.get("model") and meta["model"] != model.name:
         raise CampaignError(f"the store '{path}' holds runs of model '{meta['model']}', not "
                             f"of '{model.name}'; give --model {meta['model']} (or that "
@@ -163,10 +163,10 @@ def _export_only(network: Any, names: list[str], store: Path | None, export: Pat
                       + (f"a different '{model.name}' spec ({change})" if kind == "spec"
                          else f"seed {meta.get('seed')}, not {want}")
                       + "; it is exported as it is", CampaignWarning, stacklevel=2)
-    total = sum(counts.values())
-    console.print(f"[bold]{names[0]}[/]: {total} runs in {path} ("
+    written, counts = write_export(path, export)  # the counts of what it wrote
+    console.print(f"[bold]{names[0]}[/]: {sum(counts.values())} runs in {path} ("
                   + ", ".join(f"{k} {n}" for k, n in sorted(counts.items()))
-                  + f"), exported to {export_runs(path, export)}")
+                  + f"), exported to {written}")
 
 
 def print_summary(summary: Any, console: Any) -> None:
@@ -192,11 +192,19 @@ def print_summary(summary: Any, console: Any) -> None:
                       f"{summary.workers} worker(s), seed {summary.seed}"
                       + (f", {summary.design} design)" if summary.design else ")"),
                       soft_wrap=soft)
-    console.print(f"  store {summary.store_path}: {counts}", soft_wrap=soft)
-    for index, message in list(summary.failures.items())[:5]:
+    console.print(f"  store {_shown(summary.store_path)}: {counts}", soft_wrap=soft)
+    for index, message in sorted(summary.failures.items())[:5]:
         console.print(f"  [yellow]run {index}[/]: {message}", soft_wrap=True)
     more = max(summary.n_failed, len(summary.failures)) - min(len(summary.failures), 5)
     if more > 0:
         console.print(f"  ... {more} more not ok (see the store)", soft_wrap=soft)
     for note in summary.notes:
         console.print(f"  [yellow]note[/]: {note}", soft_wrap=True)
+
+
+def _shown(path: Path) -> str:
+    """``path`` relative to the working directory where it lies beneath it, else whole."""
+    try:
+        return str(Path(path).relative_to(Path.cwd()))
+    except (ValueError, OSError):
+        return str(path)

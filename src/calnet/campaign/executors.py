@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import logging
 import multiprocessing
+import re
 import signal
 import time
 from collections.abc import Callable, Iterable, Iterator
@@ -25,7 +26,7 @@ from concurrent.futures.process import BrokenProcessPool
 from multiprocessing.connection import wait as wait_ended
 from typing import Any, Protocol
 
-from calnet.errors import CampaignError
+from calnet.errors import CampaignError, UsageError
 
 Task = tuple[Any, ...]
 
@@ -95,7 +96,7 @@ class ProcessExecutor:
     that the run that kills its worker is found (executed at most twice) and its result
     is a :class:`WorkerDied`, while the others finish normally; runs that were only
     queued are queued again, not suspected. ``on_died`` is told of each such death (the
-    runs that were running, and `` (exit code N)`` or `` (killed by signal N)``). A run
+    runs that were running, and `` (exit code N)`` or `` (killed by signal SIGKILL (9))``). A run
     that asks for a fresh worker (:func:`replace_this_worker`, after a MemoryError) gets
     one: no run is handed out until those in flight finish, then the pool is replaced.
     """
@@ -238,7 +239,7 @@ class ProcessExecutor:
 
     def _restart(self) -> str:
         """A new pool for a broken one; returns `` (exit code N)`` of the dead worker
-        (`` (killed by signal N)`` for a signal), or "" when it is not known.
+        (`` (killed by signal SIGKILL (9))``), or "" when it is not known.
 
         The broken pool's management thread sends SIGTERM to the other workers and waits
         for them. A worker that does not end on SIGTERM (a simulator that ignores it, or
@@ -275,7 +276,7 @@ class ProcessExecutor:
         code = next((c for c in codes if c not in (None, 0, -15)), None)
         if code is None:
             return ""
-        return f" (killed by signal {-code})" if code < 0 else f" (exit code {code})"
+        return f" ({_signalled(-code)})" if code < 0 else f" (exit code {code})"
 
     def _nudge(self) -> None:
         """Wake the pool's management thread, so that it looks at every worker again.
@@ -310,6 +311,14 @@ class ProcessExecutor:
     def __exit__(self, kind, *exc):
         # after an interrupt, do not wait for the runs in flight: they will be run again
         self.close(wait=kind is None)
+
+
+def _signalled(number: int) -> str:
+    """``killed by signal SIGKILL (9)``."""
+    try:
+        return f"killed by signal {signal.Signals(number).name} ({number})"
+    except ValueError:
+        return f"killed by signal {number}"
 
 
 def _stop(processes: list[Any], grace: float) -> None:
@@ -477,6 +486,26 @@ def make_executor(kind: str = "auto", *, workers: int | None = None,
     return DaskExecutor(workers=workers, scheduler=scheduler)
 
 
+# [PROTOCOL://]HOST:PORT, HOST a name, an IPv4 address or a bracketed IPv6 address
+_ADDRESS = re.compile(r"((tcp|tls|ucx|ws|wss)://)?([A-Za-z0-9_.-]+|\[[0-9A-Fa-f:.]+\]):(\d{1,5})")
+
+
+def check_scheduler(address: str) -> None:
+    """Refuse a Dask scheduler address that is not ``[PROTOCOL://]HOST:PORT`` (what
+    ``dask scheduler`` prints: ``tcp://10.0.0.5:8786``), before anything is made.
+
+    Raises
+    ------
+    UsageError
+        One line naming ``--scheduler`` and the form expected.
+    """
+    match = _ADDRESS.fullmatch(address)
+    if match is None or not 0 < int(match.group(4)) < 65536:
+        raise UsageError(f"--scheduler '{address}' is not the address of a Dask scheduler; "
+                         "give tcp://HOST:PORT, as `dask scheduler` prints it (such as "
+                         "tcp://127.0.0.1:8786)")
+
+
 def executor_kind(kind: str = "auto", *, workers: int | None = None,
                   scheduler: str | None = None, isolate: bool = False) -> str:
     """The executor :func:`make_executor` makes for these options ("in-process",
@@ -487,7 +516,11 @@ def executor_kind(kind: str = "auto", *, workers: int | None = None,
     ------
     CampaignError
         An unknown executor, or options that do not go together.
+    UsageError
+        A ``scheduler`` that is no address of a Dask scheduler (``tcp://HOST:PORT``).
     """
+    if scheduler is not None:
+        check_scheduler(scheduler)
     if kind not in EXECUTORS:
         raise CampaignError(f"unknown executor '{kind}'; choose auto, in-process, processes "
                             "or dask")

@@ -20,10 +20,10 @@ process goes to its logs (:mod:`calnet.campaign.logs`).
 
 from __future__ import annotations
 
+import ast
 import importlib
+import importlib.util
 import json
-import math
-import numbers
 import os
 import pickle
 import re
@@ -35,8 +35,9 @@ import threading
 import time
 import traceback
 from collections.abc import Callable, Iterator, Mapping
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from dataclasses import dataclass, field
+from importlib.machinery import SOURCE_SUFFIXES, PathFinder
 from pathlib import Path
 from typing import Any
 
@@ -45,7 +46,7 @@ import numpy as np
 from calnet.campaign import logs, reaper
 from calnet.campaign.executors import replace_this_worker
 from calnet.errors import CampaignError
-from calnet.simulators.base import STATUSES, SimResult, Simulator, not_numbers
+from calnet.simulators.base import STATUSES, SimResult, Simulator, as_float, not_numbers
 from calnet.simulators.registry import builtin_info
 from calnet.spec.models import Model
 from calnet.spec.network import Network
@@ -178,10 +179,14 @@ class CommandRunner:
         if proc.returncode != 0:
             tail = (proc.stderr.strip().splitlines()[-logs.TAIL_LINES:] if fds is None
                     else logs.tail(folder))
-            return SimResult({}, "failed", f"command exited with code {proc.returncode}"
+            return SimResult({}, "failed", f"command {_ended(proc.returncode)}"
                              + (f": {' | '.join(tail)}" if tail else "") + logs.where(folder))
         if self.output_mode == "stdout":
             text = proc.stdout if fds is None else _read(folder / logs.LOGS[0])
+        elif not out_path.is_file():
+            return SimResult({}, "failed", f"command wrote no output file {out_path.name} "
+                             "(in its run folder); write the outputs to {output_json} as a "
+                             "JSON object, or set output_mode: stdout" + logs.where(folder))
         else:
             text = _read(out_path)
         result = _parse_outputs(text, self.output_mode, self.outputs)
@@ -269,16 +274,150 @@ def run_timeout(network: Network, model: Model) -> float | None:
     return model.simulator.timeout or campaign.timeout
 
 
-def simulator_version(sim: Simulator) -> str:
+VERSION_NAMES = ("__version__", "VERSION")  # a callable's module attributes, in order
+PROBE_TIMEOUT = 60.0
+"""Seconds a child process has to import a callable's module for its version, for a model
+without a timeout (:func:`probe_callable`)."""
+
+
+def simulator_version(sim: Simulator, *, timeout: float | None = None) -> str:
     """The version of ``sim``; for a callable, the module's ``__version__`` or ``VERSION``
-    when the spec gives none."""
-    if isinstance(sim, CallableRunner) and not sim.version:
-        try:
-            module = _import(sim.target.partition(":")[0], sim.search_path)
-        except ImportError:
-            return ""
-        return str(getattr(module, "__version__", getattr(module, "VERSION", "")))
-    return sim.version
+    when the spec gives none.
+
+    A user's module is never imported in this process, where its code could raise, end
+    the interpreter or hang before any timeout applies: the version is read from the
+    module's source when it is written there as a literal (``__version__ = "1.2"``),
+    else from a module this process has already imported, else by importing it in a child
+    process (:func:`probe_callable`) killed after ``timeout`` seconds (the model's run
+    timeout; :data:`PROBE_TIMEOUT` without one). A module that cannot be found or
+    imported has no version (""): its runs fail, saying why.
+    """
+    if not isinstance(sim, CallableRunner) or sim.version:
+        return sim.version
+    module_name = sim.target.partition(":")[0]
+    module = sys.modules.get(module_name)
+    if module is not None:
+        return _version_of(module)
+    written = _written_version(module_name, sim.search_path)
+    if written is not None:
+        return written
+    limit = PROBE_TIMEOUT if timeout is None else timeout
+    return probe_callable(sim.target, sim.search_path, limit)[0]
+
+
+def probe_callable(target: str, search_path: tuple[str, ...] = (),
+                   timeout: float = PROBE_TIMEOUT) -> tuple[str, str]:
+    """Import the module of ``module:function`` in a child process, killed after
+    ``timeout`` seconds; returns ``(version, problem)``: the module's version ("" without
+    one), and why the target cannot be called ("" when it can: the module imports and
+    has the function). What the module prints on import is discarded.
+    """
+    module_name, _, func_name = target.partition(":")
+    payload = json.dumps([[*sys.path, *search_path], module_name, func_name])
+    proc = _run_killable([sys.executable, "-c", _PROBE], None, timeout,
+                         stderr=subprocess.DEVNULL, stdin=payload)
+    if proc is None:
+        return "", f"importing module '{module_name}' took more than {timeout:g} s"
+    try:
+        version, problem = json.loads(proc.stdout.strip().splitlines()[-1])
+    except (IndexError, ValueError):
+        return "", f"importing module '{module_name}' {_ended(proc.returncode)}"
+    return str(version), str(problem)
+
+
+# run by probe_callable's child: [sys.path, module, function] in on stdin, [version,
+# problem] out on stdout (the module's own prints go to standard error)
+_PROBE = """
+import importlib, json, os, sys
+path, module_name, func_name = json.loads(sys.stdin.read())
+sys.path[:] = path
+answer = os.fdopen(os.dup(1), "w")
+os.dup2(2, 1)
+try:
+    module = importlib.import_module(module_name)
+    version = getattr(module, "__version__", getattr(module, "VERSION", ""))
+    problem = ("" if callable(getattr(module, func_name, None)) else
+               f"module '{module_name}' has no function '{func_name}'")
+except BaseException as err:
+    version, problem = "", f"{type(err).__name__}: {err}".rstrip(": ")
+answer.write(json.dumps([str(version), problem]) + "\\n")
+answer.flush()
+"""
+
+
+def _version_of(module: Any) -> str:
+    return str(getattr(module, VERSION_NAMES[0], getattr(module, VERSION_NAMES[1], "")))
+
+
+def _written_version(module_name: str, search_path: tuple[str, ...]) -> str | None:
+    """The version a module's source file states as a literal, read without running it:
+    "" for a module that states none, or does not parse (its runs then fail, saying why);
+    None when only importing it would tell (a version computed or imported, a module
+    that is no Python source file or is not found without importing a package)."""
+    origin = _module_source(module_name, search_path)
+    if origin is None:
+        return None
+    try:
+        tree = ast.parse(Path(origin).read_bytes())
+    except (OSError, SyntaxError, ValueError):
+        return ""
+    bound: dict[str, ast.expr | None] = {}
+    for node in tree.body:
+        bound.update(_bindings(node))
+    for name in VERSION_NAMES:
+        if name in bound:
+            value = bound[name]
+            literal = isinstance(value, ast.Constant) and isinstance(value.value, (str, int, float))
+            return str(value.value) if literal else None  # type: ignore[union-attr]
+    return None if "*" in bound else ""
+
+
+def _bindings(node: ast.stmt) -> dict[str, ast.expr | None]:
+    """The version names a statement of a module's body binds: to the value of a plain
+    assignment, to None when only running it tells; ``"*"`` for a star import."""
+    if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+        return {}
+    if not isinstance(node, (ast.Assign, ast.AnnAssign)) or node.value is None:
+        return _bound_within(node)
+    out: dict[str, ast.expr | None] = {}
+    for target in node.targets if isinstance(node, ast.Assign) else [node.target]:
+        if isinstance(target, ast.Name):
+            out.update({target.id: node.value} if target.id in VERSION_NAMES else {})
+        else:  # a, __version__ = ...
+            out.update(_bound_within(target))
+    return out
+
+
+def _bound_within(node: ast.AST) -> dict[str, ast.expr | None]:
+    """The version names (and ``"*"``) that anything within ``node`` binds, to None."""
+    out: dict[str, ast.expr | None] = {}
+    for sub in ast.walk(node):
+        if isinstance(sub, ast.Name) and isinstance(sub.ctx, ast.Store):
+            name = sub.id
+        elif isinstance(sub, ast.alias):
+            name = sub.asname or sub.name
+        else:
+            continue
+        if name in (*VERSION_NAMES, "*"):
+            out[name] = None
+    return out
+
+
+def _module_source(module_name: str, search_path: tuple[str, ...]) -> str | None:
+    """The Python source file of ``module_name`` on ``sys.path`` or in ``search_path``,
+    found without running any of the user's code (a package's ``__init__`` included);
+    None when there is none to be found so."""
+    top, *rest = module_name.split(".")
+    try:
+        spec = importlib.util.find_spec(top) or PathFinder.find_spec(top, list(search_path))
+        for part in rest:
+            if spec is None or not spec.submodule_search_locations:
+                return None
+            spec = PathFinder.find_spec(part, list(spec.submodule_search_locations))
+    except (ImportError, ValueError):
+        return None
+    origin = spec.origin if spec is not None and spec.has_location else None
+    return origin if origin and origin.endswith(tuple(SOURCE_SUFFIXES)) else None
 
 
 def load_callable(target: str, search_path: tuple[str, ...] = ()) -> Any:
@@ -332,36 +471,67 @@ def execute_run(sim: Simulator, index: int, inputs: Mapping[str, float],
     elif timeout is not None:
         result = call_in_child(sim, inputs, timeout, log_folder=log_folder)
     elif log_folder is not None:
-        with logs.captured(Path(log_folder)):
+        with logs.captured(Path(log_folder)), _cwd_kept():
             result = _guarded(lambda: sim(inputs))
     else:
-        result = _guarded(lambda: sim(inputs))
-    result = _checked(result, expected)
-    if result.status not in STATUSES:
-        result = SimResult(result.outputs, "failed", f"unknown status '{result.status}' "
-                           f"(allowed {list(STATUSES)}): {result.message}", result.diagnostics)
-    outputs = {k: _to_float(v) for k, v in result.outputs.items()}
-    return RunRecord(index, result.status, outputs, result.message,
-                     _jsonable(result.diagnostics), time.perf_counter() - start)
+        with _cwd_kept():
+            result = _guarded(lambda: sim(inputs))
+    status, outputs, message, diagnostics = _recorded(result, expected)
+    return RunRecord(index, status, outputs, message, diagnostics,
+                     time.perf_counter() - start)
+
+
+def _recorded(result: SimResult, expected: tuple[str, ...]
+              ) -> tuple[str, dict[str, float], str, dict[str, Any]]:
+    """What the store keeps of ``result``: its status (failed for outputs that are
+    missing or no finite number, or an unknown status), outputs as floats, message and
+    JSON-serialisable diagnostics. Values the simulator made that cannot be read as such
+    fail the run, saying so, rather than the campaign."""
+    try:
+        result = _checked(result, expected)
+        if result.status not in STATUSES:
+            result = SimResult(result.outputs, "failed", f"unknown status '{result.status}' "
+                               f"(allowed {list(STATUSES)}): {result.message}",
+                               result.diagnostics)
+        outputs = {str(k): as_float(v) for k, v in result.outputs.items()}
+    except Exception as err:
+        return "failed", {}, f"cannot read the simulator's outputs: {_describe(err)}", {}
+    try:
+        diagnostics = _jsonable(result.diagnostics)
+    except (TypeError, ValueError) as err:
+        diagnostics = {"unreadable": f"{type(err).__name__}: {err}"}
+    return result.status, outputs, result.message, diagnostics
 
 
 def _checked(result: SimResult, expected: tuple[str, ...]) -> SimResult:
     """:meth:`SimResult.checked`, which also refuses a bool (True is no measurement) or
-    None for an output, and names the value of each output that is not finite."""
+    None for a declared output."""
     if result.status != "ok":
         return result
+    declared = expected or tuple(result.outputs)
     wrong = "; ".join(f"output '{k}' is {type(v).__name__} {v!r}, expected a number"
                       for k, v in result.outputs.items()
-                      if v is None or isinstance(v, (bool, np.bool_)))
+                      if k in declared and (v is None or isinstance(v, (bool, np.bool_))))
     if wrong:
         return SimResult(result.outputs, "failed", wrong, result.diagnostics)
-    checked = result.checked(expected)
-    if checked.status == "ok" or not checked.message.startswith("non-finite outputs"):
-        return checked
-    values = ", ".join(f"'{k}' = {float(v)!r}" for k, v in result.outputs.items()
-                       if isinstance(v, numbers.Real) and not math.isfinite(float(v)))
-    return SimResult(result.outputs, "failed", f"non-finite outputs: {values}",
-                     result.diagnostics)
+    return result.checked(expected)
+
+
+@contextmanager
+def _cwd_kept() -> Iterator[None]:
+    """Within the block, a simulator that changes the working directory (``os.chdir``)
+    changes it for itself: it is set back on leaving."""
+    try:
+        cwd = os.getcwd()
+    except OSError:  # it was removed: nothing to set back
+        yield
+        return
+    try:
+        yield
+    finally:
+        with suppress(OSError):
+            if os.getcwd() != cwd:
+                os.chdir(cwd)
 
 
 def _guarded(call) -> SimResult:
@@ -413,19 +583,38 @@ def _sigint_noted() -> Iterator[Callable[[], bool]]:
 def _describe(err: BaseException) -> str:
     """A simulator's exception as a run's message: ``ValueError: bad mesh (at sim.py:12)``.
 
-    A MemoryError says that memory ran out (and asks for a fresh worker process, which
+    The place is the last frame of the traceback outside calnet's adapters and Python's
+    import machinery (none for an error those raised: a module not found, its syntax);
+    calnet's own error (:class:`~calnet.errors.CampaignError`) is its message alone. A
+    MemoryError says that memory ran out (and asks for a fresh worker process, which
     the leaked memory does not follow: :func:`~calnet.campaign.executors.replace_this_worker`);
     a KeyboardInterrupt says that the simulator raised it."""
-    frame = traceback.extract_tb(err.__traceback__)[-1:] if err.__traceback__ else []
-    at = f"at {Path(frame[0].filename).name}:{frame[0].lineno}" if frame else ""
     text = str(err)
+    if isinstance(err, CampaignError):
+        return text
+    frame = [f for f in traceback.extract_tb(err.__traceback__) if not _internal(f.filename)
+             ][-1:] if err.__traceback__ else []
+    at = f"at {Path(frame[0].filename).name}:{frame[0].lineno}" if frame else ""
     if isinstance(err, MemoryError):
         replace_this_worker()
         return f"MemoryError (out of memory){': ' + text if text else ''}{' ' + at if at else ''}"
     name = type(err).__name__
     if isinstance(err, KeyboardInterrupt):
         name = "the simulator raised KeyboardInterrupt"
+    if isinstance(err, ModuleNotFoundError) and not at:  # the simulator's module itself
+        return (f"{name}: {text}; put the module beside the spec or on PYTHONPATH, or fix "
+                "the simulator target")
     return f"{name}{': ' + text if text else ''}{f' ({at})' if at else ''}"
+
+
+_INTERNAL = (os.path.dirname(os.path.abspath(__file__)),
+             os.path.dirname(os.path.abspath(importlib.__file__)))
+
+
+def _internal(filename: str) -> bool:
+    """Whether a traceback's file is calnet's adapters' or Python's import machinery's."""
+    return filename.startswith("<frozen ") or os.path.dirname(os.path.abspath(filename)) \
+        in _INTERNAL
 
 
 def call_in_child(sim: Simulator, inputs: Mapping[str, float], timeout: float, *,
@@ -464,8 +653,8 @@ def call_in_child(sim: Simulator, inputs: Mapping[str, float], timeout: float, *
         if folder is not None and ready:  # the child's stderr went to its log
             tail = logs.tail(folder, lines=2) or tail
         what = "died" if ready else "did not start"
-        return SimResult({}, "failed", f"simulator process {what} (exit code "
-                         f"{proc.returncode})" + (f": {' | '.join(tail)}" if tail else "")
+        return SimResult({}, "failed", f"simulator process {what} ({_code(proc.returncode)})"
+                         + (f": {' | '.join(tail)}" if tail else "")
                          + (logs.where(folder) if folder is not None else ""))
     return pickle.loads(out)  # noqa: S301 (our own child's answer)
 
@@ -502,7 +691,7 @@ def child_main() -> None:
 
 def _run_killable(argv: list[str], cwd: Path | None, timeout: float | None,
                   stdout: int = subprocess.PIPE, stderr: int = subprocess.PIPE, *,
-                  stdin: bytes | None = None, text: bool = True):
+                  stdin: str | bytes | None = None, text: bool = True):
     """``subprocess.run`` in its own session (its output to ``stdout`` and ``stderr``:
     pipes, read into the result, or open files); on timeout kill the whole process group
     and return None."""
@@ -530,6 +719,23 @@ def _process_group(argv: list[str], **kwargs: Any) -> Iterator[subprocess.Popen]
             _kill_group(proc)
             proc.wait()
         reaper.unwatch(proc.pid)
+
+
+def _code(returncode: int) -> str:
+    """``exit code 3``, or ``killed by signal SIGSEGV (11)`` for a negative return code."""
+    if returncode >= 0:
+        return f"exit code {returncode}"
+    try:
+        name = signal.Signals(-returncode).name
+    except ValueError:
+        return f"killed by signal {-returncode}"
+    return f"killed by signal {name} ({-returncode})"
+
+
+def _ended(returncode: int) -> str:
+    """``exited with code 3``, or ``was killed by signal SIGSEGV (11)``."""
+    return (f"exited with code {returncode}" if returncode >= 0
+            else f"was {_code(returncode)}")
 
 
 def _kill_group(proc: subprocess.Popen) -> None:
@@ -611,8 +817,8 @@ def _parse_outputs(text: str, mode: str, expected: tuple[str, ...] = ()) -> SimR
                          "JSON object of outputs")
     status = str(doc.pop("status", "ok"))
     message = str(doc.pop("message", ""))
-    outputs = {k: _to_float(v) for k, v in doc.items() if isinstance(v, (int, float))
-               or v is None}
+    # numbers as read (execute_run checks them: one too large for a float is named)
+    outputs = {k: v for k, v in doc.items() if isinstance(v, (int, float)) or v is None}
     wrong = "; ".join([*(f"output '{k}' in {where} is bool {doc[k]!r}, expected a number"
                          for k in expected if isinstance(doc.get(k), bool)),
                        *filter(None, [not_numbers({k: doc[k] for k in expected if k in doc},
@@ -649,13 +855,6 @@ def _excerpt(text: str) -> str:
     if len(text) <= 2 * EXCERPT + 5:
         return repr(text)
     return f"{text[:EXCERPT]!r} ... {text[-EXCERPT:]!r} ({len(text)} characters)"
-
-
-def _to_float(value: Any) -> float:
-    try:
-        return float(value)
-    except (TypeError, ValueError):
-        return math.nan
 
 
 def _jsonable(obj: Any) -> Any:

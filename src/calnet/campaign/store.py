@@ -232,6 +232,16 @@ class RunStore:
             self._db.close()
             self._db = None
 
+    @contextmanager
+    def snapshot(self) -> Iterator[None]:
+        """Within the block, every read sees the store as it was at the first: a
+        campaign writing it meanwhile changes nothing that the block reads."""
+        self._db.execute("BEGIN")
+        try:
+            yield
+        finally:
+            self._db.rollback()
+
     # ---------------------------------------------------------------- metadata
     def meta(self) -> dict[str, str]:
         return dict(self._db.execute("SELECT key, value FROM meta"))

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -108,10 +109,14 @@ def runs_frame(store: str | Path) -> Any:
     """Every run of a store as a pandas DataFrame: ``run``, ``status``, ``message``, one
     column per input/parameter, one per output, then wall time, simulator, hashes and
     provenance (``origin``: simulated or imported; ``source``: the design or the file)."""
+    with RunStore(store, readonly=True) as db:
+        return _frame(db.rows())
+
+
+def _frame(rows: list[dict[str, Any]]) -> Any:
+    """:func:`runs_frame` of the store's ``rows``."""
     import pandas as pd
 
-    with RunStore(store, readonly=True) as db:
-        rows = db.rows()
     inputs = list(dict.fromkeys(k for r in rows for k in r["inputs"]))
     outputs = list(dict.fromkeys(k for r in rows for k in (r["outputs"] or {})))
     records = [{"run": r["idx"], "status": r["status"] or "unfinished",
@@ -143,7 +148,7 @@ def check_export(out: Path) -> str:
 def export_runs(store: str | Path, out: str | Path) -> Path:
     """Write a store's runs to CSV or Parquet (by ``out``'s suffix), and its metadata
     (spec hash, seed, calnet and simulator versions, status counts) beside it as
-    ``<out stem>.meta.json``.
+    ``<out stem>.meta.json``; returns ``out``.
 
     Raises
     ------
@@ -153,18 +158,27 @@ def export_runs(store: str | Path, out: str | Path) -> Path:
         When a file cannot be written (no space left, read-only); each is replaced whole
         or left as it was.
     """
+    return write_export(store, out)[0]
+
+
+def write_export(store: str | Path, out: str | Path) -> tuple[Path, dict[str, int]]:
+    """:func:`export_runs`, also returning the status counts of the runs written
+    (``unfinished`` for those not finished). The runs and the metadata are read at one
+    moment, so that they agree while a campaign is still writing the store."""
     out = Path(out)
     suffix = check_export(out)
-    frame = runs_frame(store)
+    with RunStore(store, readonly=True) as db, db.snapshot():
+        meta, rows = db.meta(), db.rows()
+    counts = dict(sorted(Counter(r["status"] or "unfinished" for r in rows).items()))
+    frame = _frame(rows)
     make_folder(out.parent)
     with replacing(out) as tmp:
         if suffix == ".csv":
             frame.to_csv(tmp, index=False, float_format="%.17g")
         else:
             frame.to_parquet(tmp, index=False)
-    with RunStore(store, readonly=True) as db:
-        meta = {**db.meta(), "status_counts": db.status_counts(), "store": Path(store).name}
+    meta = {**meta, "status_counts": counts, "store": Path(store).name}
     meta["model_spec"] = json.loads(meta.get("model_spec", "{}"))
     with replacing(out.with_suffix(".meta.json")) as tmp:
         tmp.write_text(json.dumps(meta, indent=2) + "\n")
-    return out
+    return out, counts

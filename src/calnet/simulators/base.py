@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 import numbers
+import sys
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal, Protocol
@@ -39,28 +40,69 @@ class SimResult:
     diagnostics: dict[str, Any] = field(default_factory=dict)
 
     def checked(self, expected: tuple[str, ...] = ()) -> SimResult:
-        """Return a copy marked ``failed`` if an output is no number (saying what it is),
-        or an expected output is missing or not finite."""
+        """Return a copy marked ``failed`` if an expected output (every output, when
+        ``expected`` is empty) is missing, no number (saying what it is) or not finite.
+
+        The other outputs, which the model does not declare, are kept when they are
+        numbers (as floats, NaN for one too large for a float) and dropped otherwise."""
         if self.status != "ok":
             return self
-        wrong = not_numbers(self.outputs)
+        declared = expected or tuple(self.outputs)
+        wrong = not_numbers({k: self.outputs[k] for k in declared if k in self.outputs})
         if wrong:
             return SimResult(self.outputs, "failed", wrong, self.diagnostics)
-        missing = [k for k in expected if k not in self.outputs]
+        missing = [k for k in declared if k not in self.outputs]
         if missing:
             got = f"it returned {sorted(self.outputs)}" if self.outputs else "it returned none"
             return SimResult(self.outputs, "failed", f"missing outputs {missing} ({got}); "
                              "return each declared output by its name", self.diagnostics)
-        bad = [k for k, v in self.outputs.items()
-               if not isinstance(v, numbers.Real) or not math.isfinite(float(v))]
+        bad = [k for k in declared if not is_finite_number(self.outputs[k])]
         if bad:
-            return SimResult(self.outputs, "failed", f"non-finite outputs {bad}",
-                             self.diagnostics)
-        if all(type(v) is float for v in self.outputs.values()):
+            return SimResult(self.outputs, "failed", _not_finite(
+                {k: self.outputs[k] for k in bad}), self.diagnostics)
+        kept = {k: v for k, v in self.outputs.items()
+                if k in declared or (isinstance(v, numbers.Real) and not isinstance(v, bool))}
+        if len(kept) == len(self.outputs) and all(type(v) is float for v in kept.values()):
             return self
         # NumPy scalars (float32, int64, ...) are numbers: store them as Python floats
-        return SimResult({k: float(v) for k, v in self.outputs.items()}, self.status,
+        return SimResult({k: as_float(v) for k, v in kept.items()}, self.status,
                          self.message, self.diagnostics)
+
+
+def is_finite_number(value: Any) -> bool:
+    """Whether ``value`` is a real number (NumPy scalars too) that is finite as a float
+    (an integer too large for a float is not)."""
+    if not isinstance(value, numbers.Real):
+        return False
+    try:
+        return math.isfinite(float(value))
+    except OverflowError:
+        return False
+
+
+def as_float(value: Any) -> float:
+    """``float(value)``; NaN for a value that is no number or too large for a float."""
+    try:
+        return float(value)
+    except (TypeError, ValueError, OverflowError):
+        return math.nan
+
+
+def _not_finite(values: Mapping[str, Any]) -> str:
+    """``"non-finite outputs: 'y' = nan"``; an integer too large for a float is named as
+    such (``"output 'y' is an integer of about 1e400, too large for a float ..."``)."""
+    nonfinite, huge = [], []
+    for k, v in values.items():
+        try:
+            nonfinite.append(f"'{k}' = {float(v)!r}" if isinstance(v, numbers.Real)
+                             else f"'{k}' = {v!r}")  # None
+        except OverflowError:
+            size = (f"an integer of about 1e{int(math.log10(abs(int(v))))}"
+                    if isinstance(v, numbers.Integral) else _brief(v))
+            huge.append(f"output '{k}' is {size}, too large for a float (at most "
+                        f"{sys.float_info.max:.3g})")
+    return "; ".join([*(["non-finite outputs: " + ", ".join(nonfinite)] if nonfinite else []),
+                      *huge])
 
 
 def not_numbers(values: Mapping[str, Any], where: str = "") -> str:
