@@ -24,7 +24,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from calnet._jax import FEW_CALLS, device_array
-from calnet.calibration.calibrate_network import NetworkPosterior, uncalibrated
+from calnet.calibration.calibrate_network import (
+    NetworkPosterior,
+    direction_models,
+    uncalibrated,
+)
 from calnet.calibration.koh import KOHModel
 from calnet.calibration.persist import FILE as POSTERIOR_FILE
 from calnet.calibration.persist import load_posterior
@@ -307,7 +311,8 @@ def _setup(network: Network, surrogates: Surrogates, posterior: NetworkPosterior
         raise CalnetError(f"data set '{dataset}' was not calibrated; nothing to predict")
     plan = ChainPlan.from_network(network)
     emu = network.settings.calibration.emulator_variance
-    term, tdata = make_term(network, posterior.data[dataset], emulator_variance=emu, plan=plan)
+    term, tdata = make_term(network, posterior.data[dataset], emulator_variance=emu, plan=plan,
+                            directions=direction_models(network, posterior, dataset))
     spec = KOHModel(plan, (), (), (), (term.without_priors(),))
     thetas = draws_at(posterior.theta, plan, idx)
     hyper = hyper_at(posterior.hyper[dataset], idx, len(term.ell_priors))

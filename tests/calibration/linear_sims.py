@@ -38,3 +38,13 @@ def with_discrepancy(inputs):
 
 def two_parameters(inputs):
     return {"y": P0 + inputs["p"] + inputs["q"] * inputs["x"]}
+
+
+def upstream_parameter(inputs):
+    """M1 of test 2b: the parameter's share of test 2's model, passed down the chain."""
+    return {"u": KT * inputs["t"] + 0.0 * inputs["x"]}
+
+
+def downstream_of_parameter(inputs):
+    """M2 of test 2b: test 2's model with the parameter's share from upstream."""
+    return {"y": K0 + KX * inputs["x"] + inputs["u"]}

@@ -631,6 +631,64 @@ def test_discrepancy_posterior_matches_quadrature(discrepancy_networks, orthogon
         assert np.allclose(np.asarray(h["se2"]), SD_NOISE**2)
 
 
+# ==================================== 2b. the parameter upstream of the observed model
+def chain_discrepancy_spec(mode: str) -> dict:
+    """Test 2's model split in two: M1 (no data) makes the parameter's share ``u = KT t``,
+    M2 (no parameters, the data) ``y = K0 + KX x + u``, x passed down by an identity link.
+    The discrepancy sees M2's inputs (u, x); u is the same at every data point, so its
+    length scale only samples its prior and t's exact posterior is test 2's, for the
+    orthogonal discrepancy as well: orthogonal to ``d y / d t`` through the link."""
+    spec = discrepancy_spec(None)
+    k = spec["models"].pop("K")
+    lo, hi = sims.KT * BOUNDS_T[0], sims.KT * BOUNDS_T[1]
+    spec["models"] = {
+        "M1": {"simulator": "python:linear_sims:upstream_parameter",
+               "inputs": k["inputs"], "parameters": k["parameters"],
+               "outputs": {"u": {}}, "campaign": {"runs": 30}},
+        "M2": {"simulator": "python:linear_sims:downstream_of_parameter",
+               "inputs": {"u": {"lower": lo - 0.25, "upper": hi + 0.25},
+                          "x": dict(k["inputs"]["x"])},
+               "outputs": {"y": {"measurable": True}}, "campaign": {"runs": 40}}}
+    spec["links"] = [{"from": "M1.u", "to": "M2.u"}, {"from": "M1.x", "to": "M2.x"}]
+    spec["data"]["obs"]["observes"] = "M2.y"
+    spec["settings"]["calibration"]["mode"] = mode
+    return spec
+
+
+@pytest.fixture(scope="module")
+def chain_discrepancy_network(tmp_path_factory):
+    root = tmp_path_factory.mktemp("exact_chain_discrepancy")
+    write_case(root, chain_discrepancy_spec("joint"), {"obs.csv": {"x": XD, "y": YD}})
+    return build(root, seed=0)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("mode", ["joint", "segmented"])
+def test_the_discrepancy_is_orthogonal_to_a_parameter_upstream(chain_discrepancy_network,
+                                                                mode):
+    """The observed model has no parameters; the parameter acts on the data through the
+    link. calnet's default discrepancy must be orthogonal to its direction as in test 2:
+    the posterior of t is test 2's orthogonal answer (not the plain KOH answer, several
+    times wider, that a discrepancy blind to upstream parameters gives)."""
+    network, sur = chain_discrepancy_network
+
+    def chained(x, t):
+        return gp_mean(sur, "M2.y", gp_mean(sur, "M1.u", x, t), x)
+
+    m_true, s_true = discrepancy_grid_3d(true_kd, orthogonal=True)
+    m_gp, s_gp = discrepancy_grid_3d(chained, orthogonal=True)
+    assert abs(m_gp - m_true) < SURROGATE_SHIFT * s_true, (m_true, m_gp, s_true)
+    assert abs(s_gp / s_true - 1) < SURROGATE_SD, (s_true, s_gp)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", CalibrationWarning)  # the prior-only length scale
+        post = calibrate(network, sur, mode=mode, seed=11, sampler=SAMPLER)
+    got = draw_stats(stage_draws(post, "M1").values[..., 0])
+    ex = exact_discrepancy(orthogonal=True)
+    assert all(agrees(got, ex["mean"], ex["sd"])), (ex["mean"], ex["sd"], got)
+    plain = exact_discrepancy(orthogonal=False)
+    assert not all(agrees(got, plain["mean"], plain["sd"])), (plain, got)
+
+
 # ============================================================ 3. defaults must not swamp
 BOUNDS_PQ = (0.0, 2.0)  # uniform priors on p and q
 P_TRUE, Q_TRUE, SD_DEFAULT = 0.8, 1.2, 0.1

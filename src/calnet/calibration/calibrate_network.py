@@ -182,8 +182,11 @@ def build_koh(network: Network, surrogates: Surrogates, *, free: list[str],
         if scale is None:
             scale = data_scale(network, d, surrogates)
             _warn_no_spread(network, d, scale[1], name)
+        observed = network.dataset(ds_name).observed_model
+        sampled = tuple(m for m in (*network.ancestors(observed), observed)
+                        if any(k in free for k in parameter_keys(network, m)))
         t, td = make_term(network, d, emulator_variance=emulator_variance, plan=plan,
-                          scale=scale)
+                          scale=scale, directions=sampled)
         terms.append(t)
         tdata.append(td)
         if t.discrepancy:
@@ -364,7 +367,8 @@ def _checked(network, surrogates, post: NetworkPosterior, warn: bool) -> Network
     """``post`` with its surrogate checks; warns (or, without ``warn``, notes) where a
     surrogate sets the answer, a posterior piles up at a bound, or a convergence check
     failed."""
-    checks = tuple(check_surrogates(network, surrogates, post))
+    checks = tuple(check_surrogates(network, surrogates, post, directions={
+        ds: direction_models(network, post, ds) for ds in post.hyper}))
     messages = [c.message() for c in checks if c.message()]
     messages += check_bounds(network, post) + list(post.notes)
     if not warn:
@@ -451,6 +455,21 @@ def segmented_stages(network: Network) -> tuple[list[tuple[tuple[str, ...], list
     prior = list(dict.fromkeys(k for m in network.order for k in parameter_keys(network, m)
                                if k not in owners))
     return stages, prior
+
+
+def direction_models(network: Network, posterior: NetworkPosterior, dataset: str
+                     ) -> tuple[str, ...]:
+    """The models whose parameters were sampled with data set ``dataset`` in
+    ``posterior`` (the observed model and those upstream of it): what its orthogonal
+    discrepancy is orthogonal to (:attr:`~calnet.calibration.koh.Term.directions`), as
+    :func:`build_koh` set it when it calibrated the data set."""
+    model = network.dataset(dataset).observed_model
+    if posterior.mode == "segmented":
+        free = stage_keys(network, _owners(network, posterior.data), model)[1]
+    else:
+        free = _needed_keys(network, model)
+    return tuple(m for m in (*network.ancestors(model), model)
+                 if any(k in free for k in parameter_keys(network, m)))
 
 
 def _needed_keys(network: Network, model: str) -> list[str]:

@@ -185,9 +185,13 @@ def _over_draws(spec: KOHModel, gps, tdata, thetas, hyper):
         thetas, hyper)
 
 
-def check_surrogates(network, surrogates, posterior, *, n_draws: int = 50
-                     ) -> list[SurrogateCheck]:
-    """:class:`SurrogateCheck` of every calibrated data set."""
+def check_surrogates(network, surrogates, posterior, *, n_draws: int = 50,
+                     directions=None) -> list[SurrogateCheck]:
+    """:class:`SurrogateCheck` of every calibrated data set; ``directions``: data set ->
+    the models its orthogonal discrepancy is orthogonal to
+    (:func:`~calnet.calibration.calibrate_network.direction_models`; default: each
+    observed model alone)."""
+
     plan = ChainPlan.from_network(network)
     gps = {k: s.gp for k, s in surrogates.items.items()}
     idx = draw_index(posterior.n_draws, n_draws)
@@ -195,7 +199,8 @@ def check_surrogates(network, surrogates, posterior, *, n_draws: int = 50
     out, rates = [], {}
     for ds, hyper in posterior.hyper.items():
         d = posterior.data[ds]
-        term, tdata = make_term(network, d, emulator_variance=True, plan=plan)
+        term, tdata = make_term(network, d, emulator_variance=True, plan=plan,
+                                directions=(directions or {}).get(ds, ()))
         hy = hyper_at(hyper, idx, len(term.ell_priors))
         spec = KOHModel(plan, (), (), (), (term.without_priors(),))
         per_point = np.asarray(_over_draws(spec, gps, tdata, thetas, hy)).mean(axis=0)

@@ -138,6 +138,10 @@ class Term:
     links : tuple of str
         ``model.output`` of the surrogates feeding the observed model's inputs, directly
         or further up the chain (their variance is propagated when emulator_variance).
+    directions : tuple of str
+        The models whose parameters the orthogonal discrepancy is orthogonal to: those
+        whose parameters are sampled with this data set, the observed model and the
+        models upstream of it (empty: the observed model alone).
     """
 
     name: str
@@ -149,6 +153,7 @@ class Term:
     orthogonal: bool = True
     emulator_variance: bool = True
     links: tuple[str, ...] = ()
+    directions: tuple[str, ...] = ()
 
     @property
     def discrepancy(self) -> bool:
@@ -308,13 +313,28 @@ class KOHModel:
                 cov = cov + corr[k] * jnp.outer(d, d)
         return mean, cov
 
-    def _directions(self, data, term: Term, x, theta, s):
-        """``d yhat / d theta_m`` at the data, standardised, (n, p_m); None if p_m = 0."""
-        if not (term.orthogonal and term.discrepancy) or theta.shape[0] == 0:
+    def _directions(self, data, term: Term, tdata, x, thetas, s):
+        """``d yhat / d theta`` at the data, standardised, (n, p): one column per parameter
+        of each model of ``term.directions`` (the observed model's own, and those of the
+        models upstream whose parameters act on it through the linked inputs); None
+        without an orthogonal discrepancy or without such parameters. A parameter shared
+        by two of those models has a column in each (the discrepancy is orthogonal to
+        either model's response to it)."""
+        if not (term.orthogonal and term.discrepancy):
+            return None
+        models = [m for m in (term.directions or (term.model,)) if thetas[m].shape[0]]
+        if not models:
             return None
         gps = data["gps"]
-        return jax.jacfwd(
-            lambda th: self.plan.predict(gps, term.model, term.key, x, th)[0])(theta) / s
+        linked = "x_fixed" not in tdata and any(m != term.model for m in models)
+
+        def mean(sub):
+            th = {**thetas, **sub}
+            xx = self.plan.inputs(gps, term.model, tdata["xp"], th) if linked else x
+            return self.plan.predict(gps, term.model, term.key, xx, th[term.model])[0]
+
+        jac = jax.jacfwd(mean)({m: thetas[m] for m in models})
+        return jnp.concatenate([jac[m] for m in models], axis=1) / s
 
     def train(self, data, term: Term, tdata, thetas, hyper):
         """Standardised residual (n,), covariance (n, n) (or its diagonal (n,) when it is
@@ -340,7 +360,7 @@ class KOHModel:
         u = self.plan.unit_inputs(term.model, x)
         d2 = tdata["d2u_fixed"] if "d2u_fixed" in tdata else (u[:, None, :] - u[None]) ** 2
         C = hyper["sd2"] / s**2 * jnp.exp(-0.5 * jnp.sum(d2 / hyper["ell"] ** 2, axis=-1))
-        G = self._directions(data, term, x, theta, s)
+        G = self._directions(data, term, tdata, x, thetas, s)
         proj = None
         if G is not None:
             A = C @ G

@@ -114,12 +114,15 @@ def known_noise_var(network: Network, data: ExperimentalData) -> np.ndarray | No
 
 
 def make_term(network: Network, data: ExperimentalData, *, emulator_variance: bool,
-              plan: ChainPlan, scale: tuple[float, float] | None = None) -> tuple[Term, dict]:
+              plan: ChainPlan, scale: tuple[float, float] | None = None,
+              directions: tuple[str, ...] = ()) -> tuple[Term, dict]:
     """The KOH term of a data set and its arrays.
 
     ``scale`` (mean, sd) of the observations on the modelled scale sets the default priors
     and the internal standardisation; pass the full data set's when calibrating on a
     subset (leave-one-out) so that every subset shares one compiled sampler.
+    ``directions``: the models whose sampled parameters the orthogonal discrepancy is
+    orthogonal to (:attr:`Term.directions`; empty: the observed model alone).
     """
     ds = network.dataset(data.name)
     model = network.model(ds.observed_model)
@@ -142,7 +145,8 @@ def make_term(network: Network, data: ExperimentalData, *, emulator_variance: bo
                      else scale_prior(disc.sd_prior or HalfNormalPrior(sigma=s)))
     term = Term(data.name, model.name, ds.observes, ell_priors, sd2_prior, se2_prior,
                 orthogonal=disc.enabled and disc.orthogonal,
-                emulator_variance=emulator_variance, links=links_into(plan, model.name))
+                emulator_variance=emulator_variance, links=links_into(plan, model.name),
+                directions=tuple(directions))
     tdata = {"y": device_array((y - mean) / s, float), "y_mean": jnp.asarray(mean),
              "y_sd": jnp.asarray(s),
              "xp": {k: device_array(data.x[:, j], float)
