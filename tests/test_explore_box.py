@@ -65,3 +65,37 @@ def test_an_input_the_data_never_vary_is_warned_of_and_spans_its_bounds(tmp_path
     box = process_box(data, network)
     np.testing.assert_allclose(box[0], [0.0, 1.0])  # the declared bounds, not [0.5, 0.5]
     assert 2.5 > box[1, 0] > 2.45 and 3.5 < box[1, 1] < 3.55  # z varies: its own range
+
+
+def test_sobol_indices_are_uniform_in_each_inputs_own_scale(tmp_path, monkeypatch):
+    """An input of scale: log is uniform in ln x over the box: for y = ln P + b q the
+    indices are the variance shares of ln P and b q, (ln span)^2 / 12 and b^2 span^2 / 12
+    (the shares under P uniform in P itself differ by far more than the tolerance)."""
+    from types import SimpleNamespace
+
+    import calnet.explore as explore
+
+    test_the_box_widens_on_the_log_scale_and_keeps_to_the_bounds(tmp_path)  # writes it
+    network = load_spec(tmp_path)
+    data = read_all(network)["d"]
+    box = process_box(data, network)
+    b = 3.0
+
+    def truth(network, surrogates, posterior, name, idx, per_draw=False):
+        def f(x):
+            y = np.log(x[:, 0]) + b * x[:, 1]
+            return np.tile(y, (len(idx), 1)) if per_draw else y
+        return f
+
+    monkeypatch.setattr(explore, "mean_function", truth)
+    monkeypatch.setattr(explore, "predict", lambda *a, **k: SimpleNamespace(  # the map
+        mean=np.zeros(explore.GRID**2), prob=None))
+    res = explore.explore_dataset(network, None, SimpleNamespace(n_draws=50), data, seed=1)
+    v_p = np.log(box[0, 1] / box[0, 0]) ** 2 / 12
+    v_q = (b * (box[1, 1] - box[1, 0])) ** 2 / 12
+    expect = np.array([v_p, v_q]) / (v_p + v_q)
+    np.testing.assert_allclose(res.indices.ST, expect, atol=0.03)
+    np.testing.assert_allclose(res.indices.S1, expect, atol=0.03)
+    p = np.random.default_rng(0).uniform(*box[0], 200_000)  # P uniform in P instead
+    linear = np.var(np.log(p)) / (np.var(np.log(p)) + v_q)
+    assert abs(linear - expect[0]) > 0.1

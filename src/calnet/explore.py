@@ -129,12 +129,21 @@ def explore_dataset(network: Network, surrogates: Surrogates, posterior: Network
     note(f"Sobol {name}")
     box = process_box(data, network)
     names = [k.split(".")[1] for k in data.input_keys]
+    # uniform over the box in each input's own scale: ln x for an input of scale: log
+    logs = np.array([getattr(network.model(m).variable(v), "scale", "linear") == "log"
+                     for m, v in (k.split(".", 1) for k in data.input_keys)], dtype=bool)
+    design_box = np.where(logs[:, None], np.log(np.where(logs[:, None], box, 1.0)), box)
+
+    def physical(f):
+        return lambda z: f(np.where(logs, np.exp(np.where(logs, z, 0.0)), z))
+
     mean_of = mean_function(network, surrogates, posterior, name, draw_index(total, 50))
-    res = sobol_indices(mean_of, box, names=names, n_base=n_base, n_bootstrap=100,
-                        seed=seed)
+    res = sobol_indices(physical(mean_of), design_box, names=names, n_base=n_base,
+                        n_bootstrap=100, seed=seed)
     per_draw = mean_function(network, surrogates, posterior, name,
                              draw_index(total, 3 if quick else 20), per_draw=True)
-    spread = sobol_spread(per_draw, box, names=names, n_base=n_base // 2, seed=seed)
+    spread = sobol_spread(physical(per_draw), design_box, names=names, n_base=n_base // 2,
+                          seed=seed)
     if data.x.shape[1] != 2:
         return Exploration(name, res, spread, box)
     note(f"map {name}")
