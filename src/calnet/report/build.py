@@ -377,9 +377,12 @@ def _sections(ctx, results: RunResults) -> list[Section]:
                           f"[{fmt(sp.ST_lo[j])}, {fmt(sp.ST_hi[j])}]"])
     sens = Section("Sensitivity (Sobol indices of the calibrated chain)",
                    paragraphs=[quick_spread_note(few)] if few else [], tables=[Table(
-        "First-order and total-effect indices over the data's process box (± the "
-        "bootstrap 95 % half-width at the posterior predictive mean; an input the data "
-        "never vary spans its declared bounds)",
+        "First-order and total-effect indices over the data's process box, uniform in "
+        "each input's own scale (ln x for scale: log), of the posterior predictive mean "
+        "(± the bootstrap 95 % half-width: the Monte Carlo error of the sample, not the "
+        "surrogates' error; an input the data never vary spans its declared bounds); the "
+        "last column is the central 95 % of ST computed for each posterior draw on half "
+        "the sample, so it also carries that Monte Carlo error",
         ["data set", "input", "S1", "ST", "ST over posterior draws (95 %)"], srows)],
         figures=pick("sobol ") + pick("map ") + pick("process "))
     sections = [overview, sur] + ([cal] if rows else []) + ([val, sens] if ctx.data else [])
