@@ -438,7 +438,9 @@ def summarise(key: str, transform: str | None, points: Sequence[VerifyPoint]) ->
     rms_z = float(np.sqrt(np.mean(z**2)))
     note = ""
     if n >= WIDE_MIN_POINTS and rms_z < WIDE_RMS_Z:
-        note = (f"its sd overstates its error about {1 / max(rms_z, 1e-12):.0f} times here "
+        ratio = (f"about {1 / rms_z:.0f} times" if rms_z > 1e-3 else
+                 "more than 1000 times")
+        note = (f"its sd overstates its error {ratio} here "
                 f"(RMS z {rms_z:.2f} over {n} points, 1 for a sd that states the error): "
                 "predictive bands carry more emulator variance than its real error, and "
                 "the emulator's share of a prediction's variance is an upper bound")

@@ -105,3 +105,16 @@ def test_a_column_of_a_linked_input_is_said_to_be_unread(base_spec, write_spec):
                     "linked inputs from the models upstream; remove the column, or the link "
                     "to set the input from the data"], text
     assert data.input_keys == ("heat.P", "heat.v")
+
+
+def test_a_value_just_beyond_a_bound_is_shown_with_the_digits_that_say_so(base_spec,
+                                                                          write_spec):
+    """250.00000000000003 W beside the bound 250 would read '[250, 250] vs bounds
+    [50, 250]' at six digits; it is shown in full."""
+    width = ("id,power,speed,width,split\n1,250.00000000000003,0.5,90,train\n"
+             "2,150,1.0,80,train\n3,200,1.5,85,test\n")
+    path = write_spec(base_spec, width=width)
+    with pytest.warns(SpecWarning) as caught:
+        read_all(load_spec(path))
+    said = " ".join(str(w.message) for w in caught)
+    assert "heat.P in [250.00000000000003, 250.00000000000003] vs bounds [50, 250]" in said

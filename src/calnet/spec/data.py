@@ -283,6 +283,15 @@ def outside_bounds(network: Network, keys, x) -> np.ndarray:
     return out
 
 
+def _digits(value: float, var) -> str:
+    """``value`` with the digits that tell it from the bound it lies beyond (``10`` for
+    10.000000000000002 beside a bound of 10 would read as inside it)."""
+    for bound in (var.lower, var.upper):
+        if f"{value:g}" == f"{bound:g}" and value != bound:
+            return repr(float(value))
+    return f"{value:g}"
+
+
 def _check_bounds(network: Network, ds: Dataset, keys: list[str], x: np.ndarray, path,
                   field: str) -> None:
     variables = [network.model(k.split(".")[0]).variable(k.split(".")[1]) for k in keys]
@@ -293,7 +302,8 @@ def _check_bounds(network: Network, ds: Dataset, keys: list[str], x: np.ndarray,
                             "but its scale is log (the surrogates take its logarithm); fix "
                             "or remove those rows", file=str(path), field=f"{field}.columns")
     mask = outside_bounds(network, keys, x)
-    detail = [f"{key} in [{x[mask[:, j], j].min():g}, {x[mask[:, j], j].max():g}] vs bounds "
+    detail = [f"{key} in [{_digits(x[mask[:, j], j].min(), var)}, "
+              f"{_digits(x[mask[:, j], j].max(), var)}] vs bounds "
               f"[{var.lower:g}, {var.upper:g}]"
               for j, (key, var) in enumerate(zip(keys, variables, strict=True))
               if mask[:, j].any()]

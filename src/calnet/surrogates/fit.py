@@ -89,7 +89,9 @@ def validate_training_data(
     z = np.log(y) if transform == "log" else y
     if np.ptp(z) <= 1e-12 * max(1.0, float(np.max(np.abs(z)))):
         raise SurrogateError(f"{lab} is constant (value {float(y[0]):g} at all {n} points); a GP "
-                             "cannot be fitted, model it as a constant or drop it")
+                             "cannot be fitted: remove what needs its surrogate (the data "
+                             "set, link or settings.predict entry that uses it), or widen the "
+                             "box over which the model's runs vary it")
     return x, y, lower, upper
 
 
