@@ -93,9 +93,11 @@ class ChainPlan:
                 cols.append(self._inputs(gps, src[1], xp, thetas, eps, cache)[:, src[2]])
             else:
                 up = self._inputs(gps, src[1], xp, thetas, eps, cache)
-                mean, var = self.predict(gps, src[1], src[2], up, thetas[src[1]])
                 if src[2] in eps:  # + 1e-30: a finite derivative where the variance is 0
+                    mean, var = self.predict(gps, src[1], src[2], up, thetas[src[1]])
                     mean = mean + jnp.sqrt(var + 1e-30) * eps[src[2]]
+                else:  # the mean alone: no solve with the training covariance
+                    mean = self.predict_mean(gps, src[1], src[2], up, thetas[src[1]])
                 cols.append(jnp.exp(mean) if gps[src[2]].transform == "log" else mean)
         out = jnp.stack(cols, axis=1)
         cache[model] = out
@@ -114,6 +116,10 @@ class ChainPlan:
     def predict(self, gps: Mapping, model: str, key: str, x: Array, theta: Array):
         """GP ``key`` of ``model`` at inputs ``x`` (n, n_inputs): modelled mean, var (n,)."""
         return gps[key].predict(self.gp_inputs(model, x, theta))
+
+    def predict_mean(self, gps: Mapping, model: str, key: str, x: Array, theta: Array):
+        """GP ``key`` of ``model`` at inputs ``x`` (n, n_inputs): modelled mean (n,)."""
+        return gps[key].predict_mean(self.gp_inputs(model, x, theta))
 
     def predict_cov(self, gps: Mapping, model: str, key: str, x: Array, theta: Array):
         """GP ``key`` at inputs ``x`` (n, n_inputs): modelled mean (n,) and covariance (n, n)."""

