@@ -18,6 +18,7 @@ from calnet.calibration.calibrate_network import (
     _sample,
     build_koh,
     calibrate,
+    direction_models,
     stage_keys,
     with_stage,
 )
@@ -645,6 +646,8 @@ class _Refitter:
                 if k not in self.own:
                     self.fixed[k] = float(np.mean(draws[:, j]))
         self.scales = {full.name: data_scale(network, full, surrogates)}
+        # the calibration's discrepancy, also where the refit holds parameters fixed
+        self.directions = {full.name: direction_models(network, posterior, full.name)}
 
     def predict(self, i: int, seed: int, n_samples: int = 4000):
         """Mean, 95 % bounds, ``n_samples`` predictive samples, the PIT and the log
@@ -653,7 +656,7 @@ class _Refitter:
         data_i = full.subset(np.arange(len(full.y)) != i)
         ld = build_koh(network, self.surrogates, free=self.own, datasets={full.name: data_i},
                        fixed=self.fixed, name=f"{self.model} LOO", plan=self.plan,
-                       scales=self.scales,
+                       scales=self.scales, directions=self.directions,
                        emulator_variance=network.settings.calibration.emulator_variance)
         idata = _sample(ld, self.sampler, seed)
         stage = StageResult((self.model,), (full.name,), idata, ld)

@@ -170,9 +170,13 @@ def build_koh(network: Network, surrogates: Surrogates, *, free: list[str],
               datasets: Mapping[str, ExperimentalData], fixed: Mapping[str, float] | None = None,
               emulator_variance: bool = True, name: str = "network",
               plan: ChainPlan | None = None,
-              scales: Mapping[str, tuple[float, float]] | None = None) -> KOHDensity:
+              scales: Mapping[str, tuple[float, float]] | None = None,
+              directions: Mapping[str, tuple[str, ...]] | None = None) -> KOHDensity:
     """The KOH log-density of ``datasets`` with the parameters ``free`` (keys) sampled and
-    the others at ``fixed`` (key -> value; 0 where neither)."""
+    the others at ``fixed`` (key -> value; 0 where neither). ``directions`` (data set ->
+    models) sets what a data set's orthogonal discrepancy is orthogonal to where it is
+    not that of ``free`` (a leave-one-out refit that holds some of the calibration's
+    parameters fixed keeps the calibration's discrepancy)."""
     plan = plan or ChainPlan.from_network(network)
     fixed = dict(fixed or {})
     params, theta_index, groups, names = _layout(network, list(free))
@@ -183,8 +187,10 @@ def build_koh(network: Network, surrogates: Surrogates, *, free: list[str],
             scale = data_scale(network, d, surrogates)
             _warn_no_spread(network, d, scale[1], name)
         observed = network.dataset(ds_name).observed_model
-        sampled = tuple(m for m in (*network.ancestors(observed), observed)
-                        if any(k in free for k in parameter_keys(network, m)))
+        sampled = (directions or {}).get(ds_name)
+        if sampled is None:
+            sampled = tuple(m for m in (*network.ancestors(observed), observed)
+                            if any(k in free for k in parameter_keys(network, m)))
         t, td = make_term(network, d, emulator_variance=emulator_variance, plan=plan,
                           scale=scale, directions=sampled)
         terms.append(t)
