@@ -405,7 +405,7 @@ def _one_mode_draws(seed=0):
 def test_a_plausible_point_far_from_every_chain_is_an_unvisited_mode():
     """A candidate with a log density as high as the draws' (the mirror mode at -1 of a
     symmetric density) but 200 sds from every chain is found; one in the chains' own mode,
-    or one far away but less plausible than every draw, is not."""
+    or one far away but less plausible than all but the rarest draws, is not."""
     pos, lp = _one_mode_draws()
     cands = np.array([[1.005, 0.3], [-1.0, 0.2], [-1.0, 0.1], [0.2, 0.0]])
     lp_c = np.array([-0.2, -0.5, -0.3, -3000.0])  # the mirror mode's as the draws'
@@ -413,6 +413,11 @@ def test_a_plausible_point_far_from_every_chain_is_an_unvisited_mode():
     assert unvisited_mode(pos, lp, cands[[0, 3]], lp_c[[0, 3]]) is None
     lower = np.array([-0.2, lp.min() - 1.0, lp.min() - 2.0, -3000.0])
     assert unvisited_mode(pos, lp, cands, lower) is None
+    # a far point as unlikely as the chains' rarest draws is a tail, not a mode: above
+    # their lowest log density but below their 1 % quantile
+    tail = np.array([-0.2, 0.5 * (lp.min() + np.quantile(lp, 0.01)), -3000.0, -3000.0])
+    assert lp.min() < tail[1] < np.quantile(lp, 0.01)
+    assert unvisited_mode(pos, lp, cands, tail) is None
     # the same point is no unvisited mode once a chain sits there
     pos[3, :, 0] = -1.0 + 0.01 * np.random.default_rng(1).standard_normal(500)
     assert unvisited_mode(pos, lp, cands, lp_c) is None

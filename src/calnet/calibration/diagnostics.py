@@ -265,12 +265,15 @@ def stuck_chains(lp) -> list[int]:
 
 
 UNVISITED_SDS = 10.0  # posterior sds from every chain for a plausible point to be unvisited
+UNVISITED_LP = 0.01  # quantile of the draws' log densities a candidate must reach
 
 
 def unvisited_mode(positions, lp, candidates, candidate_lp) -> int | None:
     """Index of a candidate point (one of the prior draws the chains were started from)
     that is as plausible as the draws but far from every chain: its log density is at
-    least the lowest of the draws', and in some parameter it lies more than
+    least the :data:`UNVISITED_LP` quantile of the draws' (not their lowest: a chain's
+    rare excursion into a tail would let any tail point pass), and in some parameter it
+    lies more than
     :data:`UNVISITED_SDS` of each chain's own sd from that chain's mean. Such a point sits
     in a mode the chains did not visit (a mode's share is then set by how many chains
     landed in it, not by its mass). None when there is none; the candidate with the
@@ -281,7 +284,7 @@ def unvisited_mode(positions, lp, candidates, candidate_lp) -> int | None:
     """
     positions, lp = np.asarray(positions, float), np.asarray(lp, float)
     candidates, candidate_lp = np.asarray(candidates, float), np.asarray(candidate_lp, float)
-    plausible = np.isfinite(candidate_lp) & (candidate_lp >= lp.min())
+    plausible = np.isfinite(candidate_lp) & (candidate_lp >= np.quantile(lp, UNVISITED_LP))
     if not plausible.any():
         return None
     mean = positions.mean(axis=1)  # (chains, dim)
