@@ -17,10 +17,12 @@ The surrogate variance is the observed output's GP variance plus, to first order
 variance that each upstream (linked) surrogate passes down the chain.
 
 *Orthogonal discrepancy* (the default): ``delta_d`` is conditioned on having no component
-along the directions in which the model's own parameters move the surrogate at the data
-(``G = d yhat / d theta_m``, ``G^T delta(X) = 0``), so that the discrepancy cannot mimic a
-change of parameters (Plumlee 2017; Brynjarsdottir and O'Hagan 2014). A correct model then
-gets the parameter posterior it would get without a discrepancy.
+along the directions in which the parameters sampled with the data set move the surrogate
+at the data (``G = d yhat / d theta``, ``G^T delta(X) = 0``; the observed model's own and,
+through the links, those of the models upstream: :attr:`Term.directions`), so that the
+discrepancy cannot mimic a change of parameters (Plumlee 2017; Brynjarsdottir and O'Hagan
+2014). A correct model then gets the parameter posterior it would get without a
+discrepancy.
 
 Every variable is in the data's own units on the modelled scale (``ln y`` for an output
 with ``transform: log``): variances ``sd2`` and ``se2`` in (unit)^2, length scales on the
