@@ -509,35 +509,10 @@ def _json_default(obj: Any) -> Any:
 
 
 def _campaign_options(kw: dict[str, Any]) -> None:
-    """Refuse, as usage errors (exit 2), ``calnet campaign`` options that do not go
-    together or name a path no file can have, before the command reads a store."""
-    from calnet.campaign.executors import executor_kind
-    from calnet.campaign.table import check_export
-    from calnet.errors import CampaignError
-
-    model, store, export, import_ = kw["model"], kw["store"], kw["export"], kw["import_"]
-    _file_option(store, "--store", f"{model or 'MODEL'}.sqlite")
-    _file_option(export, "--export", "runs.csv")
-    try:
-        if export:
-            check_export(export)
-        if not kw["export_only"]:  # which it refuses itself, naming them
-            executor_kind(kw["executor"], workers=kw["workers"], scheduler=kw["scheduler"])
-    except CampaignError as err:
-        raise UsageError(str(err)) from None
-    if kw["export_only"]:
-        return
-    if import_ and (kw["fresh"] or kw["retry_failed"] or kw["runs"]):
-        raise UsageError("--import only adds runs to a store; import first, then run "
-                         "`calnet campaign` again for --runs/--retry-failed (or give a new "
-                         "--store for an empty one)")
-    if not model and (import_ or store or export):
-        from calnet.spec import load_spec
-
-        if len(load_spec(kw["spec"]).order) > 1:
-            raise UsageError(("--import reads one model's runs" if import_ else
-                              "--store and --export name one file")
-                             + "; give --model NAME too")
+    """Refuse, as usage errors (exit 2), ``calnet campaign`` paths no file can have, before
+    the command reads a store (the command refuses options that do not go together)."""
+    _file_option(kw["store"], "--store", f"{kw['model'] or 'MODEL'}.sqlite")
+    _file_option(kw["export"], "--export", "runs.csv")
 
 
 def campaign_command() -> Callable[..., Any]:

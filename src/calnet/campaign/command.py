@@ -1,6 +1,6 @@
 """``calnet campaign``: the Typer command over :func:`calnet.campaign.run_campaign`.
 
-Registered in :mod:`calnet.cli` as ``app.command("campaign")(user_errors(campaign))``.
+Registered in :mod:`calnet.cli` by :func:`calnet.cli.campaign_command`, which checks its paths.
 Import-light: the spec, the driver, Dask and UM-Bridge load when the command runs.
 """
 
@@ -13,7 +13,7 @@ from typing import Annotated, Any, Literal
 import typer
 
 from calnet.campaign.interrupt import sigterm_exits
-from calnet.errors import CampaignError, CampaignWarning
+from calnet.errors import CampaignError, CampaignWarning, UsageError
 
 
 @sigterm_exits
@@ -66,30 +66,33 @@ def campaign(
     from rich.console import Console
 
     from calnet.campaign.campaign import import_runs, run_campaign
+    from calnet.campaign.executors import executor_kind
     from calnet.campaign.failures import common_failures, store_failure_note
     from calnet.campaign.table import check_export, export_runs
     from calnet.spec import load_spec
 
     network = load_spec(spec)
     names = [model] if model else list(network.order)
-    if export_only:
+    try:  # options that cannot work are usage errors, before any store is read
         if export:
             check_export(export)
+        if not export_only:  # which refuses the options it does not take itself
+            executor_kind(executor, workers=workers, scheduler=scheduler)
+    except CampaignError as err:
+        raise UsageError(str(err)) from None
+    if export_only:
         _export_only(network, names, store, export, Console(highlight=False),
                      {"--runs": runs, "--workers": workers, "--scheduler": scheduler,
                       "--fresh": fresh, "--retry-failed": retry_failed, "--import": import_},
                      seed)
         return
-    if len(names) > 1 and (store or export):
-        raise CampaignError("--store and --export name one file; give --model too")
-    if import_ and len(names) > 1:
-        raise CampaignError("--import reads one model's runs; give --model too")
     if import_ and (fresh or retry_failed or runs):
-        raise CampaignError("--import only adds runs to a store; import first, then run "
-                            "`calnet campaign` again for --runs/--retry-failed (or give a "
-                            "new --store for an empty one)")
-    if export:
-        check_export(export)
+        raise UsageError("--import only adds runs to a store; import first, then run "
+                         "`calnet campaign` again for --runs/--retry-failed (or give a new "
+                         "--store for an empty one)")
+    if len(names) > 1 and (import_ or store or export):
+        raise UsageError(("--import reads one model's runs" if import_ else
+                          "--store and --export name one file") + "; give --model NAME too")
     console = Console(highlight=False)
     useless, skipped, why = [], [], {}
     for name in names:
@@ -132,7 +135,6 @@ def _export_only(network: Any, names: list[str], store: Path | None, export: Pat
     from calnet.campaign.campaign import _difference, _model
     from calnet.campaign.store import RunStore, default_store
     from calnet.campaign.table import write_export
-    from calnet.errors import UsageError
 
     if not export:
         raise UsageError("--export-only writes a store to a file: give --export FILE")
