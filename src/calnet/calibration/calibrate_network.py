@@ -189,8 +189,7 @@ def build_koh(network: Network, surrogates: Surrogates, *, free: list[str],
         observed = network.dataset(ds_name).observed_model
         sampled = (directions or {}).get(ds_name)
         if sampled is None:
-            sampled = tuple(m for m in (*network.ancestors(observed), observed)
-                            if any(k in free for k in parameter_keys(network, m)))
+            sampled = _models_sampled(network, observed, free)
         t, td = make_term(network, d, emulator_variance=emulator_variance, plan=plan,
                           scale=scale, directions=sampled)
         terms.append(t)
@@ -474,6 +473,12 @@ def direction_models(network: Network, posterior: NetworkPosterior, dataset: str
         free = stage_keys(network, _owners(network, posterior.data), model)[1]
     else:
         free = _needed_keys(network, model)
+    return _models_sampled(network, model, free)
+
+
+def _models_sampled(network: Network, model: str, free) -> tuple[str, ...]:
+    """``model`` and the models upstream of it that have a parameter among the keys
+    ``free``, in topological order."""
     return tuple(m for m in (*network.ancestors(model), model)
                  if any(k in free for k in parameter_keys(network, m)))
 
