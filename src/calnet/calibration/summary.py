@@ -16,7 +16,7 @@ from calnet.calibration.priors import parameter_prior
 from calnet.calibration.terms import modelled, no_spread, parameter_keys
 from calnet.results import CalibrationResult, PriorPanel
 from calnet.spec import Network
-from calnet.spec.models import SamplerSettings
+from calnet.spec.models import DEFAULT_SCALE, SamplerSettings
 
 __all__ = ["posterior_summary", "data_set_summary", "prior_panels", "calibration_result"]
 
@@ -150,14 +150,12 @@ def data_set_summary(network: Network, post: NetworkPosterior) -> dict:
             continue
         var = network.observed(ds)
         log = var.transform == "log"
+        scale = ("the simulation runs' sd: the observations have no spread"
+                 if no_spread(modelled(network, post.data[ds.name])) else DEFAULT_SCALE)
         row: dict = {"unit": f"ln({var.unit})" if log else var.unit,
                      "scale": "log" if log else "linear",
-                     "priors": f"{ds.noise.text(var.unit, log)}; {ds.discrepancy.text()}"}
-        if no_spread(modelled(network, post.data[ds.name])) and "observations' sd" in \
-                row["priors"]:
-            row["priors"] = row["priors"].replace(
-                "the observations' sd", "the simulation runs' sd: the observations have no "
-                "spread")
+                     "priors": f"{ds.noise.text(var.unit, log, scale)}; "
+                               f"{ds.discrepancy.text(scale)}"}
         if f"se2_{ds.name}" in draws:
             row["noise_sd"] = _interval(np.sqrt(draws[f"se2_{ds.name}"]))
         else:

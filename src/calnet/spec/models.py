@@ -230,6 +230,11 @@ class Split(Frozen):
     test: str = "test"
 
 
+DEFAULT_SCALE = "the observations' sd"
+"""The scale of the default noise and discrepancy priors, in words (where the
+observations have none, :func:`calnet.calibration.terms.data_scale` takes another)."""
+
+
 class NoiseSettings(Frozen):
     """Measurement noise of one data set (method.md section 3), in the output's units.
 
@@ -271,9 +276,10 @@ class NoiseSettings(Frozen):
     def known(self) -> bool:
         return self.sd is not None or self.sd_column is not None
 
-    def text(self, unit: str = "", log: bool = False) -> str:
+    def text(self, unit: str = "", log: bool = False, scale: str = DEFAULT_SCALE) -> str:
         """In words: ``noise sd 5 um (known)``, ``noise sd sampled, prior ...``; ``unit``
-        is the output's, ``log`` whether it has ``transform: log``."""
+        is the output's, ``log`` whether it has ``transform: log``, ``scale`` what the
+        default prior's scale is."""
         unit = "" if unit in ("", "1") else f" {unit}"
         to_log = "; taken to the log scale as sd / y" if log else ""
         if self.sd is not None:
@@ -286,7 +292,7 @@ class NoiseSettings(Frozen):
         if self.prior is not None:
             on = "variance" if self.prior.dist == "invgamma" else "sd"
             return f"noise {on} sampled, prior {prior_text(self.prior)}"
-        return "noise sd sampled, prior half-normal (scale: the observations' sd)"
+        return f"noise sd sampled, prior half-normal (scale: {scale})"
 
 
 class DiscrepancySettings(Frozen):
@@ -325,14 +331,15 @@ class DiscrepancySettings(Frozen):
             raise ValueError("give either reference or sd_prior, not both")
         return self
 
-    def text(self) -> str:
-        """In words: ``no discrepancy``, ``discrepancy orthogonal to ...``."""
+    def text(self, scale: str = DEFAULT_SCALE) -> str:
+        """In words: ``no discrepancy``, ``discrepancy orthogonal to ...``; ``scale`` what
+        the default prior's scale is."""
         if not self.enabled:
             return "no discrepancy"
         if self.reference:
             return "discrepancy: the reference study's (InverseGamma(2, 1), not orthogonal)"
         sd = (f"prior {prior_text(self.sd_prior)}" if self.sd_prior is not None
-              else "prior half-normal (scale: the observations' sd)")
+              else f"prior half-normal (scale: {scale})")
         ell = ("" if self.length_scale_prior == LogNormalPrior()
                else f", length scales prior {prior_text(self.length_scale_prior)}")
         return (f"discrepancy {'orthogonal to' if self.orthogonal else 'free to mimic'} the "
@@ -493,7 +500,7 @@ def named_mapping_to_list(value: Any) -> Any:
 
 
 __all__ = [
-    "CalibrationSettings", "CampaignSettings", "Criterion", "Dataset", "DiscrepancySettings",
-    "Link", "Model", "Name", "NoiseSettings", "SamplerSettings", "Settings", "SimulatorRef",
-    "Split", "SurrogateSettings",
+    "DEFAULT_SCALE", "CalibrationSettings", "CampaignSettings", "Criterion", "Dataset",
+    "DiscrepancySettings", "Link", "Model", "Name", "NoiseSettings", "SamplerSettings",
+    "Settings", "SimulatorRef", "Split", "SurrogateSettings",
 ]
