@@ -95,3 +95,24 @@ def test_the_parity_plot_of_a_log_gp_over_decades_has_log_axes(tmp_path, monkeyp
     ax = saved[-1].axes[0]
     assert (ax.get_xscale(), ax.get_yscale()) == ("log", "log")
     assert ax.get_title().endswith("5-fold CV, GP on ln") and "(MPa)" in ax.get_xlabel()
+
+
+@pytest.mark.parametrize("mean,transform", [("constant", None), ("linear", "log"),
+                                            ("quadratic", None)])
+def test_each_fold_is_the_fit_on_its_training_points(mean, transform):
+    # the folds run on the full arrays with the held-out points decoupled (one compiled
+    # program for every fold); each must predict as fit_gp on the fold's own points does
+    from calnet.surrogates import fit_gp
+
+    rng = np.random.default_rng(4)
+    x = rng.uniform(0.0, 2.0, (45, 2))
+    y = np.exp(0.4 * x[:, 0] + np.sin(2 * x[:, 1])) + 0.01 * rng.normal(size=45)
+    kw = dict(lower=[0.0, 0.0], upper=[2.0, 2.0], transform=transform, n_restarts=1, seed=5,
+              mean=mean)
+    cv = cross_validate(x, y, k=4, **kw)
+    for i in range(4):
+        test = cv.fold == i
+        gp = fit_gp(x[~test], y[~test], **kw)
+        m, v = (np.asarray(a) for a in gp.predict(x[test], include_nugget=True))
+        np.testing.assert_allclose(cv.mean_modelled[test], m, rtol=1e-5, atol=1e-6)
+        np.testing.assert_allclose(cv.var_modelled[test], v, rtol=1e-3)

@@ -86,3 +86,26 @@ def test_same_log_marginal_likelihood_as_scikit_learn():
     ys = (y_raw - y_raw.mean()) / y_raw.std()
     ours = -float(neg_log_marginal_likelihood(jnp.log(jnp.r_[ell, s2, nug]), x, ys))
     assert ours == pytest.approx(sk.log_marginal_likelihood(sk_theta), rel=1e-6)
+
+
+@pytest.mark.parametrize("mean", ["constant", "linear"])
+def test_masked_likelihood_is_the_kept_points_likelihood(mean):
+    # the mask decouples points in arrays of the full shape: the value and the gradient
+    # must be those of the kept points' own arrays (what a cross-validation fold fits)
+    from calnet.surrogates.likelihood import basis
+
+    x, y = _data(n=30)
+    keep = np.ones(30, bool)
+    keep[[2, 7, 8, 19, 29]] = False
+    p = jnp.asarray(LOG_PARAMS)
+    H = None if mean == "constant" else basis(jnp.asarray(x), mean)
+    want = jax.jit(nlml_value_and_grad)(p, x[keep], y[keep],
+                                        None if H is None else H[keep])
+    mask = keep.astype(float)
+    got = jax.jit(nlml_value_and_grad)(p, x, np.where(keep, y, 0.0),
+                                       None if H is None else H * mask[:, None], mask)
+    assert float(got[0]) == pytest.approx(float(want[0]), rel=1e-10)
+    np.testing.assert_allclose(np.asarray(got[1]), np.asarray(want[1]), rtol=1e-8, atol=1e-10)
+    if mean == "constant":  # and the textbook formula on the kept points
+        assert float(got[0]) == pytest.approx(_dense_nlml(LOG_PARAMS, x[keep], y[keep]),
+                                              rel=1e-10)

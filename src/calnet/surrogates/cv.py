@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from calnet.errors import SurrogateError
-from calnet.surrogates.fit import fit_gp, validate_training_data
+from calnet.surrogates.fit import fit_gp, held_out_predictions, validate_training_data
 from calnet.surrogates.likelihood import n_basis, trend_runs
 
 Z95 = 1.959963984540054  # standard normal 97.5 % quantile
@@ -230,9 +230,14 @@ def cross_validate(
         if before_fold is not None:
             before_fold()
         test = fold == i
-        gp = fit_gp(x[~test], y[~test], lower=lower, upper=upper, transform=transform,
-                    n_restarts=n_restarts, seed=seed, name=name, **fit_kwargs)
-        m, v = gp.predict(x[test], include_nugget=True)
+        if fit_kwargs.get("mean", "constant") == "auto":  # a choice per fold: its own fits
+            gp = fit_gp(x[~test], y[~test], lower=lower, upper=upper, transform=transform,
+                        n_restarts=n_restarts, seed=seed, name=name, **fit_kwargs)
+            m, v = gp.predict(x[test], include_nugget=True)
+        else:
+            m, v = held_out_predictions(x, y, ~test, lower=lower, upper=upper,
+                                        transform=transform, n_restarts=n_restarts,
+                                        seed=seed, name=name, **fit_kwargs)
         mu[test], var[test] = np.asarray(m), np.asarray(v)
     sd = np.sqrt(var)
     if transform == "log":

@@ -2,8 +2,9 @@
 
 The optimiser is SciPy's L-BFGS-B on the closed-form value and gradient of
 :func:`calnet.surrogates.likelihood.nlml_value_and_grad`, jitted once per data size (JAX
-caches the compiled function by array shape, so restarts and CV folds of equal size
-reuse it). method.md section 2.
+caches the compiled function by array shape, so restarts reuse it; the folds of a
+cross-validation, :func:`held_out_predictions`, run it on the full data's arrays with
+their held-out points decoupled, so they reuse the full fit's). method.md section 2.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from scipy.optimize import minimize
 
 from calnet._jax import device_array
 from calnet.errors import SurrogateError, SurrogateWarning
-from calnet.surrogates.gp import FittedGP, condition
+from calnet.surrogates.gp import FittedGP, condition, held_out_moments
 from calnet.surrogates.likelihood import MEANS, basis, n_basis, nlml_value_and_grad, trend_runs
 
 LENGTHSCALE_BOUNDS = (1e-2, 1e2)  # unit-cube units
@@ -105,10 +106,32 @@ def _starts(d, n_restarts, rng, ell_b, s2_b, nug_b) -> np.ndarray:
     return np.vstack([default, rng.uniform(lo, hi, size=(n_restarts, d + 2))])
 
 
-def _optimise(xs, ys, starts, bounds, H=None):
-    """Run L-BFGS-B from each start; return (best log_params, best value)."""
+def _bounds_and_starts(d, n_restarts, seed, lengthscale_bounds, signal_var_bounds,
+                       nugget_bounds, init, name):
+    """L-BFGS-B's bounds on the log hyperparameters and its starts (``init`` first)."""
+    bounds = [tuple(np.log(lengthscale_bounds))] * d + [tuple(np.log(signal_var_bounds)),
+                                                         tuple(np.log(nugget_bounds))]
+    starts = _starts(d, n_restarts, np.random.default_rng(seed), lengthscale_bounds,
+                     signal_var_bounds, nugget_bounds)
+    if init is not None:
+        init = np.asarray(init, dtype=np.float64)
+        if init.shape != (d + 2,) or not np.all(np.isfinite(init)):
+            raise SurrogateError(f"{_label(name)}: init must be {d + 2} finite log "
+                                 f"hyperparameters, got shape {init.shape}")
+        starts[0] = np.clip(init, [b[0] for b in bounds], [b[1] for b in bounds])
+    return bounds, starts
+
+
+def _optimise(xs, ys, starts, bounds, H=None, mask=None):
+    """Run L-BFGS-B from each start; return (best log_params, best value). ``mask``
+    (device array of ones and zeros, default all ones): the points the likelihood keeps
+    (:func:`~calnet.surrogates.likelihood.nlml_value_and_grad`); a full fit passes all
+    ones, so that it and the folds of its cross-validation share one compiled program."""
+    if mask is None:
+        mask = device_array(np.ones(xs.shape[0]), float)
+
     def fun(p):
-        v, g = _value_and_grad(device_array(p, float), xs, ys, H)
+        v, g = _value_and_grad(device_array(p, float), xs, ys, H, mask)
         v = float(v)
         if not np.isfinite(v):
             return _PENALTY, np.zeros_like(p)
@@ -219,16 +242,8 @@ def fit_gp(
     xs = device_array((x - lower) / (upper - lower), float)
     z = np.log(y) if transform == "log" else y
     ys = device_array((z - z.mean()) / z.std(), float)
-    bounds = [tuple(np.log(lengthscale_bounds))] * d + [tuple(np.log(signal_var_bounds)),
-                                                         tuple(np.log(nugget_bounds))]
-    starts = _starts(d, n_restarts, np.random.default_rng(seed), lengthscale_bounds,
-                     signal_var_bounds, nugget_bounds)
-    if init is not None:
-        init = np.asarray(init, dtype=np.float64)
-        if init.shape != (d + 2,) or not np.all(np.isfinite(init)):
-            raise SurrogateError(f"{_label(name)}: init must be {d + 2} finite log "
-                                 f"hyperparameters, got shape {init.shape}")
-        starts[0] = np.clip(init, [b[0] for b in bounds], [b[1] for b in bounds])
+    bounds, starts = _bounds_and_starts(d, n_restarts, seed, lengthscale_bounds,
+                                        signal_var_bounds, nugget_bounds, init, name)
     if mean not in MEAN_CHOICES:
         raise SurrogateError(f"{_label(name)}: mean must be one of {list(MEAN_CHOICES)}, got "
                              f"{mean!r}")
@@ -251,6 +266,66 @@ def fit_gp(
         return fits[0]
     scores = [loo_log_density(gp) for gp in fits]
     return fits[int(np.argmax(np.nan_to_num(scores, nan=-np.inf)))]  # the simpler on a tie
+
+
+def held_out_predictions(
+    x: np.ndarray,
+    y: np.ndarray,
+    keep: np.ndarray,
+    *,
+    lower,
+    upper,
+    transform: str | None = None,
+    n_restarts: int = 5,
+    seed: int = 0,
+    lengthscale_bounds: tuple[float, float] = LENGTHSCALE_BOUNDS,
+    signal_var_bounds: tuple[float, float] = SIGNAL_VAR_BOUNDS,
+    nugget_bounds: tuple[float, float] = NUGGET_BOUNDS,
+    name: str = "",
+    init=None,
+    mean: str = "constant",
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`fit_gp` on the points of ``keep`` (bool (n,)) and its predictions at the
+    others (a new run's variance: the nugget included), modelled scale: one fold of a
+    cross-validation. The same starts, optimum and predictions as ``fit_gp(x[keep],
+    y[keep], ...)`` followed by ``predict(x[~keep], include_nugget=True)`` (to round-off),
+    computed in arrays of the full shape (the held-out points decoupled), so that the
+    folds of a cross-validation and the full fit share their compiled programs. ``x``,
+    ``y``, ``lower``, ``upper`` are float64 arrays; ``mean`` is one of the mean functions
+    (not ``"auto"``).
+
+    Returns
+    -------
+    mean, var : ndarray, shape (number of held-out points,)
+    """
+    keep = np.asarray(keep, bool)
+    validate_training_data(x[keep], y[keep], lower=lower, upper=upper, transform=transform,
+                           name=name)  # a fold of constant outputs, say
+    d = x.shape[1]
+    xs = device_array((x - lower) / (upper - lower), float)
+    z = np.log(y) if transform == "log" else y
+    y_mean, y_std = z[keep].mean(), z[keep].std()
+    ys = device_array(np.where(keep, (z - y_mean) / y_std, 0.0), float)
+    mask = device_array(keep.astype(float), float)
+    bounds, starts = _bounds_and_starts(d, n_restarts, seed, lengthscale_bounds,
+                                        signal_var_bounds, nugget_bounds, init, name)
+    H = None if mean == "constant" else basis(xs, mean) * mask[:, None]
+    p, _ = _optimise(xs, ys, starts, bounds, H, mask)
+    ell, s2, nugget = device_array(np.exp(p[:-2]), float), float(np.exp(p[-2])), \
+        float(np.exp(p[-1]))
+    for attempt in range(_NUGGET_RETRIES + 1):
+        mu, var, ok = held_out_moments(xs, ys, mask, ell, s2, nugget, mean)
+        if bool(ok):
+            if attempt:
+                warnings.warn(f"{_label(name)}: nugget raised to {nugget:.3g} to factorise K",
+                              SurrogateWarning, stacklevel=2)
+            out = ~keep
+            return (y_mean + y_std * np.asarray(mu)[out],
+                    y_std**2 * np.asarray(var)[out])
+        nugget *= 10.0
+    raise SurrogateError(f"{_label(name)}: the covariance matrix is not positive definite "
+                         f"even with nugget {nugget / 10:.3g}; remove duplicate or "
+                         "near-duplicate training inputs or raise nugget_bounds")
 
 
 def loo_log_density(gp: FittedGP) -> float:
@@ -289,7 +364,8 @@ def _condition_with_retries(x, y, xs, ys, p, *, lower, upper, transform, name,
                               SurrogateWarning, stacklevel=3)
             # the value half of the optimiser's program: a value-only one would compile again
             nlml, _ = _value_and_grad(device_array(np.log(np.r_[ell, s2, nugget]), float), xs,
-                                      ys, None if mean == "constant" else basis(xs, mean))
+                                      ys, None if mean == "constant" else basis(xs, mean),
+                                      device_array(np.ones(xs.shape[0]), float))
             return dataclasses.replace(gp, nlml=nlml)
         nugget *= 10.0
     raise SurrogateError(f"{_label(name)}: the covariance matrix is not positive definite "

@@ -454,6 +454,41 @@ def _condition_arrays(x, y, lower, upper, ell, s2, nug, log: bool, mean: str):
     return xs, alpha, chol, y_mean, y_std, beta, w, r
 
 
+@partial(jax.jit, static_argnums=6)
+def held_out_moments(xs, ys, keep, ell, s2, nug, mean: str):
+    """Predictive mean and variance (a new run's: the nugget included), standardised
+    scale, at every one of the points ``xs`` (n, d) (unit cube) of a GP conditioned on
+    those of ``keep`` 1 alone, with hyperparameters ``ell``, ``s2``, ``nug``: the
+    cross-validation fold's predictions at its held-out points (``keep`` 0), in arrays
+    of the full shape, so that every fold runs one compiled program. ``ys`` (n,) are the
+    kept points' standardised outputs, zero elsewhere. The held-out points' rows and
+    columns of ``K`` are the identity's and their basis rows zero, so the kept points'
+    factor, trend and weights are those of their own arrays (to round-off). Also returns
+    whether ``K`` factorised."""
+    k = matern32(xs, xs, ell, s2)
+    both = keep[:, None] * keep[None, :]
+    chol = jnp.linalg.cholesky(k * both + jnp.diag(nug * keep + (1.0 - keep)))
+    h = basis(xs, mean)
+    H = h * keep[:, None]
+    ok = jnp.all(jnp.isfinite(chol))
+    if H.shape[1]:
+        w = jax.scipy.linalg.solve_triangular(chol, H, lower=True)
+        r = jnp.linalg.cholesky(w.T @ w)
+        a = jax.scipy.linalg.solve_triangular(chol, ys, lower=True)
+        beta = jax.scipy.linalg.cho_solve((r, True), w.T @ a)
+        ys = ys - H @ beta
+    alpha = jax.scipy.linalg.cho_solve((chol, True), ys)
+    k_star = k * keep[None, :]  # (n, n): each point against the kept ones
+    v = jax.scipy.linalg.solve_triangular(chol, k_star.T, lower=True)
+    mean_s = k_star @ alpha
+    var_s = s2 - jnp.sum(v * v, axis=0)
+    if H.shape[1]:
+        mean_s = mean_s + h @ beta
+        q = jax.scipy.linalg.solve_triangular(r, h.T - w.T @ v, lower=True)
+        var_s = var_s + jnp.sum(q * q, axis=0)
+    return mean_s, jnp.maximum(var_s, 0.0) + nug, ok & jnp.all(jnp.isfinite(alpha))
+
+
 def condition(
     x: np.ndarray,
     y: np.ndarray,

@@ -85,22 +85,30 @@ def _restricted(chol, alpha, H):
     return alpha - k_inv_h @ beta, jnp.sum(jnp.log(jnp.diag(r))), k_inv_h, r
 
 
-def _factor(log_params, x, y):
-    """Shared pieces: Cholesky factor, alpha, exp(-sqrt3 r), noise-free K, hyperparameters."""
+def _factor(log_params, x, y, mask=None):
+    """Shared pieces: Cholesky factor, alpha, exp(-sqrt3 r), noise-free K, hyperparameters.
+
+    With ``mask`` (n,) of ones and zeros, the points of mask 0 are decoupled: their rows
+    and columns of ``K`` are those of the identity (``e`` and ``K_f`` zero there), so
+    that with ``y`` zero there they add nothing but constants (:func:`nlml_value_and_grad`).
+    """
     ell, s2, nugget = unpack(log_params)
     r2 = scaled_sqdist(x, x, ell)
     positive = r2 > 0.0
     sr = SQRT3 * jnp.where(positive, jnp.sqrt(jnp.where(positive, r2, 1.0)), 0.0)
     e = jnp.exp(-sr)
+    if mask is not None:
+        e = e * (mask[:, None] * mask[None, :])
     k_free = s2 * (1.0 + sr) * e
-    chol = jnp.linalg.cholesky(k_free + nugget * jnp.eye(x.shape[0], dtype=x.dtype))
+    diag = nugget if mask is None else nugget * mask + (1.0 - mask)
+    chol = jnp.linalg.cholesky(k_free + diag * jnp.eye(x.shape[0], dtype=x.dtype))
     alpha = cho_solve((chol, True), y)
     return chol, alpha, e, k_free, s2, nugget, ell
 
 
-def _value(chol, alpha, y, log_det_a=0.0, p: int = 0):
+def _value(chol, alpha, y, log_det_a=0.0, p: int = 0, n=None):
     # Rasmussen and Williams (2006) eq. (2.30), sign flipped; REML with p basis columns
-    n = y.shape[0]
+    n = y.shape[0] if n is None else n
     val = (0.5 * jnp.dot(y, alpha) + jnp.sum(jnp.log(jnp.diag(chol))) + log_det_a
            + 0.5 * (n - p) * LOG_2PI)
     return jnp.where(jnp.isfinite(val), val, jnp.inf)
@@ -136,7 +144,8 @@ def neg_log_marginal_likelihood(log_params: jax.Array, x: jax.Array, y: jax.Arra
 
 
 def nlml_value_and_grad(
-    log_params: jax.Array, x: jax.Array, y: jax.Array, H: jax.Array | None = None
+    log_params: jax.Array, x: jax.Array, y: jax.Array, H: jax.Array | None = None,
+    mask: jax.Array | None = None,
 ) -> tuple[jax.Array, jax.Array]:
     """Negative log marginal likelihood and its gradient with respect to ``log_params``.
 
@@ -153,6 +162,11 @@ def nlml_value_and_grad(
     y : array, shape (n,)
     H : array, shape (n, p), optional
         Basis of the mean function: the restricted likelihood, ``P`` for ``K^-1``.
+    mask : array, shape (n,), optional
+        Ones and zeros: the likelihood of the points of mask 1 alone, in arrays of the
+        full shape (the folds of a cross-validation then run one compiled program). The
+        points of mask 0 must have ``y`` and ``H``'s row zero; value and gradient equal
+        those of the kept points' arrays to round-off.
 
     Returns
     -------
@@ -160,7 +174,7 @@ def nlml_value_and_grad(
     grad : array, shape (d + 2,)
         NaN entries are replaced by zero when ``value`` is ``+inf``.
     """
-    chol, alpha, e, k_free, s2, nugget, ell = _factor(log_params, x, y)
+    chol, alpha, e, k_free, s2, nugget, ell = _factor(log_params, x, y, mask)
     n = y.shape[0]
     k_inv = cho_solve((chol, True), jnp.eye(n, dtype=x.dtype))
     log_det_a, p = 0.0, 0
@@ -171,14 +185,15 @@ def nlml_value_and_grad(
         k_inv = k_inv - c.T @ c
     w = jnp.outer(alpha, alpha) - k_inv  # W = alpha alpha^T - K^-1
     g_s2 = -0.5 * jnp.sum(w * k_free)  # dK/d log s2 = K_f
-    g_nug = -0.5 * nugget * jnp.trace(w)  # dK/d log nugget = nugget I
+    w_diag = jnp.diag(w) if mask is None else jnp.diag(w) * mask
+    g_nug = -0.5 * nugget * jnp.sum(w_diag)  # dK/d log nugget = nugget I (kept points)
     m = w * e
     rows = jnp.sum(m, axis=1)
     # sum_ij M_ij (x_ik - x_jk)^2 = 2 rows @ x^2 - 2 sum_k x_k^T M x_k   (M symmetric)
     quad = 2.0 * (rows @ (x * x)) - 2.0 * jnp.sum(x * (m @ x), axis=0)
     g_ell = -1.5 * s2 * quad / (ell * ell)
     grad = jnp.concatenate([g_ell, jnp.stack([g_s2, g_nug])])
-    val = _value(chol, alpha, y, log_det_a, p)
+    val = _value(chol, alpha, y, log_det_a, p, None if mask is None else jnp.sum(mask))
     grad = jnp.where(jnp.isfinite(val), grad, 0.0)
     return val, grad
 
