@@ -59,7 +59,7 @@ def build(P):
     from calnet.calibration.calibrate_network import build_koh
     from calnet.spec import load_spec, read_all
     from calnet.surrogates.fit_network import OutputSurrogate, Surrogates
-    from calnet.surrogates.gp import FittedGP
+    from calnet.surrogates.gp import FittedGP, constant_mean
 
     folder = Path(tempfile.mkdtemp())
     (folder / "network.yaml").write_text(ANCHOR_SPEC)
@@ -72,7 +72,8 @@ def build(P):
                   chol=jnp.eye(len(P["Xtr"])), lengthscales=jnp.asarray(P["ls"]),
                   signal_var=jnp.asarray(amp), nugget=jnp.asarray(P["noise"]),
                   lower=jnp.zeros(9), upper=jnp.ones(9), y_mean=jnp.asarray(P["mu0"]),
-                  y_std=jnp.asarray(1.0), nlml=jnp.asarray(float("nan")), name="y")
+                  y_std=jnp.asarray(1.0), nlml=jnp.asarray(float("nan")), name="y",
+                  **constant_mean(len(P["Xtr"])))
     sur = Surrogates({"m.y": OutputSurrogate("m", "y", gp, None, 240, 0)})
     data = {k: v.train for k, v in read_all(network).items()}
     return build_koh(network, sur, free=[f"m.t{i}" for i in range(7)], datasets=data,
