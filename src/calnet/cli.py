@@ -252,47 +252,33 @@ def check(spec: SpecArg) -> None:
 IMPORT_LIMIT_S = 10.0
 """Seconds that ``calnet check`` gives a Python simulator's module to import."""
 
-_IMPORT_PROBE = """
-import importlib, json, sys
-sys.path[:] = json.loads(sys.argv[1]) + [sys.argv[2]]
-importlib.import_module(sys.argv[3])
-"""
-
 
 def _imports_finish(network: Any) -> None:
     """Raise :class:`CalnetError` for a Python simulator whose module does not finish
     importing within :data:`IMPORT_LIMIT_S` in a fresh Python (the search path of this
-    one, then the spec's folder, as a campaign imports it). ``check`` imports the modules
-    to see that their functions exist; one that waits at import would hold it forever."""
-    import subprocess
+    one, then the spec's folder, as a campaign imports it; the modules side by side).
+    ``check`` imports the modules to see that their functions exist; one that waits at
+    import would hold it forever."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from calnet.campaign.runners import SLOW_IMPORT, probe_callable
 
     root = str(Path(network.root).resolve())
-    probes: dict[str, tuple[str, subprocess.Popen]] = {}
+    probes: dict[str, str] = {}  # model -> module
     for model in network.models:
         sim = model.simulator
         module = sim.target.partition(":")[0] if sim.kind == "python" else ""
-        if not module or module in sys.modules or any(m == module for m, _ in
-                                                          probes.values()):
-            continue  # imported here already, or probed for another model
-        probes[model.name] = (module, subprocess.Popen(
-            [sys.executable, "-I", "-c", _IMPORT_PROBE, json.dumps(sys.path), root, module],
-            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
-    deadline = time.monotonic() + IMPORT_LIMIT_S
-    slow = []
-    try:
-        for name, (_, proc) in probes.items():
-            try:
-                proc.wait(timeout=max(0.0, deadline - time.monotonic()))
-            except subprocess.TimeoutExpired:
-                slow.append(name)
-    finally:
-        for _, proc in probes.values():
-            if proc.poll() is None:
-                proc.kill()
-                proc.wait()
+        if module and module not in sys.modules and module not in probes.values():
+            probes[model.name] = module  # not imported here already, nor probed
+    with ThreadPoolExecutor(max(1, len(probes))) as pool:
+        answers = dict(zip(probes, pool.map(
+            lambda m: probe_callable(f"{m}:_", (root,), timeout=IMPORT_LIMIT_S)[1],
+            probes.values()), strict=True))
+    slow = [name for name, problem in answers.items()
+            if problem == SLOW_IMPORT.format(module=probes[name], timeout=IMPORT_LIMIT_S)]
     if slow:
         raise CalnetError("; ".join(
-            f"{name}: importing module '{probes[name][0]}' (python:"
+            f"{name}: importing module '{probes[name]}' (python:"
             f"{network.model(name).simulator.target}) did not finish within "
             f"{IMPORT_LIMIT_S:g} s" for name in slow)
             + ", so check stopped before importing it here. Move the work the module does "

@@ -305,6 +305,10 @@ def simulator_version(sim: Simulator, *, timeout: float | None = None) -> str:
     return probe_callable(sim.target, sim.search_path, limit)[0]
 
 
+#: :func:`probe_callable`'s problem when the module's import ran past its limit
+SLOW_IMPORT = "importing module '{module}' took more than {timeout:g} s"
+
+
 def probe_callable(target: str, search_path: tuple[str, ...] = (),
                    timeout: float = PROBE_TIMEOUT) -> tuple[str, str]:
     """Import the module of ``module:function`` in a child process, killed after
@@ -317,7 +321,7 @@ def probe_callable(target: str, search_path: tuple[str, ...] = (),
     proc = _run_killable([sys.executable, "-c", _PROBE], None, timeout,
                          stderr=subprocess.DEVNULL, stdin=payload)
     if proc is None:
-        return "", f"importing module '{module_name}' took more than {timeout:g} s"
+        return "", SLOW_IMPORT.format(module=module_name, timeout=timeout)
     try:
         version, problem = json.loads(proc.stdout.strip().splitlines()[-1])
     except (IndexError, ValueError):
