@@ -37,3 +37,20 @@ def test_a_log_output_is_scored_on_the_log_scale():
     m = np.log(np.array([[2.0], [2.0]]))
     lpd, _ = _prediction(m, np.full((2, 1), 0.1), log=True).log_density(np.array([2.0]))
     assert lpd[0] == stats.norm.logpdf(0.0, 0.0, 0.1)
+
+
+def test_the_pit_is_the_mixtures_distribution_function_far_into_its_tails():
+    # three draws' Gaussians: the PIT is their mean distribution function, exactly, also
+    # where no finite set of samples reaches (z = 9)
+    m = np.array([[0.0, 1.0], [0.5, 1.0], [-0.2, 1.0]])
+    sd = np.array([[1.0, 0.1], [2.0, 0.1], [0.5, 0.1]])
+    y = np.array([0.3, 1.9])
+    want = np.mean(stats.norm.cdf(y[None], m, sd), axis=0)
+    np.testing.assert_allclose(_prediction(m, sd).pit(y), want, rtol=1e-12)
+    low = _prediction(m, sd).pit(np.array([0.0, 0.1]))[1]
+    assert low == stats.norm.cdf(-9.0)  # 9 sds below every draw's mean
+    # a log output: the distribution function of ln y under the draws' Gaussians
+    pit = _prediction(np.log([[2.0], [3.0]]), np.full((2, 1), 0.2), log=True).pit(
+        np.array([2.5]))
+    want = np.mean(stats.norm.cdf(np.log(2.5), np.log([2.0, 3.0]), 0.2))
+    assert pit[0] == want

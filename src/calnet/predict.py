@@ -69,7 +69,8 @@ class Prediction:
         ``model.input`` of each column of ``x``.
     x : ndarray (n, k)
     mean, lower, upper : ndarray (n,)
-        Predictive mean and central 95 % interval of a new measurement, natural scale.
+        Predictive mean (the mixture's over the posterior draws) and central 95 %
+        interval (from the samples) of a new measurement, natural scale.
     budget : dict of str -> ndarray (n,)
         Variance contributions on the modelled, standardised scale, by source:
         ``parameters``, ``emulator <model.output>`` (one per surrogate), ``discrepancy``,
@@ -126,9 +127,19 @@ class Prediction:
         return np.where(ok, mixture, gauss), ok
 
     def pit(self, y: np.ndarray) -> np.ndarray:
-        """Probability integral transform of observations ``y`` (n,) under the predictive
-        (from its samples): uniform on [0, 1] for a calibrated predictive."""
-        return np.mean(self.samples <= np.asarray(y, float)[None], axis=0)
+        """Probability integral transform of observations ``y`` (n,) under the predictive:
+        uniform on [0, 1] for a calibrated predictive. Exact for the mixture of the
+        draws' Gaussians (its distribution function at ``y``, which resolves a tail
+        probability of any size); from the samples for a prediction that keeps no
+        per-draw moments."""
+        y = np.asarray(y, float)
+        if self.draw_mean is None or self.draw_sd is None:
+            return np.mean(self.samples <= y[None], axis=0)
+        from scipy.stats import norm
+
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ym = np.log(y) if self.log else y
+        return np.mean(norm.cdf(ym[None], self.draw_mean, self.draw_sd), axis=0)
 
     def point_shares(self) -> dict[str, np.ndarray]:
         """Share of each source in the predictive variance at every point, (n,) each."""
@@ -528,8 +539,12 @@ def predict(network: Network, surrogates: Surrogates, posterior: NetworkPosterio
         if within[1] is not None:
             ok &= samples <= within[1]
         prob = ok.mean(axis=0)
-    return Prediction(dataset, key, st.keys, x, samples.mean(axis=0), lo, hi,
-                      budget, prob, samples, mean_all * s + mu, sd * s, bool(st.log))
+    draw_mean, draw_sd = mean_all * s + mu, sd * s
+    # the mixture's mean, exact given the draws (the samples' mean adds their noise)
+    mean = (np.mean(np.exp(draw_mean + 0.5 * draw_sd**2), axis=0) if st.log
+            else np.mean(draw_mean, axis=0))
+    return Prediction(dataset, key, st.keys, x, mean, lo, hi, budget, prob, samples,
+                      draw_mean, draw_sd, bool(st.log))
 
 
 def predict_data(network: Network, surrogates: Surrogates, posterior: NetworkPosterior,

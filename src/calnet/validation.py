@@ -22,7 +22,7 @@ from calnet.calibration.calibrate_network import (
     stage_keys,
     with_stage,
 )
-from calnet.calibration.diagnostics import RHAT_MAX, import_arviz
+from calnet.calibration.diagnostics import MORE_DRAWS, RHAT_MAX, import_arviz
 from calnet.calibration.terms import data_scale, known_noise_var, parameter_keys
 from calnet.chain import ChainPlan
 from calnet.errors import CalibrationWarning, CalnetError, alike
@@ -209,6 +209,8 @@ def psis_loo(network: Network, surrogates: Surrogates, posterior: NetworkPosteri
 
 
 PIT_P_MIN = 0.01  # a Kolmogorov-Smirnov p-value of the PIT below this flags the model
+#: what a flagged predictive check concludes
+NOT_DESCRIBED = "the model, its discrepancy or its noise does not describe these data"
 
 
 def _nothing_estimated(network: Network, dataset: str) -> bool:
@@ -251,8 +253,7 @@ def pit_check(name: str, pit, *, fixed: bool = False) -> dict:
                  "biased" if abs(float(np.mean(pit)) - 0.5) > 0.15 else "miscalibrated")
         message = (f"{name}: the leave-one-out predictive is {shape} ({outside} of {n} "
                    f"points outside its 95 % band where {0.05 * n:.1f} are expected, "
-                   f"p = {p_out:.2g}; PIT uniformity p = {p_ks:.2g}); the model, its "
-                   "discrepancy or its noise does not describe these data")
+                   f"p = {p_out:.2g}; PIT uniformity p = {p_ks:.2g}); {NOT_DESCRIBED}")
     return {"ks_pvalue": p_ks, "outside95": outside, "outside_pvalue": p_out,
             "inside50": inside50, "inside50_pvalue": p_wide, "flagged": flagged,
             "too_wide": too_wide, "message": message}
@@ -278,30 +279,31 @@ def fit_check(name: str, pit) -> dict:
     flagged = bool(p_out < PIT_P_MIN)
     message = (f"{name}: the posterior predictive misses its own calibration points "
                f"({outside} of {n} outside its 95 % band where at most {0.05 * n:.1f} are "
-               f"expected, p = {p_out:.2g}); the model, its discrepancy or its noise does "
-               "not describe these data") if flagged else ""
+               f"expected, p = {p_out:.2g}); {NOT_DESCRIBED}") if flagged else ""
     return {"outside95": outside, "n": n, "outside_pvalue": p_out, "flagged": flagged,
             "message": message}
 
 
-def held_out_check(name: str, pit, n_samples: int, where: list[str] | None = None) -> dict:
+def held_out_check(name: str, pit, where: list[str] | None = None,
+                   n_samples: int | None = None) -> dict:
     """Whether the posterior predictive covers data set ``name``'s test points, which the
     calibration has not seen: a binomial test of the number outside its central 95 %
     band, and a test of the most extreme point (its two-sided tail probability
     ``2 min(PIT, 1 - PIT)`` times the number of points, Bonferroni's bound: a p-value
     whatever the predictive's shape), which flags one point far in a tail that a count
-    of a few points cannot. A PIT from ``n_samples`` predictive samples resolves tail
-    probabilities down to about ``1 / n_samples``, so a point beyond every sample counts
-    as lying at half a sample's share. ``where`` names the points (their settings).
-    Returns ``dict(outside95, n, outside_pvalue,
-    extreme_pvalue, extreme_index, flagged, message)``."""
+    of a few points cannot. ``pit`` is exact (:meth:`calnet.predict.Prediction.pit`) or,
+    with ``n_samples``, from that many predictive samples, which resolve tail
+    probabilities down to about ``1 / n_samples`` only: a point beyond every sample then
+    counts as lying at half a sample's share. ``where`` names the points (their
+    settings). Returns ``dict(outside95, n, outside_pvalue, extreme_pvalue,
+    extreme_index, flagged, message)``."""
     pit = np.asarray(pit, float)
     n, outside, p_out = _outside95(pit)
     if not n:
         return {"outside95": 0, "n": 0, "outside_pvalue": float("nan"),
                 "extreme_pvalue": float("nan"), "extreme_index": None, "flagged": False,
                 "message": ""}
-    floor = 0.5 / max(int(n_samples), 1)
+    floor = 0.5 / max(int(n_samples), 1) if n_samples else np.finfo(float).tiny
     tail = 2.0 * np.minimum(np.clip(pit, floor, 1.0 - floor),
                             1.0 - np.clip(pit, floor, 1.0 - floor))
     worst = int(np.argmin(tail))
@@ -311,14 +313,16 @@ def held_out_check(name: str, pit, n_samples: int, where: list[str] | None = Non
     if flagged:
         side = "below" if pit[worst] < 0.5 else "above"
         share = pit[worst] if side == "below" else 1.0 - pit[worst]
-        beyond = ("every sample of its predictive" if share == 0 else
-                  f"{1 - share:.4g} of its predictive's samples")
+        if n_samples:
+            beyond = ("every sample of its predictive" if share == 0 else
+                      f"{1 - share:.4g} of its predictive's samples")
+        else:
+            beyond = f"all but {share:.2g} of its predictive"
         message = (f"{name}: the posterior predictive misses its test points, which the "
                    f"calibration has not seen ({outside} of {n} outside its 95 % band "
                    f"where {0.05 * n:.1f} are expected, p = {p_out:.2g}; the test point "
                    f"at {where[worst] if where else worst + 1} lies {side} {beyond}, "
-                   f"p = {p_extreme:.2g} for the most extreme of {n}); the model, its "
-                   "discrepancy or its noise does not describe these data")
+                   f"p = {p_extreme:.2g} for the most extreme of {n}); {NOT_DESCRIBED}")
     return {"outside95": outside, "n": n, "outside_pvalue": p_out,
             "extreme_pvalue": p_extreme, "extreme_index": worst, "flagged": flagged,
             "message": message}
@@ -447,8 +451,10 @@ def compare_variants(network: Network, surrogates: Surrogates, posterior: Networ
     and compare it with the spec's own model by PSIS-LOO, per data set (ArviZ's
     ``compare``: ELPD, difference to the best and its standard error, stacking weight).
 
-    ``calibrated``: the variants' ``{name: (network, posterior)}`` from
-    :func:`calibrate_variants`, when they were calibrated already. ``spec_pointwise``:
+    ``sampler``: the spec's; the variants are calibrated with its
+    :func:`secondary_sampler`. ``calibrated``: the variants' ``{name: (network,
+    posterior)}`` from :func:`calibrate_variants` (with that sampler), when they were
+    calibrated already. ``spec_pointwise``:
     ``{data set: pointwise ELPD}`` of the spec's model from :func:`psis_loo` with its
     exact refits (``elpd_pointwise``), so that the comparison scores the spec's model as
     its leave-one-out does, and ``spec_refit``: ``{data set: the points refitted}``,
@@ -462,7 +468,8 @@ def compare_variants(network: Network, surrogates: Surrogates, posterior: Networ
     az = import_arviz()
     if calibrated is None:
         calibrated = calibrate_variants(network, surrogates, posterior.data, variants,
-                                        sampler=sampler, seed=seed, progress=progress)
+                                        sampler=secondary_sampler(sampler), seed=seed,
+                                        progress=progress)
     posts = {"spec": (network, posterior), **calibrated}
     out = {}
     for ds in posterior.data:
@@ -487,10 +494,23 @@ def compare_variants(network: Network, surrogates: Surrogates, posterior: Networ
                        max_pareto_k=_max_k(loos[name].pareto_k, (spec_refit or {}).get(ds, ())
                                            if name == "spec" else ()),
                        draws=int(posts[name][1].n_draws),
-                       notes=() if name == "spec" else tuple(posts[name][1].notes),
+                       notes=() if name == "spec" else tuple(
+                           _variant_note(n, sampler) for n in posts[name][1].notes),
                        dse_spec=_pair_se(pointwise["spec"], pointwise[name]))
                    for name, row in table.iterrows()}
     return out
+
+
+def _variant_note(note: str, sampler: SamplerSettings) -> str:
+    """A variant's calibration note, whose advice to raise the draws cannot help where
+    the variants' sampler (:func:`secondary_sampler` of the spec's ``sampler``) is at its
+    cap."""
+    used = secondary_sampler(sampler)
+    if not note.endswith(MORE_DRAWS) or used.draws == sampler.draws:
+        return note
+    return note.removesuffix(MORE_DRAWS) + (
+        f"the variants compared sample {used.chains} chains of {used.draws} draws whatever "
+        "settings.sampler says, so its ELPD carries more Monte Carlo error than the spec's")
 
 
 def _max_k(khat, refitted: Sequence[int]) -> float:
@@ -577,11 +597,12 @@ def validate_dataset(network: Network, surrogates: Surrogates, posterior: Networ
     if test is not None:
         where = [", ".join(f"{k}={v:.4g}" for k, v in zip(data.input_keys, row, strict=True))
                  for row in data.x[data.is_test]]
-        test["check"] = held_out = held_out_check(data.name, pit[data.is_test],
-                                              pred.samples.shape[0], where)
+        test["check"] = held_out = held_out_check(data.name, pit[data.is_test], where)
         if held_out["flagged"]:
             said = (said + "; and " + held_out["message"].split(": ", 1)[1] if said
                     else held_out["message"])
+    if said.count(NOT_DESCRIBED) > 1:  # the checks' common conclusion, said once
+        said = said.replace("; " + NOT_DESCRIBED, "") + "; " + NOT_DESCRIBED
     if said and not (check.get("flagged") and check.get("too_wide")):  # a misfit: hints
         warned = any(c.dataset == data.name and c.message() for c in posterior.checks)
         rhat = max((st.diagnostics.max_r_hat for st in posterior.stages

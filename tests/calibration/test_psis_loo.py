@@ -322,18 +322,28 @@ def test_held_out_check_on_known_pit_values():
 
     S = 4000
     # one point beyond every sample among four: p = 4 x 2 x (0.5 / S)
-    far = held_out_check("d", np.r_[0.0, 0.3, 0.5, 0.7], S,
-                         ["x=0.1", "x=0.4", "x=0.6", "x=0.9"])
+    far = held_out_check("d", np.r_[0.0, 0.3, 0.5, 0.7], ["x=0.1", "x=0.4", "x=0.6", "x=0.9"],
+                         n_samples=S)
     assert far["flagged"] and far["extreme_index"] == 0
     assert far["extreme_pvalue"] == pytest.approx(4 * 2 * 0.5 / S)
     assert far["outside95"] == 1 and far["outside_pvalue"] > PIT_P_MIN  # the count misses it
     assert ("the test point at x=0.1 lies below every sample of its predictive, "
             f"p = {4 / S:.2g} for the most extreme of 4") in far["message"], far["message"]
-    high = held_out_check("d", np.r_[0.9995, 0.3, 0.5], S)
+    high = held_out_check("d", np.r_[0.9995, 0.3, 0.5], n_samples=S)
     assert high["extreme_pvalue"] == pytest.approx(3 * 2 * 0.0005)
     assert "at 1 lies above 0.9995 of its predictive's samples" in high["message"]
-    assert not held_out_check("d", np.r_[0.02, 0.5, 0.97], S)["flagged"]
-    assert not held_out_check("d", np.zeros(0), S)["flagged"]
+    assert not held_out_check("d", np.r_[0.02, 0.5, 0.97], n_samples=S)["flagged"]
+    assert not held_out_check("d", np.zeros(0), n_samples=S)["flagged"]
+    # an exact PIT (the predictive mixture's distribution function) has no floor: with
+    # 40 points, one at z = 4.5 (two-sided tail 6.8e-6) is flagged by Bonferroni's bound,
+    # which a PIT from 4000 samples could not do (its floor alone gives p = 0.01)
+    tail = 2 * stats.norm.sf(4.5)
+    pit = np.r_[stats.norm.cdf(4.5), np.linspace(0.1, 0.9, 39)]
+    exact = held_out_check("d", pit)
+    assert exact["flagged"] and exact["extreme_index"] == 0
+    assert exact["extreme_pvalue"] == pytest.approx(40 * tail, rel=1e-6)
+    assert f"at 1 lies above all but {tail / 2:.2g} of its predictive" in exact["message"]
+    assert not held_out_check("d", pit, n_samples=S)["flagged"]
 
 
 def test_held_out_check_keeps_its_false_alarm_rate():
@@ -346,7 +356,27 @@ def test_held_out_check_keeps_its_false_alarm_rate():
     S, reps = 4000, 3000
     for n in (1, 4, 10, 40):
         pits = np.floor(rng.uniform(size=(reps, n)) * (S + 1)) / S
-        rate = np.mean([held_out_check("d", p, S)["flagged"] for p in pits])
+        rate = np.mean([held_out_check("d", p, n_samples=S)["flagged"] for p in pits])
         assert rate < 0.02 + 3 * np.sqrt(0.02 / reps), (n, rate)
     narrow = stats.norm.cdf(3.0 * rng.standard_normal((300, 10)))
-    assert np.mean([held_out_check("d", p, S)["flagged"] for p in narrow]) > 0.8
+    assert np.mean([held_out_check("d", p, n_samples=S)["flagged"] for p in narrow]) > 0.8
+    for n in (1, 10, 40):  # exact PIT values
+        rate = np.mean([held_out_check("d", p)["flagged"]
+                        for p in rng.uniform(size=(reps, n))])
+        assert rate < 0.02 + 3 * np.sqrt(0.02 / reps), (n, rate)
+
+
+def test_a_variants_note_does_not_advise_more_draws_than_it_can_take():
+    """The compared variants sample at most 2 chains of 500 draws: a low ESS of a variant
+    does not send the user to settings.sampler.draws when they are past that cap."""
+    from calnet.calibration.diagnostics import MORE_DRAWS
+    from calnet.validation import _variant_note
+
+    note = f"m: bulk ESS 328 < 400 for m.a; {MORE_DRAWS}"
+    capped = _variant_note(note, SamplerSettings(chains=4, warmup=500, draws=1000))
+    assert capped == ("m: bulk ESS 328 < 400 for m.a; the variants compared sample 2 chains "
+                      "of 500 draws whatever settings.sampler says, so its ELPD carries more "
+                      "Monte Carlo error than the spec's")
+    few = SamplerSettings(chains=4, warmup=500, draws=200)
+    assert _variant_note(note, few) == note  # more draws would reach the variants too
+    assert _variant_note("m: 3 divergent transitions", few) == "m: 3 divergent transitions"

@@ -32,6 +32,10 @@ ESS_MIN = 400  # bulk ESS, 100 per chain for 4 chains (Vehtari et al. 2021)
 _ARVIZ_BANNER = r"\s*ArviZ is undergoing a major refactor"
 
 
+#: the advice of a low bulk ESS
+MORE_DRAWS = "raise settings.sampler.draws"
+
+
 def import_arviz():
     """``arviz``, imported without its once-a-day refactor notice (and only that)."""
     with warnings.catch_warnings():
@@ -316,7 +320,7 @@ def convergence_problems(summary: PosteriorSummary) -> list[str]:
     if summary.min_ess_bulk < ESS_MIN:
         worst = min(summary.parameters, key=lambda p: p.ess_bulk)
         out.append(f"{m}: bulk ESS {worst.ess_bulk:.0f} < {ESS_MIN} for "
-                   f"{readable(worst.name)}; raise settings.sampler.draws")
+                   f"{readable(worst.name)}; {MORE_DRAWS}")
     if summary.divergences > 0:
         out.append(f"{m}: {summary.divergences} divergent transitions; raise "
                    "settings.sampler.target_accept (e.g. 0.95)")
