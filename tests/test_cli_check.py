@@ -233,3 +233,31 @@ def test_check_gives_up_on_a_module_that_does_not_finish_importing(tmp_path, mon
         "error: Slow: importing module 'waits_at_import' (python:waits_at_import:f) did not "
         "finish within 1 s, so check stopped before importing it here"), result.output
     assert "waits_at_import" not in sys.modules
+
+
+def test_plug_mode_in_a_joint_spec_is_said_to_be_ignored(tmp_path):
+    """settings.calibration.plug applies to segmented mode: check says a joint spec's
+    plug: mode does nothing, and calibrate refuses --plug for a joint calibration."""
+    (tmp_path / "network.yaml").write_text(textwrap.dedent("""
+        models:
+          M:
+            simulator: builtin:solidification
+            inputs: {S: {unit: m/s, lower: 0.1, upper: 1},
+                     G: {unit: K/m, lower: 1.0e+6, upper: 1.0e+7}}
+            parameters: {sigma: {unit: J/cm^2, lower: 1.0e-6, upper: 3.0e-6}}
+            outputs: {lambda: {unit: um, measurable: true}}
+        data:
+          d: {path: d.csv, observes: M.lambda}
+        settings: {calibration: {mode: joint, plug: mode}}
+        """))
+    (tmp_path / "d.csv").write_text("S,G,lambda\n0.3,5.0e+6,0.5\n")
+    result = CliRunner().invoke(app, ["check", str(tmp_path)], terminal_width=400)
+    assert result.exit_code == 0, result.output
+    assert "calibration: joint (plug: mode applies to segmented mode only: ignored)" \
+        in result.output, result.output
+    result = CliRunner().invoke(app, ["calibrate", str(tmp_path), "--plug", "posterior",
+                                      "--surrogates", str(tmp_path / "nowhere")])
+    assert result.exit_code == 2, result.output
+    assert ("--plug applies to segmented calibration only; this calibration is joint (the "
+            "spec's settings.calibration.mode): add --mode segmented, or leave --plug out"
+            ) in result.output, result.output

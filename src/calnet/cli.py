@@ -582,6 +582,10 @@ def calibrate(
 
     out = _folder_option(folder, "--out")
     network = load_spec(spec)
+    if plug and (mode or network.settings.calibration.mode) == "joint":
+        raise UsageError("--plug applies to segmented calibration only; this calibration is "
+                         "joint" + ("" if mode else " (the spec's settings.calibration.mode)")
+                         + ": add --mode segmented, or leave --plug out")
     sur = Surrogates.load(surrogates_dir)
     check_surrogates(network, sur, surrogates_dir)
     out.mkdir(parents=True, exist_ok=True)  # a bad --out fails now, not after sampling

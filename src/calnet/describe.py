@@ -83,6 +83,8 @@ def settings_text(network: Network) -> str:
                                  for models, data in stages)
                 + (f"; at their prior (no data depends on them): {', '.join(prior)}"
                    if prior else "") + ")")
+    elif cal.plug == "mode":
+        mode += " (plug: mode applies to segmented mode only: ignored)"
     return (f"calibration: {mode}, surrogate variance "
             f"{'in' if cal.emulator_variance else 'left out of'} the likelihood; sampler: "
             f"{_count(smp.chains, 'chain')} x ({smp.warmup} warm-up + {smp.draws} draws"

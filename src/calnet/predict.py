@@ -481,7 +481,10 @@ def predict(network: Network, surrogates: Surrogates, posterior: NetworkPosterio
         end may be None).
     noise_var : array (n,), optional
         Known noise variance of a new measurement at each point (modelled scale), for a
-        data set with known noise (default: the mean over its calibration data).
+        data set with known noise. Default: the mean over its calibration data of the
+        variance in the data's units, which for an output modelled on the log scale is
+        divided by the square of each draw's predicted value at the point (a known sd is
+        a relative one there, ``sd / y``).
     warn_outside : bool
         Warn where a setting lies outside its input's bounds (the surrogates extrapolate
         there). A setting that is not a finite number is an error either way.
@@ -520,12 +523,17 @@ def predict(network: Network, surrogates: Surrogates, posterior: NetworkPosterio
     if links not in perturbed:  # every link at once (the same run when there is one)
         perturbed[links] = np.asarray(run(links)[0])
     mean_all = perturbed[links]
+    s, mu = float(st.tdata["y_sd"]), float(st.tdata["y_mean"])
+    if noise_var is None and st.log and network.dataset(dataset).noise.known:
+        # a known sd in the data's units is a relative one on the log scale, sd / y: at a
+        # new point that of the value each draw predicts there
+        absolute = float(np.mean(np.asarray(posterior.data[dataset].noise_sd, float) ** 2))
+        noise = absolute * np.exp(-2.0 * (mean_all * s + mu)) / s**2
     budget[f"emulator {key}"] = var_emu.mean(axis=0)
     budget["discrepancy"] = var_delta.mean(axis=0)
     budget["noise"] = noise.mean(axis=0)
     sd = np.sqrt(var_delta + var_emu + noise)
     z = point_normals(seed, x, "new measurement", (n_samples, len(idx)))
-    s, mu = float(st.tdata["y_sd"]), float(st.tdata["y_mean"])
     samples = (mean_all[None] + sd[None] * z).reshape(-1, len(x)) * s + mu
     if st.log:
         samples = np.exp(samples)

@@ -392,3 +392,23 @@ def test_a_simulator_that_changes_directory_moves_no_store(tmp_path, monkeypatch
     assert summary.store_path == tmp_path / "campaigns" / "toy.sqlite"
     assert Path.cwd() == tmp_path
     assert load_runs(load_spec("network.yaml"), "toy").n_ok == 3
+
+
+def test_runs_made_without_a_version_are_said_to_be_unknown(tmp_path, monkeypatch):
+    """A module that states a version after its runs were made without one (or the
+    other way round): nothing tells whether the runs differ, and the warning says so
+    instead of staying silent; the runs are kept either way."""
+    from calnet.errors import CampaignWarning
+
+    monkeypatch.setattr(sys, "path", list(sys.path))
+    module = tmp_path / "later_versioned.py"
+    module.write_text("def f(inputs):\n    return {'y': inputs['x'], 'z': inputs['a']}\n")
+    net = toy_network(tmp_path, "python:later_versioned:f", runs=3)
+    run_campaign(net, "toy", progress=False, workers=1)
+    module.write_text('__version__ = "2"\n' + module.read_text())
+    with pytest.warns(CampaignWarning, match=r"holds 3 runs with later_versioned:f stating "
+                      r"no version; the installed later_versioned:f is 2, so whether its "
+                      r"results changed is not known: if they did, re-simulate with "
+                      r"--fresh"):
+        summary = run_campaign(net, "toy", runs=4, progress=False, workers=1)
+    assert summary.status_counts == {"ok": 4}

@@ -89,7 +89,8 @@ def test_shared_parameters_must_agree(base_spec, write_spec):
     base_spec["models"]["micro"]["parameters"]["k"] = {"unit": "W/(m K)", "lower": 10,
                                                        "upper": 40, "shared": True}
     message = _error(write_spec(base_spec))
-    assert "shared parameter 'k' has other upper than in 'heat'" in message
+    assert ("models.micro.parameters.k: shared parameter 'k' has upper=40.0 here but upper=30.0 "
+            "in 'heat'") in message, message
 
 
 def test_shared_parameters_load(base_spec, write_spec):

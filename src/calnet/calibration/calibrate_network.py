@@ -338,6 +338,10 @@ def calibrate(network: Network, surrogates: Surrogates, *, data=None, mode: str 
     if mode not in ("segmented", "joint") or plug not in ("mode", "posterior"):
         raise CalibrationError(f"mode must be segmented or joint and plug mode or posterior, "
                                f"got {mode!r} / {plug!r}")
+    if mode == "joint" and plug == "mode" and warn:
+        warnings.warn("plug 'mode' applies to segmented calibration only: joint mode "
+                      "samples every parameter together, so it is ignored",
+                      CalibrationWarning, stacklevel=2)
     seed = network.settings.seed if seed is None else seed
     sampler = sampler or network.settings.sampler
     emu = cfg.emulator_variance if emulator_variance is None else emulator_variance
@@ -539,12 +543,15 @@ def _segmented(network, surrogates, data, plan, seed, sampler, emu, plug, progre
         for k in free:
             if "." not in k:
                 users = [m for m in network.order if k in parameter_keys(network, m)]
-                fixed_in = [u for u in users if u not in models]
+                fixed_in = " and ".join(f"'{u}'" for u in users if u not in models)
+                later = ("" if not fixed_in else
+                         f"; {fixed_in} take{'s' if ' and ' not in fixed_in else ''} its "
+                         + ("draws (plug: posterior)" if plug == "posterior" else
+                            f"posterior {'mode' if plug == 'mode' else 'mean'} (plug: "
+                            f"{plug})"))
                 info.append(f"shared parameter '{k}' is calibrated in stage "
-                             f"'{stage_name}' with the data of '{name}' (the first model "
-                             "with data that it acts on)"
-                             + (f" and held fixed in {fixed_in}" if fixed_in else "")
-                             + " (segmented mode)")
+                             f"'{stage_name}' with the data of '{name}', the first model "
+                             f"with data that it acts on{later} (segmented mode)")
         for m in models[:-1]:
             keys_m = [k for k in parameter_keys(network, m) if k in free and "." in k]
             if keys_m:

@@ -478,8 +478,19 @@ def _check_versions(db: RunStore, model: str, shown: str, simulator: str, versio
     ``shown`` names the store in the message (:func:`calnet.files.shown_path`), so that
     the warning, which ``calnet run`` keeps in metrics.json, does not depend on where the
     spec folder is."""
-    other = {v: n for v, n in db.versions().items() if v and version and v != version}
+    stored = db.versions()
+    other = {v: n for v, n in stored.items() if v and version and v != version}
     if not other:
+        unknown = {v: n for v, n in stored.items() if v != version and not (v and version)}
+        if unknown:  # one side states no version: nothing says whether the runs differ
+            made = ", ".join(f"{n} runs with {simulator} {v}" if v else
+                             f"{n} runs with {simulator} stating no version"
+                             for v, n in sorted(unknown.items()))
+            installed = f"is {version}" if version else "states no version"
+            warnings.warn(f"the campaign store of '{model}' ({shown}) holds {made}; the "
+                          f"installed {simulator} {installed}, so whether its results "
+                          "changed is not known: if they did, re-simulate with --fresh",
+                          CampaignWarning, stacklevel=3)
         return
     made = ", ".join(f"{n} runs with {simulator} {v}" for v, n in sorted(other.items()))
     msg = (f"the campaign store of '{model}' ({shown}) holds {made}; the installed "

@@ -165,9 +165,9 @@ class Network(Frozen):
                 if diff:
                     raise ValueError(
                         f"models.{model}.parameters.{name}: shared parameter '{name}' has "
-                        f"other {', '.join(diff)} than in '{models[0]}' "
-                        f"({', '.join(f'{k}={first[k]!r}' for k in diff)}); declare it "
-                        "the same way in every model")
+                        f"{', '.join(f'{k}={other[k]!r}' for k in diff)} here but "
+                        f"{', '.join(f'{k}={first[k]!r}' for k in diff)} in "
+                        f"'{models[0]}'; declare it the same way in every model")
 
     def param_key(self, model: str, name: str) -> str:
         """Key of a calibration parameter: ``model.name``, or ``name`` when shared."""
