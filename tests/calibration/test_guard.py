@@ -252,3 +252,21 @@ def test_a_rough_surrogate_is_not_given_a_run_count():
     assert said.endswith("; about 37 runs of 'u' (now 30; u.a's variance falls as n^-1 with "
                          "its runs) would lower the rest"), said
     assert rough.to_dict()["runs_gain_little"] == ["m.y"]
+
+
+def test_an_overstated_surrogate_variance_asks_for_no_runs():
+    """The dominant surrogate's variance is overstated (its leave-one-out errors far
+    below its sd): the warning does not send the user to run more simulations."""
+    from calnet.calibration.guard import SurrogateCheck
+
+    check = SurrogateCheck("d", {"m.y": 0.3}, 0.2, {"m.y": 40}, {"m.y": None},
+                           overstated={"m.y": 0.17})
+    message = check.message()
+    assert message.startswith("d: the surrogate, not the data, sets the answer")
+    assert message.endswith(
+        "; but m.y's variance is overstated (at most runs its leave-one-out error is far "
+        "below its sd: median |z| 0.17 where 0.67 is expected), so more runs are not what "
+        "it needs: check with 'calnet verify', and if the surrogate agrees with the "
+        "simulator, settings.calibration.emulator_variance: false leaves its variance out")
+    assert "runs of" not in message
+    assert check.to_dict()["variance_overstated"] == {"m.y": 0.17}

@@ -189,3 +189,24 @@ def test_warm_start_from_an_optimum_stays_there():
                                rtol=1e-3)
     with pytest.raises(SurrogateError, match="init must be 5 finite"):
         fit_gp(X, y, n_restarts=0, init=[0.0, 0.0], **kw)
+
+
+def test_an_overstated_variance_is_recognised():
+    """A very smooth output (2 sqrt(T) on 15 runs): the likelihood drives the signal
+    variance to its upper bound and the predictive sd is many times the actual error
+    between the runs; a rough output's GP is not flagged."""
+    from calnet.surrogates.fit import overstated_variance
+
+    t = np.linspace(10.0, 500.0, 15)[:, None]
+    smooth = fit_gp(t, 2.0 * np.sqrt(t[:, 0]), lower=[10.0], upper=[500.0], mean="quadratic")
+    median = overstated_variance(smooth)
+    assert median is not None and median < 0.25
+    grid = np.linspace(10.0, 500.0, 400)[:, None]
+    m, v = (np.asarray(a) for a in smooth.predict(grid))
+    err = np.abs(m - 2.0 * np.sqrt(grid[:, 0]))
+    assert np.median(err / np.sqrt(v)) < 0.25  # what the flag says, on fresh points
+    rng = np.random.default_rng(2)
+    x = rng.uniform(0.0, 1.0, (40, 1))
+    rough = fit_gp(x, np.sin(12.0 * x[:, 0]) + 0.1 * rng.standard_normal(40), lower=[0.0],
+                   upper=[1.0])
+    assert overstated_variance(rough) is None

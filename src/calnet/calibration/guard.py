@@ -28,6 +28,7 @@ from calnet.calibration.koh import KOHModel
 from calnet.calibration.terms import draw_index, draws_at, hyper_at, make_term, parameter_keys
 from calnet.chain import ChainPlan
 from calnet.spec.data import outside_bounds
+from calnet.surrogates.fit import overstated_variance
 
 #: the surrogate sd above this fraction of the data's sd triggers the warning
 RATIO_WARN = 0.5
@@ -73,6 +74,10 @@ class SurrogateCheck:
         too few runs to measure).
     discrepancy : bool
         Whether the data set has a discrepancy (``data_sd`` is then not the noise's alone).
+    overstated : dict of ``model.output`` -> float
+        The surrogates whose variance is overstated
+        (:func:`calnet.surrogates.fit.overstated_variance`), with their median |z|: more
+        runs are not what they need.
     """
 
     dataset: str
@@ -85,6 +90,7 @@ class SurrogateCheck:
     scale: str = ""
     rates: dict[str, float] = field(default_factory=dict)
     discrepancy: bool = True
+    overstated: dict[str, float] = field(default_factory=dict)
 
     @property
     def ratio(self) -> float:
@@ -124,6 +130,13 @@ class SurrogateCheck:
                     f"({self.outside_share:.0%} of it), where the surrogate extrapolates: "
                     "more runs inside the bounds will not help; widen the bounds and extend "
                     "the campaign over those points, or leave them out")
+        if k in self.overstated:
+            return (f"{head}; but {k}'s variance is overstated (at most runs its "
+                    f"leave-one-out error is far below its sd: median |z| "
+                    f"{self.overstated[k]:.2g} where 0.67 is expected), so more runs are not "
+                    "what it needs: check with 'calnet verify', and if the surrogate agrees "
+                    "with the simulator, settings.calibration.emulator_variance: false "
+                    "leaves its variance out")
         rough = self.rates.get(k) is not None and self.rates[k] < RATE_MIN
         more = self.wanting
         runs = " and ".join(
@@ -146,6 +159,7 @@ class SurrogateCheck:
                 "ratio": self.ratio, "runs": self.runs, "runs_needed": self.needed,
                 "outside_bounds": self.outside, "outside_share": self.outside_share,
                 "extrapolating": self.extrapolating, "scale": self.scale,
+                "variance_overstated": self.overstated,
                 "variance_rates": self.rates, "target_ratio": RATIO_TARGET,
                 "runs_gain_little": [k for k, r in self.rates.items()
                                      if r is not None and r < RATE_MIN],
@@ -217,8 +231,13 @@ def check_surrogates(network, surrogates, posterior, *, n_draws: int = 50,
         sds = {k: math.sqrt(max(float(v), 0.0)) for k, v in zip(keys, var, strict=True)}
         runs = {k: int(surrogates[k].n_runs) for k in keys}
         warns = sd_ratio(sds, data_sd) > RATIO_WARN  # SurrogateCheck.message's test
+        over = {k: m for k in keys
+                if (m := overstated_variance(surrogates[k].gp)) is not None}
         needed = {}
         for k in keys if warns else ():  # without a warning no runs are counted
+            if k in over:  # an overstated variance says nothing of the runs needed
+                needed[k] = None
+                continue
             ratio = sds[k] / data_sd if data_sd > 0 else math.inf
             factor = (ratio / RATIO_TARGET) ** 2
             if k not in rates:
@@ -230,7 +249,7 @@ def check_surrogates(network, surrogates, posterior, *, n_draws: int = 50,
         scale = "ln" if observed.transform == "log" else (observed.unit or "")
         out.append(SurrogateCheck(ds, sds, data_sd, runs, needed, int(outside.sum()), share,
                                   scale, {k: rates[k] for k in keys if k in rates},
-                                  bool(term.discrepancy)))
+                                  bool(term.discrepancy), over))
     return out
 
 

@@ -187,6 +187,10 @@ def _surrogate_warning(name: str, check: Mapping[str, Any]) -> str:
         return (f"{head}, at the {check['outside_bounds']} data point(s) outside the input "
                 "bounds, where it extrapolates: widen the bounds and the campaign, or leave "
                 "those points out.")
+    if worst in check.get("variance_overstated", {}):
+        return (f"{head}; but {worst}'s variance is overstated (its leave-one-out errors are "
+                "far below its sd at most runs), so more runs are not what it needs: check "
+                "it with 'calnet verify'.")
     if worst in check.get("runs_gain_little", ()):
         return (f"{head}; more runs of '{model}' would barely lower it (its GP's variance "
                 "hardly falls with runs).")

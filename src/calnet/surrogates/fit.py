@@ -335,9 +335,19 @@ def loo_log_density(gp: FittedGP) -> float:
     constant mean and the restricted projection for a trend, whose coefficients are then
     re-estimated without the point (Dubrule 1983). NaN where ``K`` did not factorise.
     """
+    z, diag = _loo_residuals(gp)
+    if z is None:
+        return float("nan")
+    return float(np.sum(-0.5 * np.log(2 * np.pi / diag) - 0.5 * z**2))
+
+
+def _loo_residuals(gp: FittedGP) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """The closed-form leave-one-out residuals of the training outputs in predictive sds
+    (n,) and the precisions ``P_ii`` (:func:`loo_log_density`); None, None where ``K``
+    did not factorise."""
     chol = np.asarray(gp.chol, float)
     if not np.all(np.isfinite(chol)):
-        return float("nan")
+        return None, None
     l_inv = solve_triangular(chol, np.eye(chol.shape[0]), lower=True)
     prec = l_inv.T @ l_inv  # K^-1
     if gp.beta.shape[0]:
@@ -346,9 +356,32 @@ def loo_log_density(gp: FittedGP) -> float:
         prec = prec - c.T @ c
     diag = np.diag(prec)
     if not np.all(diag > 0):
-        return float("nan")
-    resid = np.asarray(gp.alpha, float) / diag  # alpha = P y_s
-    return float(np.sum(-0.5 * np.log(2 * np.pi / diag) - 0.5 * resid**2 * diag))
+        return None, None
+    return np.asarray(gp.alpha, float) / np.sqrt(diag), diag  # alpha = P y_s
+
+
+#: a GP whose signal variance reached this share of its upper bound ...
+OVERSTATED_AT_BOUND = 0.5
+#: ... and whose median |leave-one-out z| is below this (0.674 for a calibrated one)
+OVERSTATED_MEDIAN_Z = 0.25
+
+
+def overstated_variance(gp: FittedGP, upper: float = SIGNAL_VAR_BOUNDS[1]) -> float | None:
+    """The median |z| of ``gp``'s closed-form leave-one-out residuals (in predictive sds)
+    when its variance is overstated, else None. The symptom: the signal variance at its
+    upper bound ``upper`` (the likelihood's optimum lies beyond it, with ever longer
+    length scales: an output smoother than the Matern 3/2 kernel's sample paths), and at
+    most runs an error far below the predictive sd (median |z| under
+    :data:`OVERSTATED_MEDIAN_Z`, where a calibrated GP gives about 0.67). Such a
+    surrogate's mean can be very good while its variance is many times too large,
+    mostly between the runs."""
+    if float(gp.signal_var) < OVERSTATED_AT_BOUND * upper:
+        return None
+    z, _ = _loo_residuals(gp)
+    if z is None:
+        return None
+    median = float(np.median(np.abs(z)))
+    return median if median < OVERSTATED_MEDIAN_Z else None
 
 
 def _condition_with_retries(x, y, xs, ys, p, *, lower, upper, transform, name,
