@@ -99,3 +99,9 @@ def test_sobol_indices_are_uniform_in_each_inputs_own_scale(tmp_path, monkeypatc
     p = np.random.default_rng(0).uniform(*box[0], 200_000)  # P uniform in P instead
     linear = np.var(np.log(p)) / (np.var(np.log(p)) + v_q)
     assert abs(linear - expect[0]) > 0.1
+    # the map's grid is even in each input's own scale too, and says which axes are log
+    grid = res.map
+    assert grid.log == (True, False)
+    np.testing.assert_allclose(np.diff(np.log(grid.axis0)), np.log(box[0, 1] / box[0, 0])
+                               / (explore.GRID - 1))
+    np.testing.assert_allclose(np.diff(grid.axis1), (box[1, 1] - box[1, 0]) / (explore.GRID - 1))

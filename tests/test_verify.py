@@ -432,3 +432,21 @@ def test_a_simulator_that_fails_every_point_fails_verify(calibrated):
                            "up.z (2)"), last
     doc = json.loads((root / "out" / "verify.json").read_text())  # still written
     assert doc["checks"]["up.y"]["n"] == 0 and doc["checks"]["down.w"]["n"] == 2
+
+
+def test_a_miss_behind_a_surrogate_warning_names_that_warning_first():
+    """Where the calibration's surrogate check warned for the data set, a missed fit is
+    put down to that first: the surrogates' variance let the posterior stray."""
+    import numpy as np
+
+    from calnet.verify import _fit
+
+    found = np.array([[4.0, 1.0, 0.0], [-4.5, 1.0, 0.0], [3.9, 1.0, 0.0]])
+    plain = _fit("d", "m.y", found, no_discrepancy=False).verdict
+    assert plain.startswith("the simulator at the posterior misses these observations: RMS "
+                            "4.1 sds of the calibration's noise and discrepancy over 3 "
+                            "points (about 1 for a fit): the model may not describe")
+    warned = _fit("d", "m.y", found, no_discrepancy=False, surrogate_warned=True).verdict
+    assert ("(about 1 for a fit): the calibration's surrogate check warned that the "
+            "surrogates' variance, not the data, sets this data set's posterior") in warned
+    assert "Else the model may not describe these data" in warned

@@ -873,7 +873,8 @@ def verify(
         raise CalnetError(
             "verify: the simulator failed at every point of "
             + ", ".join(f"{c.surrogate} ({c.n_failed})" for c in unchecked)
-            + ", so those surrogates were not checked; see the messages above, fix the "
+            + f", so {'those surrogates were' if len(unchecked) > 1 else 'it was'} not "
+            "checked; see the messages above, fix the "
             "simulator (calnet simulate MODEL --set ...) and run calnet verify again")
 
 

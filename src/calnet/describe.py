@@ -33,7 +33,9 @@ def describe_network(network: Network, console: Console) -> None:
             link = network.link_into(name, var.name)
             role = (f"<- {link.source}" + (" (identity)" if _identity(network, link) else "")
                     if link else "free (set by experiment)")
-            table.add_row(var.name, "input", var.unit, f"[{var.lower:g}, {var.upper:g}]  {role}")
+            scale = " log scale" if getattr(var, "scale", "linear") == "log" else ""
+            table.add_row(var.name, "input", var.unit,
+                          f"[{var.lower:g}, {var.upper:g}]{scale}  {role}")
         for var in model.parameters:
             table.add_row(var.name, "parameter", var.unit,
                           f"[{var.lower:g}, {var.upper:g}]  prior {var.prior_text()}"

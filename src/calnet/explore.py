@@ -44,6 +44,9 @@ class ProcessMap:
         Posterior predictive probability that the output meets ``criterion``.
     criterion : (float, float) or None
         ``(lower, upper)`` of the spec's criterion for the data set.
+    log : (bool, bool)
+        Whether each input has ``scale: log``: its grid is even in ``ln x`` then, and
+        its axis logarithmic.
     """
 
     names: tuple[str, str]
@@ -52,6 +55,7 @@ class ProcessMap:
     mean: np.ndarray
     probability: np.ndarray | None = None
     criterion: tuple[float, float] | None = None
+    log: tuple[bool, bool] = (False, False)
 
     def to_dict(self) -> dict[str, Any]:
         out = {"inputs": list(self.names), self.names[0]: self.axis0.tolist(),
@@ -147,7 +151,9 @@ def explore_dataset(network: Network, surrogates: Surrogates, posterior: Network
     if data.x.shape[1] != 2:
         return Exploration(name, res, spread, box)
     note(f"map {name}")
-    g0, g1 = (np.linspace(box[j, 0], box[j, 1], GRID) for j in range(2))
+    # even in each input's own scale, as the Sobol design
+    g0, g1 = (np.geomspace(box[j, 0], box[j, 1], GRID) if logs[j] else
+              np.linspace(box[j, 0], box[j, 1], GRID) for j in range(2))
     mesh = np.array(np.meshgrid(g0, g1)).reshape(2, -1).T
     crit = network.settings.criteria.get(name)
     within = (crit.lower, crit.upper) if crit else None
@@ -155,7 +161,7 @@ def explore_dataset(network: Network, surrogates: Surrogates, posterior: Network
                    n_samples=10, within=within, warn_outside=False)
     prob = None if pred.prob is None else pred.prob.reshape(GRID, GRID)
     grid = ProcessMap((names[0], names[1]), g0, g1, pred.mean.reshape(GRID, GRID), prob,
-                      within if prob is not None else None)
+                      within if prob is not None else None, (bool(logs[0]), bool(logs[1])))
     return Exploration(name, res, spread, box, grid)
 
 

@@ -387,8 +387,9 @@ def data_fits(network: Network, posterior: NetworkPosterior, points: Sequence[Ve
         disc = _at(hyper["sd2"], p.draw) if "sd2" in hyper else 0.0
         r = (float(observed[j]) - p.simulator) / math.sqrt(max(noise + disc, 1e-300))
         found[name].append((r, noise, disc))
+    warned = {c.dataset for c in posterior.checks if c.message()}
     return {name: _fit(name, posterior.data[name].observes, np.asarray(v).reshape(-1, 3),
-                       not network.dataset(name).discrepancy.enabled)
+                       not network.dataset(name).discrepancy.enabled, name in warned)
             for name, v in found.items()}
 
 
@@ -397,8 +398,11 @@ def _at(draws: np.ndarray, draw: int | None) -> float:
     return float(np.mean(draws) if draw is None else draws[draw])
 
 
-def _fit(name: str, observes: str, found: np.ndarray, no_discrepancy: bool) -> DataFit:
-    """``found`` (n, 3): each point's residual in sds, noise and discrepancy variances."""
+def _fit(name: str, observes: str, found: np.ndarray, no_discrepancy: bool,
+         surrogate_warned: bool = False) -> DataFit:
+    """``found`` (n, 3): each point's residual in sds, noise and discrepancy variances;
+    ``surrogate_warned``: the calibration's surrogate check warned for the data set (the
+    surrogates' variance, not the data, set its posterior)."""
     r = found[:, 0]
     if r.size == 0:
         return DataFit(name, observes, 0, math.nan, math.nan,
@@ -411,7 +415,11 @@ def _fit(name: str, observes: str, found: np.ndarray, no_discrepancy: bool) -> D
     verdict = "fits" if rms <= FIT_RMS else (
         f"the simulator at the posterior misses these observations: RMS {rms:.1f} sds of "
         f"the calibration's noise and discrepancy over {r.size} points (about 1 for a "
-        "fit): the model may not describe these data"
+        "fit)" + (": the calibration's surrogate check warned that the surrogates' "
+                  "variance, not the data, sets this data set's posterior, which lets it "
+                  "stray from the data where the surrogates are uncertain; see that "
+                  "warning first (metrics.json, calibration.surrogate_check). Else"
+                  if surrogate_warned else ":") + " the model may not describe these data"
         + (" (its spec sets discrepancy: none, so nothing absorbs a model-form error; "
            "the default discrepancy would)" if no_discrepancy else "")
         + "; where the surrogates above agree and calnet run did not warn of a misfit, "

@@ -44,13 +44,14 @@ def _sensitivity_figures(ctx, results: RunResults) -> None:
                           strict=True))
         ctx.figures[f"map {name}"] = figures.predictive_map(
             grid.axis0, grid.axis1, grid.mean, ctx.out / "figures" / f"map_{name}.png",
-            d.observes, out.unit, points=points, **labels)
+            d.observes, out.unit, points=points, log_axes=grid.log, **labels)
         if grid.probability is not None:
             lower, upper = grid.criterion
             ctx.figures[f"process {name}"] = figures.process_map(
                 grid.axis0, grid.axis1, grid.probability,
                 ctx.out / "figures" / f"process_{name}.png",
-                f"P({lower} <= {d.observes} <= {upper})", points=points, **labels)
+                f"P({lower} <= {d.observes} <= {upper})", points=points, log_axes=grid.log,
+                **labels)
 
 
 def _statuses(counts: dict[str, int]) -> str:
@@ -381,8 +382,9 @@ def _sections(ctx, results: RunResults) -> list[Section]:
         "each input's own scale (ln x for scale: log), of the posterior predictive mean "
         "(± the bootstrap 95 % half-width: the Monte Carlo error of the sample, not the "
         "surrogates' error; an input the data never vary spans its declared bounds); the "
-        "last column is the central 95 % of ST computed for each posterior draw on half "
-        "the sample, so it also carries that Monte Carlo error",
+        "last column is the central 95 % of ST computed for each posterior draw on "
+        "one shared sample of half the size, so it shows the spread over the posterior "
+        "and not that Monte Carlo error (the sample's error moves every draw's ST alike)",
         ["data set", "input", "S1", "ST", "ST over posterior draws (95 %)"], srows)],
         figures=pick("sobol ") + pick("map ") + pick("process "))
     sections = [overview, sur] + ([cal] if rows else []) + ([val, sens] if ctx.data else [])

@@ -340,7 +340,8 @@ def _draw_points(ax: Any, points: Any) -> None:
 
 def predictive_map(P_grid: Any, v_grid: Any, mean_2d: Any, path: str | Path, label: str,
                    unit: str, points: Any = None, *, p_label: str = P_LABEL,
-                   v_label: str = V_LABEL) -> Path:
+                   v_label: str = V_LABEL, log_axes: tuple[bool, bool] = (False, False)
+                   ) -> Path:
     """Predictive mean of an output over the (P, v) plane.
 
     Parameters
@@ -355,6 +356,8 @@ def predictive_map(P_grid: Any, v_grid: Any, mean_2d: Any, path: str | Path, lab
         Output name and unit for the colour bar.
     points : array (m, 2) of (P, v), or dict {name: (m, 2) array}, optional
         Experimental settings to overlay.
+    log_axes : (bool, bool)
+        Logarithmic x and y axes (inputs of ``scale: log``).
 
     Returns
     -------
@@ -370,12 +373,21 @@ def predictive_map(P_grid: Any, v_grid: Any, mean_2d: Any, path: str | Path, lab
     fig.colorbar(mesh, ax=ax, label=with_unit(label, unit))
     _draw_points(ax, points)
     ax.set(xlabel=p_label, ylabel=v_label, title=f"predicted {label}")
+    _log_axes(ax, log_axes)
     return _save(fig, path)
+
+
+def _log_axes(ax, log_axes: tuple[bool, bool]) -> None:
+    if log_axes[0]:
+        ax.set_xscale("log")
+    if log_axes[1]:
+        ax.set_yscale("log")
 
 
 def process_map(P_grid: Any, v_grid: Any, prob_2d: Any, path: str | Path, label: str,
                 points: Any = None, *, p_label: str = P_LABEL,
-                v_label: str = V_LABEL) -> Path:
+                v_label: str = V_LABEL, log_axes: tuple[bool, bool] = (False, False)
+                ) -> Path:
     """Probability of meeting a specification over the (P, v) plane, with its 0.5 contour.
 
     Parameters
@@ -390,6 +402,8 @@ def process_map(P_grid: Any, v_grid: Any, prob_2d: Any, path: str | Path, label:
         The specification, e.g. ``"PDAS < 0.35 um"``.
     points : optional
         Experimental settings to overlay, as in :func:`predictive_map`.
+    log_axes : (bool, bool)
+        As in :func:`predictive_map`.
 
     Returns
     -------
@@ -406,6 +420,7 @@ def process_map(P_grid: Any, v_grid: Any, prob_2d: Any, path: str | Path, label:
     fig.colorbar(mesh, ax=ax, label="probability")
     _draw_points(ax, points)
     ax.set(xlabel=p_label, ylabel=v_label, title=f"P({label})")
+    _log_axes(ax, log_axes)
     return _save(fig, path)
 
 

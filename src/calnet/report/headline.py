@@ -128,7 +128,8 @@ def _error_table(validation: Mapping[str, DatasetValidation],
             where, calnet, base = f"{v.train['n']} training points (no test)", v.train, {}
         rows.append([name, where, unit_text(units.get(name)), _cell(calnet)]
                     + [_cell(base.get(b)) for b in used])
-    return Table("Prediction error: RMSE (MAPE)",
+    mape = any(" %)" in cell for row in rows for cell in row[3:])
+    return Table("Prediction error: RMSE (MAPE)" if mape else "Prediction error: RMSE",
                  ["data set", "evaluated on", "unit", "calnet"] + [BASELINES[b] for b in used],
                  rows)
 
