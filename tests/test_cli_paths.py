@@ -81,7 +81,12 @@ def test_simulate_with_an_option_it_does_not_take_is_a_usage_error():
                                   "['variant']")
     bad = CliRunner().invoke(app, ["simulate", "solidification", "--option", "variant=Q",
                                    "--set", "S=0.3", "--set", "G=1e7"], terminal_width=400)
-    _one_line_usage_error(bad, "solidification with --option {'variant': 'Q'}: ")
+    _one_line_usage_error(bad, "solidification: variant must be one of ('A', 'B'), got 'Q' "
+                               "(--option variant='Q'); fix the option names or values")
+    typed = CliRunner().invoke(app, ["simulate", "phase_field", "--option", "nx=10.5",
+                                     "--set", "S=0.3", "--set", "G=1e7"], terminal_width=400)
+    _one_line_usage_error(typed, "phase_field option nx: expected an integer, got 10.5 "
+                                 "(--option nx=10.5)")
 
 
 @pytest.mark.parametrize(("argv", "message"), [

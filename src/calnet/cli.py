@@ -397,10 +397,13 @@ def simulate(
 ) -> None:
     """Run one built-in simulation and print its outputs as JSON.
 
-    Inputs and parameters not given take the middle of their bounds (a warning names the
-    inputs); a value outside its bounds runs, with a warning; one the model cannot take
-    (not finite, not positive) gives status "failed" and exit code 1. A run reports its
-    progress on stderr (a line at least every 10 s).
+    Inputs and parameters not given take the middle of the box the simulator is tested
+    over (docs/physics.md; a warning names the inputs); a value outside that box runs,
+    with a warning; one the model cannot take (not finite, not positive) gives status
+    "failed" and exit code 1, its outputs null. --option NAME=VALUE sets one of the
+    simulator's numerical options (docs/physics.md; an unknown name is refused with the
+    list of known ones). A run reports its progress on stderr (a line at least every
+    10 s).
     """
     from calnet.simulators.registry import builtin_info, builtin_names
 
@@ -425,13 +428,14 @@ def simulate(
     if missing:
         warnings.warn(f"{', '.join(missing)} not given: "
                       + ", ".join(f"{k}={inputs[k]:g}{unit(k)}" for k in missing)
-                      + " (the middle of the bounds); give inputs with --set NAME=VALUE",
+                      + f" (the middle of the box {name} is tested over); give inputs "
+                      "with --set NAME=VALUE",
                       stacklevel=1)
     for k, x in values.items():
         lo, hi = info.bounds.get(k, (-math.inf, math.inf))
         if not lo <= x <= hi:
-            warnings.warn(f"{k}={x:g}{unit(k)} lies outside the bounds [{lo:g}, {hi:g}]: "
-                          "the model runs there, but untested", stacklevel=1)
+            warnings.warn(f"{k}={x:g}{unit(k)} lies outside the box [{lo:g}, {hi:g}] "
+                          f"that {name} is tested over (docs/physics.md)", stacklevel=1)
     from calnet.progress import Lines
 
     lines, extra = Lines(name), {}
@@ -444,17 +448,30 @@ def simulate(
     except (TypeError, ValueError) as err:
         if not options:
             raise
-        raise UsageError(f"{name} with --option {options}: {err}; fix the option names "
-                         "or values") from None
+        given = ", ".join(f"{k}={v!r}" for k, v in options.items())
+        text = str(err) if str(err).startswith(name) else f"{name}: {err}"
+        raise UsageError(f"{text} (--option {given}); fix the option names or values "
+                         "(docs/physics.md lists each simulator's)") from None
     if lines.elapsed() >= lines.every_s:  # a run long enough to have reported progress
         lines.note(f"{result.status}")
     doc = {"simulator": name, "version": info.version, "inputs": inputs,
            "status": result.status, "message": result.message, "outputs": result.outputs,
            "units": {k: info.units.get(k, "1") for k in (*inputs, *result.outputs)},
            "diagnostics": result.diagnostics}
-    print(json.dumps(doc, indent=2, default=_json_default))
+    print(json.dumps(_finite_or_null(doc), indent=2, default=_json_default))
     if result.status != "ok":
         raise typer.Exit(1)
+
+
+def _finite_or_null(obj: Any) -> Any:
+    """``obj`` with every NaN or infinite float as None: strict JSON has no NaN."""
+    if isinstance(obj, dict):
+        return {k: _finite_or_null(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_finite_or_null(v) for v in obj]
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj
 
 
 def _say_run_is_stale(out: Path) -> None:

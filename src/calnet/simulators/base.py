@@ -10,7 +10,7 @@ import math
 import numbers
 import sys
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Any, Literal, Protocol
 
 Status = Literal["ok", "failed", "timeout", "nonconverged"]
@@ -167,3 +167,28 @@ class Simulator(Protocol):
     version: str
 
     def __call__(self, inputs: Mapping[str, float]) -> SimResult: ...
+
+
+_KINDS = {"int": (numbers.Integral, "an integer"), "float": (numbers.Real, "a number"),
+          "str": (str, "a string"), "bool": (bool, "true or false")}
+
+
+def check_option_types(cls: type, options: Mapping[str, Any], simulator: str) -> None:
+    """Raise ``ValueError`` naming the first option of ``options`` whose value is not of
+    the type its field of the dataclass ``cls`` declares (``int``, ``float``, ``str``,
+    ``bool``, optionally ``| None``): ``nx=10.5`` or ``resolution="abc"`` would otherwise
+    be truncated or fail deep inside the run. Booleans are not numbers here."""
+    declared = {f.name: str(f.type) for f in fields(cls)}
+    for name, value in options.items():
+        kinds = [k.strip() for k in declared.get(name, "").split("|")]
+        if value is None and "None" in kinds:
+            continue
+        known = [k for k in kinds if k in _KINDS]
+        if not known:
+            continue  # a field of another type: the options class checks it
+        ok = any(isinstance(value, _KINDS[k][0]) and not (isinstance(value, bool)
+                                                           and k != "bool")
+                 for k in known)
+        if not ok:
+            want = " or ".join(_KINDS[k][1] for k in known)
+            raise ValueError(f"{simulator} option {name}: expected {want}, got {value!r}")

@@ -9,6 +9,8 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, fields
 from typing import Any
 
+from calnet.simulators.base import check_option_types
+
 ABSORPTIVITY_LAWS = ("surface_temperature", "keyhole_depth")
 KVZ_MODES = ("factor", "absolute")
 ANISOTROPY_DIRECTIONS = ("vertical", "lateral")
@@ -154,6 +156,7 @@ class MeltPoolOptions:
         unknown = sorted(set(kwargs) - known)
         if unknown:
             raise TypeError(f"unknown melt_pool option(s) {unknown}; known: {sorted(known)}")
+        check_option_types(cls, kwargs, "melt_pool")
         return cls(**kwargs)
 
     def to_dict(self) -> dict[str, Any]:

@@ -5,6 +5,8 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, fields, replace
 from typing import Any
 
+from calnet.simulators.base import check_option_types
+
 #: Named resolutions: grid spacing (m), domain width and height (cells), step budget.
 RESOLUTIONS: dict[str, dict[str, float]] = {
     "default": {"dx": 5e-9, "nx": 384, "ny": 128, "max_steps": 40000},
@@ -135,12 +137,10 @@ class PhaseFieldOptions:
         if unknown:
             raise ValueError(f"unknown phase_field options {unknown}; expected some of "
                              f"{sorted(known)}")
-        ints = {"nx", "ny", "max_steps", "seed", "window", "initial_cells"}
-        floats = {"antitrapping", "dx", "amplitude", "noise_cell", "front_row", "chunk_cells",
-                  "min_travel", "steady_travel"}
-        conv = {k: int(v) if k in ints else float(v) if k in floats else v
-                for k, v in kwargs.items()}
-        return cls(**conv)
+        check_option_types(cls, kwargs, "phase_field")
+        floats = {f.name for f in fields(cls) if str(f.type).startswith("float")}
+        return cls(**{k: float(v) if k in floats and v is not None else v
+                      for k, v in kwargs.items()})
 
     def with_(self, **changes: Any) -> PhaseFieldOptions:
         """A copy with ``changes``."""
