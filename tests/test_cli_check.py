@@ -261,3 +261,23 @@ def test_plug_mode_in_a_joint_spec_is_said_to_be_ignored(tmp_path):
     assert ("--plug applies to segmented calibration only; this calibration is joint (the "
             "spec's settings.calibration.mode): add --mode segmented, or leave --plug out"
             ) in result.output, result.output
+
+
+def test_outputs_nothing_uses_are_named_in_one_line_per_model(tmp_path):
+    (tmp_path / "network.yaml").write_text(textwrap.dedent("""
+        models:
+          M:
+            simulator: builtin:solidification
+            inputs: {S: {unit: m/s, lower: 0.1, upper: 1},
+                     G: {unit: K/m, lower: 1.0e+6, upper: 1.0e+7}}
+            parameters: {sigma: {unit: J/cm^2, lower: 1.0e-6, upper: 3.0e-6}}
+            outputs: {lambda: {unit: um}, k_V: {unit: "1"}}
+        settings: {predict: []}
+        """))
+    result = CliRunner().invoke(app, ["check", str(tmp_path)], terminal_width=400)
+    warned = [line for line in result.output.splitlines() if line.startswith("warning: M:")]
+    assert warned == ["warning: M: outputs lambda, k_V are used by nothing (no data set "
+                      "observes them, no link reads them, settings.predict does not list "
+                      "them), so they get no surrogate and are never predicted; list them in "
+                      "settings.predict to emulate them, or remove them from the spec"], \
+        result.output

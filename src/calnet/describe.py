@@ -100,12 +100,22 @@ def _count(n: int, noun: str) -> str:
 
 
 def unused_outputs(network: Network, model: str) -> list[str]:
-    """A warning for each output of ``model`` that nothing uses (no data set observes it,
-    no link reads it, ``settings.predict`` does not list it): it gets no surrogate."""
-    return [f"{model}.{out}: no data set observes it, no link reads it and settings.predict "
-            "does not list it, so it gets no surrogate and is never predicted; add it to "
-            "settings.predict to emulate it, or remove it from the spec"
-            for out, use in network.output_uses(model).items() if not use]
+    """A warning naming the outputs of ``model`` that nothing uses (no data set observes
+    them, no link reads them, ``settings.predict`` does not list them): they get no
+    surrogate. One line for all of a model's."""
+    unused = [out for out, use in network.output_uses(model).items() if not use]
+    if not unused:
+        return []
+    one = len(unused) == 1
+    names = ", ".join(unused)
+    return [f"{model}: output{'' if one else 's'} {names} "
+            f"{'is' if one else 'are'} used by nothing (no data set observes "
+            f"{'it' if one else 'them'}, no link reads {'it' if one else 'them'}, "
+            f"settings.predict does not list {'it' if one else 'them'}), so "
+            f"{'it gets' if one else 'they get'} no surrogate and "
+            f"{'is' if one else 'are'} never predicted; list "
+            f"{'it' if one else 'them'} in settings.predict to emulate "
+            f"{'it' if one else 'them'}, or remove {'it' if one else 'them'} from the spec"]
 
 
 def import_problems(network: Network) -> list[tuple[str, str]]:
