@@ -506,7 +506,8 @@ def _variant_note(note: str, sampler: SamplerSettings) -> str:
     the variants' sampler (:func:`secondary_sampler` of the spec's ``sampler``) is at its
     cap."""
     used = secondary_sampler(sampler)
-    if not note.endswith(MORE_DRAWS) or used.draws == sampler.draws:
+    cap = secondary_sampler(sampler.model_copy(update={"draws": 10**9})).draws
+    if not note.endswith(MORE_DRAWS) or sampler.draws < cap:  # more draws would reach it
         return note
     return note.removesuffix(MORE_DRAWS) + (
         f"the variants compared sample {used.chains} chains of {used.draws} draws whatever "

@@ -377,6 +377,8 @@ def test_a_variants_note_does_not_advise_more_draws_than_it_can_take():
     assert capped == ("m: bulk ESS 328 < 400 for m.a; the variants compared sample 2 chains "
                       "of 500 draws whatever settings.sampler says, so its ELPD carries more "
                       "Monte Carlo error than the spec's")
+    at_cap = _variant_note(note, SamplerSettings(chains=4, warmup=500, draws=500))
+    assert at_cap == capped  # 500 draws are the variants' cap already
     few = SamplerSettings(chains=4, warmup=500, draws=200)
     assert _variant_note(note, few) == note  # more draws would reach the variants too
     assert _variant_note("m: 3 divergent transitions", few) == "m: 3 divergent transitions"
