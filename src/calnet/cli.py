@@ -937,6 +937,7 @@ def main(prog_name: str | None = None) -> None:
     interpreter's clean-up at a normal exit then crashes under it (a segmentation fault
     instead of the exit code). What the command keeps is on disk by then: the latch
     (:func:`calnet.interrupts.latch`) unwinds the work before the exit code is set."""
+    _quiet_resource_tracker()
     try:
         app(prog_name=prog_name)
     except SystemExit as stop:
@@ -945,6 +946,18 @@ def main(prog_name: str | None = None) -> None:
             sys.stderr.flush()
             os._exit(stop.code)
         raise
+
+
+def _quiet_resource_tracker() -> None:
+    """Keep multiprocessing's resource tracker from warning of "leaked semaphore objects"
+    after an interrupt: the immediate exit above leaves a campaign's process pool to it,
+    which it cleans up as it should, and its warning would only alarm. The tracker is a
+    child process: the rule reaches it through ``PYTHONWARNINGS`` (as it reaches the
+    simulators a campaign starts, where it matches nothing of theirs)."""
+    rule = "ignore:resource_tracker:UserWarning"
+    rules = [r for r in os.environ.get("PYTHONWARNINGS", "").split(",") if r]
+    if rule not in rules:
+        os.environ["PYTHONWARNINGS"] = ",".join([*rules, rule])
 
 
 if __name__ == "__main__":  # pragma: no cover
