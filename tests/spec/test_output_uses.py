@@ -57,8 +57,9 @@ def test_check_says_what_each_output_is_for_and_warns_of_unused(tmp_path):
     warned = [" ".join(line.split()) for line in res.output.splitlines()
               if line.startswith("warning:")]
     assert len(warned) == 1, res.output
-    assert warned[0].startswith("warning: a.spare: no data set observes it")
-    assert "add it to settings.predict" in warned[0]
+    assert warned[0].startswith("warning: a: output spare is used by nothing (no data set "
+                                "observes it")
+    assert "list it in settings.predict" in warned[0]
 
 
 def test_check_of_an_emulation_only_network(tmp_path):
