@@ -235,21 +235,27 @@ def test_check_gives_up_on_a_module_that_does_not_finish_importing(tmp_path, mon
     assert "waits_at_import" not in sys.modules
 
 
-def test_plug_mode_in_a_joint_spec_is_said_to_be_ignored(tmp_path):
-    """settings.calibration.plug applies to segmented mode: check says a joint spec's
-    plug: mode does nothing, and calibrate refuses --plug for a joint calibration."""
-    (tmp_path / "network.yaml").write_text(textwrap.dedent("""
+def _solidification_spec(folder, outputs: str, rest: str) -> None:
+    """A one-model spec of the built-in solidification simulator in ``folder``."""
+    (folder / "network.yaml").write_text(textwrap.dedent("""
         models:
           M:
             simulator: builtin:solidification
             inputs: {S: {unit: m/s, lower: 0.1, upper: 1},
                      G: {unit: K/m, lower: 1.0e+6, upper: 1.0e+7}}
             parameters: {sigma: {unit: J/cm^2, lower: 1.0e-6, upper: 3.0e-6}}
-            outputs: {lambda: {unit: um, measurable: true}}
+            outputs: OUTPUTS
+        """).replace("OUTPUTS", outputs) + textwrap.dedent(rest))
+
+
+def test_plug_mode_in_a_joint_spec_is_said_to_be_ignored(tmp_path):
+    """settings.calibration.plug applies to segmented mode: check says a joint spec's
+    plug: mode does nothing, and calibrate refuses --plug for a joint calibration."""
+    _solidification_spec(tmp_path, "{lambda: {unit: um, measurable: true}}", """
         data:
           d: {path: d.csv, observes: M.lambda}
         settings: {calibration: {mode: joint, plug: mode}}
-        """))
+        """)
     (tmp_path / "d.csv").write_text("S,G,lambda\n0.3,5.0e+6,0.5\n")
     result = CliRunner().invoke(app, ["check", str(tmp_path)], terminal_width=400)
     assert result.exit_code == 0, result.output
@@ -264,16 +270,9 @@ def test_plug_mode_in_a_joint_spec_is_said_to_be_ignored(tmp_path):
 
 
 def test_outputs_nothing_uses_are_named_in_one_line_per_model(tmp_path):
-    (tmp_path / "network.yaml").write_text(textwrap.dedent("""
-        models:
-          M:
-            simulator: builtin:solidification
-            inputs: {S: {unit: m/s, lower: 0.1, upper: 1},
-                     G: {unit: K/m, lower: 1.0e+6, upper: 1.0e+7}}
-            parameters: {sigma: {unit: J/cm^2, lower: 1.0e-6, upper: 3.0e-6}}
-            outputs: {lambda: {unit: um}, k_V: {unit: "1"}}
+    _solidification_spec(tmp_path, '{lambda: {unit: um}, k_V: {unit: "1"}}', """
         settings: {predict: []}
-        """))
+        """)
     result = CliRunner().invoke(app, ["check", str(tmp_path)], terminal_width=400)
     warned = [line for line in result.output.splitlines() if line.startswith("warning: M:")]
     assert warned == ["warning: M: outputs lambda, k_V are used by nothing (no data set "
