@@ -412,6 +412,15 @@ def test_a_modulation_below_one_cell_is_a_flat_front():
     assert outputs.dominant_mode(1.1 * dx * np.cos(2 * np.pi * 3 * x), dx)[0] == 3
 
 
+def test_a_domain_narrower_than_two_cells_is_a_failed_run():
+    """A 50 nm domain (10 cells of 5 nm) holds one cell of the array: its 'spacing' would
+    be the domain's width, so the run fails, saying so, instead of reporting it."""
+    res = phase_field.simulate({"S": 0.3, "G": 1e7}, nx=10)
+    assert res.status == "failed", res
+    assert res.message.startswith("phase_field: the domain (0.05 um across) held 1 cells, "
+                                  "so lambda is its width"), res.message
+
+
 def test_equilibrium_start_is_the_reference_set_up():
     opts = PhaseFieldOptions(nx=4, ny=32, amplitude=0.0, start="equilibrium")
     phi, xs, xl, _ = solver.initial_fields(opts, C, 0.3)

@@ -67,6 +67,11 @@ def parameters(inputs: Mapping[str, float]) -> PhysicalParameters:
                               permeability=v["p_int"] * TO_SI["p_int"])
 
 
+#: fewest cells across the domain for a measured spacing: with fewer, the periodic domain
+#: sets lambda (one cell across is lambda = the domain's width)
+MIN_CELLS = 2
+
+
 def simulate(inputs: Mapping[str, float], *,
              progress: Callable[[float, str], None] | None = None,
              **options: Any) -> SimResult:
@@ -94,11 +99,12 @@ def simulate(inputs: Mapping[str, float], *,
         ``window`` chunks. Status ``"ok"`` for a steady cell array; ``"nonconverged"``
         (outputs of the last window, ``steady`` 0.0) when the step budget ran out first;
         ``"failed"`` for fields that diverged even with the time step halved
-        :data:`MAX_HALVINGS` times, or a steady front that stayed flat (no spacing). The
-        message says which. ``diagnostics``: steps, simulated time (s), time step (s),
-        ``dt_halvings`` (how often the step was halved after a divergence; the step budget
-        grows with it, so the simulated time available stays the same), wall time (s, all
-        attempts), tip speed (m/s), ``cells`` (the count), ``tip_mode`` and
+        :data:`MAX_HALVINGS` times, a steady front that stayed flat (no spacing), or a
+        domain that held fewer than :data:`MIN_CELLS` cells (its width, not the front, set
+        the spacing). The message says which. ``diagnostics``: steps, simulated time (s),
+        time step (s), ``dt_halvings`` (how often the step was halved after a divergence;
+        the step budget grows with it, so the simulated time available stays the same),
+        wall time (s, all attempts), tip speed (m/s), ``cells`` (the count), ``tip_mode`` and
         ``tip_wavelength_um`` (dominant mode of the tip heights and its wavelength),
         options.
 
@@ -145,4 +151,10 @@ def simulate(inputs: Mapping[str, float], *,
         return SimResult(out, "failed", f"{NAME}: the front stayed flat (no cell array, so "
                          f"no spacing); k_V {s['k_V']:.3f}, undercooling "
                          f"{s['undercooling']:.2f} K", diag)
+    if s["cells"] < MIN_CELLS:
+        width = opts.nx * opts.dx * 1e6
+        return SimResult(out, "failed", f"{NAME}: the domain ({width:.3g} um across) held "
+                         f"{s['cells']:.2g} cells, so lambda is its width, not a spacing "
+                         f"the front selected; widen it (nx) to hold at least {MIN_CELLS}",
+                         diag)
     return SimResult(out, "ok", "", diag).checked(OUTPUTS)
