@@ -93,7 +93,9 @@ def simulate(inputs: Mapping[str, float], *,
         ``outputs`` ``D, W, L`` (um), ``T0`` (K), ``S0`` (m/s), ``G0`` (K/m); status
         ``"ok"`` only if Newton converged and every output is finite, otherwise
         ``"nonconverged"``/``"timeout"``/``"failed"`` with NaN outputs and a message.
-        ``diagnostics`` holds iterations, residual, mesh size, peak temperature, and
+        ``diagnostics`` holds iterations, residual, mesh size, ``peak_temperature_K``
+        (the hottest cell centre; ``T0`` is the hotter peak of the top surface, which
+        the surface flux heats beyond the centre of the top cells), and
         ``stages``: per Newton solve (continuation stages on the sizing mesh, then the
         fine solve) the mesh, power, cells, iterations and CPU seconds.
     """
