@@ -106,16 +106,14 @@ def unused_outputs(network: Network, model: str) -> list[str]:
     unused = [out for out, use in network.output_uses(model).items() if not use]
     if not unused:
         return []
-    one = len(unused) == 1
-    names = ", ".join(unused)
-    return [f"{model}: output{'' if one else 's'} {names} "
-            f"{'is' if one else 'are'} used by nothing (no data set observes "
-            f"{'it' if one else 'them'}, no link reads {'it' if one else 'them'}, "
-            f"settings.predict does not list {'it' if one else 'them'}), so "
-            f"{'it gets' if one else 'they get'} no surrogate and "
-            f"{'is' if one else 'are'} never predicted; list "
-            f"{'it' if one else 'them'} in settings.predict to emulate "
-            f"{'it' if one else 'them'}, or remove {'it' if one else 'them'} from the spec"]
+    if len(unused) == 1:
+        what, it, is_, gets = f"output {unused[0]}", "it", "is", "it gets"
+    else:
+        what, it, is_, gets = f"outputs {', '.join(unused)}", "them", "are", "they get"
+    return [f"{model}: {what} {is_} used by nothing (no data set observes {it}, no link "
+            f"reads {it}, settings.predict does not list {it}), so {gets} no surrogate and "
+            f"{is_} never predicted; list {it} in settings.predict to emulate {it}, or "
+            f"remove {it} from the spec"]
 
 
 def import_problems(network: Network) -> list[tuple[str, str]]:

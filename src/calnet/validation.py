@@ -414,13 +414,17 @@ def same_as_spec(network: Network, variants) -> tuple[str, ...]:
     return tuple(name for name in variants if variant(network, name) == network)
 
 
+#: the most chains, warm-up iterations and draws of :func:`secondary_sampler`
+SECONDARY_MOST = {"chains": 2, "warmup": 300, "draws": 500}
+
+
 def secondary_sampler(sampler: SamplerSettings) -> SamplerSettings:
     """The sampler of the calibrations made beside the spec's own (exact leave-one-out
-    refits, the variants of :func:`compare_variants`): at most 2 chains of 300 warm-up and
-    500 draws, plenty for a predictive mean and band or a leave-one-out ELPD."""
-    return sampler.model_copy(update={"chains": min(sampler.chains, 2),
-                                      "warmup": min(sampler.warmup, 300),
-                                      "draws": min(sampler.draws, 500)})
+    refits, the variants of :func:`compare_variants`): at most :data:`SECONDARY_MOST`
+    (2 chains of 300 warm-up and 500 draws), plenty for a predictive mean and band or a
+    leave-one-out ELPD."""
+    return sampler.model_copy(update={k: min(getattr(sampler, k), most)
+                                      for k, most in SECONDARY_MOST.items()})
 
 
 def calibrate_variants(network: Network, surrogates: Surrogates, data, variants, *,
@@ -505,10 +509,9 @@ def _variant_note(note: str, sampler: SamplerSettings) -> str:
     """A variant's calibration note, whose advice to raise the draws cannot help where
     the variants' sampler (:func:`secondary_sampler` of the spec's ``sampler``) is at its
     cap."""
+    if not note.endswith(MORE_DRAWS) or sampler.draws < SECONDARY_MOST["draws"]:
+        return note  # more draws would reach the variants
     used = secondary_sampler(sampler)
-    cap = secondary_sampler(sampler.model_copy(update={"draws": 10**9})).draws
-    if not note.endswith(MORE_DRAWS) or sampler.draws < cap:  # more draws would reach it
-        return note
     return note.removesuffix(MORE_DRAWS) + (
         f"the variants compared sample {used.chains} chains of {used.draws} draws whatever "
         "settings.sampler says, so its ELPD carries more Monte Carlo error than the spec's")

@@ -543,12 +543,12 @@ def _segmented(network, surrogates, data, plan, seed, sampler, emu, plug, progre
         for k in free:
             if "." not in k:
                 users = [m for m in network.order if k in parameter_keys(network, m)]
-                fixed_in = " and ".join(f"'{u}'" for u in users if u not in models)
-                later = ("" if not fixed_in else
-                         f"; {fixed_in} take{'s' if ' and ' not in fixed_in else ''} its "
-                         + ("draws (plug: posterior)" if plug == "posterior" else
-                            f"posterior {'mode' if plug == 'mode' else 'mean'} (plug: "
-                            f"{plug})"))
+                later_models = [f"'{u}'" for u in users if u not in models]
+                later = ("" if not later_models else
+                         f"; {' and '.join(later_models)} "
+                         f"take{'s' if len(later_models) == 1 else ''} its "
+                         + ("draws (plug: posterior)" if plug == "posterior"
+                            else "posterior mode (plug: mode)"))
                 info.append(f"shared parameter '{k}' is calibrated in stage "
                              f"'{stage_name}' with the data of '{name}', the first model "
                              f"with data that it acts on{later} (segmented mode)")

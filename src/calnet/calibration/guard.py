@@ -77,7 +77,7 @@ class SurrogateCheck:
     overstated : dict of ``model.output`` -> float
         The surrogates whose variance is overstated
         (:func:`calnet.surrogates.fit.overstated_variance`), with their median |z|: more
-        runs are not what they need.
+        runs are not what they need. Looked for only where the check warns.
     """
 
     dataset: str
@@ -231,8 +231,8 @@ def check_surrogates(network, surrogates, posterior, *, n_draws: int = 50,
         sds = {k: math.sqrt(max(float(v), 0.0)) for k, v in zip(keys, var, strict=True)}
         runs = {k: int(surrogates[k].n_runs) for k in keys}
         warns = sd_ratio(sds, data_sd) > RATIO_WARN  # SurrogateCheck.message's test
-        over = {k: m for k in keys
-                if (m := overstated_variance(surrogates[k].gp)) is not None}
+        over = {k: m for k in keys if warns  # only a warning uses it
+                and (m := overstated_variance(surrogates[k].gp)) is not None}
         needed = {}
         for k in keys if warns else ():  # without a warning no runs are counted
             if k in over:  # an overstated variance says nothing of the runs needed

@@ -313,15 +313,28 @@ def held_out_predictions(
     p, _ = _optimise(xs, ys, starts, bounds, H, mask)
     ell, s2, nugget = device_array(np.exp(p[:-2]), float), float(np.exp(p[-2])), \
         float(np.exp(p[-1]))
-    for attempt in range(_NUGGET_RETRIES + 1):
-        mu, var, ok = held_out_moments(xs, ys, mask, ell, s2, nugget, mean)
-        if bool(ok):
-            if attempt:
+
+    def attempt(nug: float):
+        mu, var, ok = held_out_moments(xs, ys, mask, ell, s2, nug, mean)
+        return (mu, var) if bool(ok) else None
+
+    (mu, var), _ = _with_nugget_retries(attempt, nugget, name)
+    out = ~keep
+    return y_mean + y_std * np.asarray(mu)[out], y_std**2 * np.asarray(var)[out]
+
+
+def _with_nugget_retries(attempt, nugget: float, name: str):
+    """``(attempt(nug), nug)`` for the first nugget, ``nugget`` raised tenfold up to
+    :data:`_NUGGET_RETRIES` times, at which ``attempt`` (None where ``K`` did not
+    factorise) succeeds, warning when the nugget had to be raised; else a
+    :class:`SurrogateError`."""
+    for tries in range(_NUGGET_RETRIES + 1):
+        result = attempt(nugget)
+        if result is not None:
+            if tries:
                 warnings.warn(f"{_label(name)}: nugget raised to {nugget:.3g} to factorise K",
-                              SurrogateWarning, stacklevel=2)
-            out = ~keep
-            return (y_mean + y_std * np.asarray(mu)[out],
-                    y_std**2 * np.asarray(var)[out])
+                              SurrogateWarning, stacklevel=4)
+            return result, nugget
         nugget *= 10.0
     raise SurrogateError(f"{_label(name)}: the covariance matrix is not positive definite "
                          f"even with nugget {nugget / 10:.3g}; remove duplicate or "
@@ -387,20 +400,16 @@ def overstated_variance(gp: FittedGP, upper: float = SIGNAL_VAR_BOUNDS[1]) -> fl
 def _condition_with_retries(x, y, xs, ys, p, *, lower, upper, transform, name,
                             mean: str = "constant") -> FittedGP:
     """Condition at ``p``; if ``K`` will not factorise, raise the nugget tenfold and retry."""
-    ell, s2, nugget = np.exp(p[:-2]), float(np.exp(p[-2])), float(np.exp(p[-1]))
-    for attempt in range(_NUGGET_RETRIES + 1):
+    ell, s2 = np.exp(p[:-2]), float(np.exp(p[-2]))
+
+    def attempt(nug: float):
         gp = condition(x, y, lower=lower, upper=upper, lengthscales=ell, signal_var=s2,
-                       nugget=nugget, transform=transform, name=name, mean=mean)
-        if np.isfinite(np.asarray(gp.alpha)).all():
-            if attempt:
-                warnings.warn(f"{_label(name)}: nugget raised to {nugget:.3g} to factorise K",
-                              SurrogateWarning, stacklevel=3)
-            # the value half of the optimiser's program: a value-only one would compile again
-            nlml, _ = _value_and_grad(device_array(np.log(np.r_[ell, s2, nugget]), float), xs,
-                                      ys, None if mean == "constant" else basis(xs, mean),
-                                      device_array(np.ones(xs.shape[0]), float))
-            return dataclasses.replace(gp, nlml=nlml)
-        nugget *= 10.0
-    raise SurrogateError(f"{_label(name)}: the covariance matrix is not positive definite "
-                         f"even with nugget {nugget / 10:.3g}; remove duplicate or "
-                         "near-duplicate training inputs or raise nugget_bounds")
+                       nugget=nug, transform=transform, name=name, mean=mean)
+        return gp if np.isfinite(np.asarray(gp.alpha)).all() else None
+
+    gp, nugget = _with_nugget_retries(attempt, float(np.exp(p[-1])), name)
+    # the value half of the optimiser's program: a value-only one would compile again
+    nlml, _ = _value_and_grad(device_array(np.log(np.r_[ell, s2, nugget]), float), xs, ys,
+                              None if mean == "constant" else basis(xs, mean),
+                              device_array(np.ones(xs.shape[0]), float))
+    return dataclasses.replace(gp, nlml=nlml)

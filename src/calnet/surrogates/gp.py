@@ -440,18 +440,24 @@ def _condition_arrays(x, y, lower, upper, ell, s2, nug, log: bool, mean: str):
     ys = (z - y_mean) / y_std
     k = matern32(xs, xs, ell, s2) + nug * jnp.eye(xs.shape[0], dtype=xs.dtype)
     chol = jnp.linalg.cholesky(k)
-    H = basis(xs, mean)
-    p = H.shape[1]
-    if p:  # generalised least squares: beta = (H^T K^-1 H)^-1 H^T K^-1 y_s
-        w = jax.scipy.linalg.solve_triangular(chol, H, lower=True)
-        r = jnp.linalg.cholesky(w.T @ w)
-        a = jax.scipy.linalg.solve_triangular(chol, ys, lower=True)
-        beta = jax.scipy.linalg.cho_solve((r, True), w.T @ a)
-        ys = ys - H @ beta
-    else:
-        w, r, beta = H, jnp.zeros((0, 0), xs.dtype), jnp.zeros(0, xs.dtype)
-    alpha = jax.scipy.linalg.cho_solve((chol, True), ys)
+    alpha, beta, w, r = _weights(chol, basis(xs, mean), ys)
     return xs, alpha, chol, y_mean, y_std, beta, w, r
+
+
+def _weights(chol, H, ys):
+    """``(alpha, beta, w, r)`` of standardised outputs ``ys`` (n,) under the covariance
+    with Cholesky factor ``chol`` and the mean function's basis ``H`` (n, p): the trend's
+    generalised least-squares coefficients ``beta = (H^T K^-1 H)^-1 H^T K^-1 y_s``,
+    ``alpha = K^-1 (y_s - H beta)``, ``w = L^-1 H`` and ``r`` the Cholesky factor of
+    ``w^T w`` (for a constant mean, no column: ``beta`` and ``r`` empty)."""
+    if not H.shape[1]:
+        return (jax.scipy.linalg.cho_solve((chol, True), ys), jnp.zeros(0, ys.dtype), H,
+                jnp.zeros((0, 0), ys.dtype))
+    w = jax.scipy.linalg.solve_triangular(chol, H, lower=True)
+    r = jnp.linalg.cholesky(w.T @ w)
+    a = jax.scipy.linalg.solve_triangular(chol, ys, lower=True)
+    beta = jax.scipy.linalg.cho_solve((r, True), w.T @ a)
+    return jax.scipy.linalg.cho_solve((chol, True), ys - H @ beta), beta, w, r
 
 
 @partial(jax.jit, static_argnums=6)
@@ -469,20 +475,13 @@ def held_out_moments(xs, ys, keep, ell, s2, nug, mean: str):
     both = keep[:, None] * keep[None, :]
     chol = jnp.linalg.cholesky(k * both + jnp.diag(nug * keep + (1.0 - keep)))
     h = basis(xs, mean)
-    H = h * keep[:, None]
+    alpha, beta, w, r = _weights(chol, h * keep[:, None], ys)
     ok = jnp.all(jnp.isfinite(chol))
-    if H.shape[1]:
-        w = jax.scipy.linalg.solve_triangular(chol, H, lower=True)
-        r = jnp.linalg.cholesky(w.T @ w)
-        a = jax.scipy.linalg.solve_triangular(chol, ys, lower=True)
-        beta = jax.scipy.linalg.cho_solve((r, True), w.T @ a)
-        ys = ys - H @ beta
-    alpha = jax.scipy.linalg.cho_solve((chol, True), ys)
     k_star = k * keep[None, :]  # (n, n): each point against the kept ones
     v = jax.scipy.linalg.solve_triangular(chol, k_star.T, lower=True)
     mean_s = k_star @ alpha
     var_s = s2 - jnp.sum(v * v, axis=0)
-    if H.shape[1]:
+    if h.shape[1]:
         mean_s = mean_s + h @ beta
         q = jax.scipy.linalg.solve_triangular(r, h.T - w.T @ v, lower=True)
         var_s = var_s + jnp.sum(q * q, axis=0)
