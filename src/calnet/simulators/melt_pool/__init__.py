@@ -2,8 +2,9 @@
 
 Steady 3D finite-volume conduction in the laser's frame with phase-dependent
 anisotropic conductivity, temperature-dependent absorptivity, latent heat through
-enthalpy advection and a 30 um powder layer consolidated where the material has
-approached the solidus upstream; Newton with the exact Jacobian (Kirchhoff potentials),
+enthalpy advection and a 30 um powder layer consolidated by its cumulative exposure to
+heat upstream along the material's path (a function of the temperature field, without
+iteration memory); Newton with the exact Jacobian (Kirchhoff potentials),
 pseudo-transient continuation and AMG-preconditioned GMRES on a mesh fine around the
 pool and stretched outside. Each run continues in laser power from
 a cold, conduction-mode solution, so it returns the steady state a track started on
@@ -30,7 +31,7 @@ from calnet.simulators.melt_pool.model import run
 from calnet.simulators.melt_pool.options import MeltPoolOptions
 
 NAME = "melt_pool"
-VERSION = "0.9.0"
+VERSION = "0.10.0"
 INPUTS = ("P", "v")
 PARAMETERS = ("K_S", "K_L", "K_Lz", "K_V", "K_Vz", "A_0", "A_max")
 OUTPUTS = ("D", "W", "L", "T0", "S0", "G0")

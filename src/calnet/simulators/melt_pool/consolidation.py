@@ -18,7 +18,7 @@ term is sparse, though not local, and it switches cells as the maximum moves.
 
 *Cumulative exposure* (:func:`exposure`; ``consolidation="exposure"``)::
 
-    D(x, y) = int_{x' >= x} s(T_s(x', y)) dx',    frac = 1 - (1 - min(D / l_c, 1))^3,
+    D(x, y) = int_{x' > x} s(T_s(x', y)) dx',    frac = 1 - (1 - min(D / l_c, 1))^3,
 
 with ``s`` the same smoothstep of the column's surface temperature ``T_s`` and
 ``l_c = CONSOLIDATION_LENGTH``: a column consolidates over a path length ``l_c`` at or
@@ -56,6 +56,13 @@ if TYPE_CHECKING:
 CONSOLIDATION_RAMP = 100.0  # K, width of the loose -> consolidated powder ramp below T_S
 CONSOLIDATION_LENGTH = 15e-6  # m, path length at or above T_S that consolidates fully
 # (exposure form)
+# Share of a cell's own path length in its exposure. Zero: a column's fraction depends
+# on the columns strictly upstream only. With half of its own length (the midpoint rule)
+# a top powder cell's fraction rose with its own temperature, and with it the
+# conductance to its hot neighbours: its residual then grew with its temperature (the
+# cell took up more heat the hotter it was), so the steady problem had several
+# solutions at such cells and Newton cycled between them (benchmarks/README.md).
+OWN_SHARE = 0.0
 
 
 def consolidated(disc: Discretization, T: np.ndarray, absorb: float, k_powder: float
@@ -112,11 +119,11 @@ def consolidated(disc: Discretization, T: np.ndarray, absorb: float, k_powder: f
 
 
 def _upstream_sum(a: np.ndarray, dx: np.ndarray) -> np.ndarray:
-    """``int_{x' >= x_i} a dx'`` at the cell centres (axis 0), midpoint rule per cell:
-    all cells upstream of ``i`` in full and half of cell ``i``, shape of ``a``."""
+    """``int_{x' > x_i} a dx'`` per cell (axis 0): the cells upstream of ``i`` in full
+    and ``OWN_SHARE`` of cell ``i`` itself, shape of ``a``."""
     w = a * dx[:, None]
     tot = np.cumsum(w[::-1], axis=0)[::-1]
-    return tot - 0.5 * w
+    return tot - (1.0 - OWN_SHARE) * w
 
 
 @dataclass(frozen=True)
@@ -164,7 +171,7 @@ class Exposure:
             return sp.csr_matrix((n, n))
         i, ip, j = np.nonzero((np.arange(nx)[:, None, None] <= np.arange(nx)[None, :, None])
                               & (self.dr[None, :, :] != 0))
-        w = np.where(ip == i, 0.5, 1.0) * self.dx[ip] * self.g[i, j] * self.dr[ip, j]
+        w = np.where(ip == i, OWN_SHARE, 1.0) * self.dx[ip] * self.g[i, j] * self.dr[ip, j]
         k = np.arange(self.n_powder)
         rows = ((i * ny + j)[:, None] * nz + k).ravel()
         cols = np.repeat((ip * ny + j) * nz, self.n_powder)

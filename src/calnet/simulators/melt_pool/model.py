@@ -117,6 +117,14 @@ def power_ladder(P: float, v: float, theta: dict[str, float], ratio: float,
     return [P * s0 ** (1.0 - j / n) for j in range(n)] + [P]
 
 
+BRANCH_JUMP = 0.5  # share of A_max - A_0 by which the absorptivity changes between branches
+
+
+def _left_branch(a: float, a_before: float, theta: dict[str, float]) -> bool:
+    """Whether the absorptivity moved from conduction to keyhole mode or back."""
+    return abs(a - a_before) > BRANCH_JUMP * (theta["A_max"] - theta["A_0"])
+
+
 def _tolerance(final: float, last: bool, below_p: bool, sizing: float, stage: float
                ) -> float:
     """Tolerance of one solve: ``final`` for the last, looser on the sizing mesh."""
@@ -162,12 +170,16 @@ def run(P: float, v: float, theta: dict[str, float], opts: MeltPoolOptions,
     powers = power_ladder(P, v, theta, opts.continuation_ratio, mat)
     T0 = _start(mesh, powers[0], v, theta, opts, mat)
     iterations, dt0, geometry, stages = 0, None, None, []
+    below = None  # (power, field, mesh) of the last converged solve below P
+    a_before = None  # absorptivity at P on the previous mesh
     for stage in range(3):
         final_stage = res == opts.resolution
         disc = Discretization(mesh, mat, P, v)
         disc.secant_faces = opts.consolidation == "exposure"  # continuous in frac
         disc.conserved_mass = opts.mass_flux == "conserved"
-        for p_stage in powers if stage == 0 else [P]:
+        queue, retried = (list(powers) if stage == 0 else [P]), False
+        while queue:
+            p_stage = queue.pop(0)
             last = p_stage == P and final_stage
             d = disc.with_power(p_stage)
             cpu = time.process_time()
@@ -192,9 +204,20 @@ def run(P: float, v: float, theta: dict[str, float], opts: MeltPoolOptions,
                          + ("converged" if report.converged else "not converged"))
             if not report.converged:
                 break
+            if p_stage < P:
+                below = (p_stage, report.T, mesh)
+            elif (not retried and below is not None and a_before is not None
+                  and _left_branch(report.absorptivity, a_before, theta)):
+                # the field interpolated onto the new mesh fell off the branch the
+                # coarser mesh was on: reach P on this mesh by continuation instead
+                stages[-1]["left_branch"] = retried = True
+                T0, dt0 = _interpolate(below[1], below[2], mesh), WARM_DT0
+                queue = [below[0], P]
+                continue
             T0, dt0 = report.T, WARM_DT0
         if not report.converged:
             break
+        a_before = report.absorptivity
         geometry = extract(report.T, report.frac, mesh, laws, v=v, T_liquidus=mat.T_liquidus,
                            g_window_cells=G_WINDOW_CELLS,
                            tail_flux=_surface_loss(mat.T_liquidus, mat))

@@ -15,7 +15,7 @@ ABSORPTIVITY_LAWS = ("surface_temperature", "keyhole_depth")
 KVZ_MODES = ("factor", "absolute")
 ANISOTROPY_DIRECTIONS = ("vertical", "lateral")
 STARTS = ("rosenthal", "ambient")
-CONSOLIDATIONS = ("monotone", "field", "exposure")
+CONSOLIDATIONS = ("exposure", "field", "monotone")
 MASS_FLUXES = ("conserved", "blended")
 
 
@@ -63,22 +63,22 @@ class MeltPoolOptions:
     continuation_ratio : float, default 1.5
         Largest ratio of consecutive laser powers in the continuation from a cold,
         conduction-mode solution (:func:`~.model.power_ladder`); must exceed 1.
-    consolidation : {"monotone", "field", "exposure"}, default "monotone"
+    consolidation : {"exposure", "field", "monotone"}, default "exposure"
         How a solve treats the consolidated powder fraction ``frac(T)``
         (:mod:`~.consolidation`). ``"exposure"``: a cumulative exposure to heat along
-        the material path, a smooth function of the current iterate without maximum or
-        memory, its exact coupling in the Newton operator, and faces between cells of
-        different fractions with secant conductivities; its Newton iteration halves
-        updates that 2-cycle and the updates of cells that cycle with period 2-4
-        (:func:`~.solver._cycle_factor`; benchmarks/README.md).
-        ``"field"``: ``frac(T)`` of the current iterate, its
-        coupling in the Newton matrix, so the converged state solves
-        ``R(T, frac(T)) = 0`` whatever the path; at most powder settings of the
-        reference box the iteration cycles at the lateral edge of the consolidation
-        front and does not converge (benchmarks/README.md). ``"monotone"``: the largest
-        upstream-maximum ``frac(T)`` over the solve's iterates (each continuation stage
-        starts afresh), so the front only advances; it converges, but the state can depend on the
-        iteration path by a few per cent.
+        the material path strictly upstream of each column, a smooth function of the
+        current field without maximum or memory, its exact coupling in the Newton
+        operator, and faces between cells of different fractions with secant
+        conductivities: the converged state solves ``R(T, frac(T)) = 0`` whatever the
+        solver's path, so the outputs are a function of the inputs. Its Newton iteration
+        halves updates that 2-cycle and the updates of powder cells that cycle with
+        period 2-4 (:func:`~.solver._cycle_factor`). ``"field"``: ``frac(T)`` of the
+        hottest point upstream in the current iterate, with its coupling; at most
+        powder settings of the reference box the iteration cycles at the lateral edge
+        of the consolidation front and does not converge (benchmarks/README.md).
+        ``"monotone"``: the largest upstream-maximum ``frac(T)`` over the solve's
+        iterates (each continuation stage starts afresh), so the front only advances;
+        it converges, but the state depends on the iteration path by a few per cent.
     mass_flux : {"conserved", "blended"}, default "conserved"
         Mass flux of the powder layer along the laser's path: ``"conserved"``, the
         powder's bulk density whatever the consolidation (the energy equation
@@ -122,7 +122,7 @@ class MeltPoolOptions:
     continuation_ratio: float = 1.5
     start: str = "rosenthal"
     refine_outputs: bool = False
-    consolidation: str = "monotone"
+    consolidation: str = "exposure"
     mass_flux: str = "conserved"
 
     def __post_init__(self) -> None:

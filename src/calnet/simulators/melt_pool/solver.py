@@ -6,7 +6,11 @@ Kirchhoff potentials, pseudo-transient continuation, temperature updates capped 
 ``dt_k = dt_(k-1) clip(1.5 |R_(k-1)| / |R_k|, 2, 3)`` unless the residual rises by
 more than ``RISE`` (50 %), then ``dt_(k-1) / 4`` and at most 1.5x growth on the next
 step (so a Newton 2-cycle shrinks dt until the pseudo-time term damps it), so the
-iteration turns into plain Newton as the residual falls. Smaller rises are let pass: a
+iteration turns into plain Newton as the residual falls. Cells colder than
+``T_S - COLD_MARGIN`` carry no pseudo-time term: the laws are linear there (constant
+conductivity and heat capacity; the radiative loss of the top cells is smooth), so Newton
+needs no damping, and a pseudo-transient crawling down the long cold wake of the track
+paced the iteration after every cut of ``dt`` (benchmarks/README.md). Smaller rises are let pass: a
 pseudo-transient carries heat down the long tail of the pool, and the largest
 residual may grow while it does. After a cut, dt stays below half the step that failed, a cap that
 relaxes by 20 % per successful step: Newton can cycle at the kinks of the consolidated
@@ -15,11 +19,10 @@ cycle until the pseudo-time term damps it. Cells crossing ``T_S`` or ``T_L`` sto
 just past the kink. The consolidated fraction of the powder is ``frac(T)``
 (:mod:`~.consolidation`) of the current iterate, with ``dR/dfrac dfrac/dT`` in the
 Newton operator, so a converged state solves ``R(T, frac(T)) = 0`` whatever the path
-(``consolidation="field"`` and ``"exposure"``; for the exposure form the coupling is
-applied matrix-free inside GMRES, :func:`_with_exposure`); or, by default
-(``"monotone"``), the largest ``frac(T)`` of the solve's iterates: the front only
-advances, which converges where the field form cycles, at the price of a state that can
-keep powder consolidated that the final field would not consolidate.
+(``consolidation="exposure"``, the default, and ``"field"``; for the exposure form the
+coupling is applied matrix-free inside GMRES, :func:`_with_exposure`); or, with
+``"monotone"``, the largest ``frac(T)`` of the solve's iterates: the front only
+advances, at the price of a state that depends on the iteration path.
 
 Two safeguards apply to the exposure form, whose converged state does not depend on
 the path (:func:`_cycle_factor`, ``_stop_at_kinks(..., from_edge=True)``): a short
@@ -68,6 +71,7 @@ CYCLE_STEP = 0.5  # update factor in a short Newton cycle (exposure form; benchm
 CYCLE_PERIODS = 4  # longest cycle period that _cycle_factor looks for
 CYCLE_CELL = 0.1  # smallest update, relative to the largest, that a cell's cycle test sees
 CYCLE_POWDER = True  # the cell cycle test sees only the cells of the powder layer
+COLD_MARGIN = 300.0  # K: cells colder than T_S - COLD_MARGIN carry no pseudo-time term
 GUARD_MONOTONE = False  # the exposure form's cycle test and kink rule for "monotone" too (README)
 
 
@@ -248,7 +252,7 @@ def _with_exposure(M: sp.csr_matrix, disc: Discretization, T: np.ndarray,
 def newton_solve(disc: Discretization, laws: MaterialLaws, T0: np.ndarray, *,
                  absorptivity: AbsorptivityLaw, k_powder: float, rtol: float, ttol: float,
                  max_iter: int, max_update: float, deadline: float | None,
-                 dt0: float = DT0, consolidation: str = "monotone") -> SolveReport:
+                 dt0: float = DT0, consolidation: str = "exposure") -> SolveReport:
     """Drive the residual to ``max|R| <= rtol * A P / 2`` from the initial field ``T0``.
 
     ``consolidation="monotone"``: the consolidated fraction is the largest upstream-maximum
@@ -308,7 +312,9 @@ def newton_solve(disc: Discretization, laws: MaterialLaws, T0: np.ndarray, *,
         r0_norm = r2
         _, c = laws.enthalpy(T)
         rho_c = disc.density(frac) * c
-        M = disc.system(J, disc.volume * rho_c / dt, coupled=dA is not None)
+        pseudo = np.where(T < disc.mat.T_solidus - COLD_MARGIN, 0.0,
+                          disc.volume * rho_c / dt)
+        M = disc.system(J, pseudo, coupled=dA is not None)
         if cons is not None:
             full = _with_exposure(M, disc, T, laws, cons, dA)
         elif dfrac is not None and dfrac.nnz:
