@@ -54,8 +54,12 @@ if TYPE_CHECKING:
     from calnet.simulators.melt_pool.properties import MaterialLaws
 
 CONSOLIDATION_RAMP = 100.0  # K, width of the loose -> consolidated powder ramp below T_S
-CONSOLIDATION_LENGTH = 15e-6  # m, path length at or above T_S that consolidates fully
-# (exposure form)
+# m, path length at or above T_S that consolidates fully (exposure form), the beam's
+# radius: a column consolidates within about one beam radius of travel above the
+# solidus. With 15 um the fraction rose from 0 to 1 within one cell of the sizing mesh
+# (x spacings 15-25 um) behind a column crossing the solidus, a near switch on which
+# Newton cycled at keyhole-threshold settings (benchmarks/README.md).
+CONSOLIDATION_LENGTH = 40e-6
 # Share of a cell's own path length in its exposure. Zero: a column's fraction depends
 # on the columns strictly upstream only. With half of its own length (the midpoint rule)
 # a top powder cell's fraction rose with its own temperature, and with it the
