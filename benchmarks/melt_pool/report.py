@@ -19,8 +19,7 @@ def _load(name: str) -> list[dict]:
 
 
 def convergence_table(name: str = "convergence") -> str:
-    """``resolution`` 1 against 2 (records of phase ``name``: ``convergence``, or
-    ``convergence_exposure`` for ``consolidation="exposure"``)."""
+    """``resolution`` 1 against 2 (records of phase ``name``)."""
     recs = _load(name)
     by = {(r["inputs"]["P"], r["inputs"]["v"], r["tag"]): r for r in recs}
     lines = ["| P (W) | v (m/s) | cells h / h/2 | W (um) h / h/2 | dW | D (um) h / h/2 | dD "
@@ -116,55 +115,6 @@ def _sanity() -> list[dict]:
     return sorted(by.values(), key=lambda r: int(r["tag"].removeprefix("sample")))
 
 
-def _halves(name: str) -> list[dict]:
-    """A sanity phase's records from both halves (forward and ``_reverse``), one per
-    sample, in sample order."""
-    by = {r["tag"]: r for r in _load(f"{name}_reverse") + _load(name)}
-    return sorted(by.values(), key=lambda r: int(r["tag"].removeprefix("sample")))
-
-
-def variant_sanity_table(name: str = "sanity_exposure", base: str | None = None,
-                         keys: tuple[str, ...] = ("W",)) -> str:
-    """A variant's sanity runs (phases ``sanity-exposure`` and, from the last row,
-    ``sanity-exposure-reverse``, one record per sample) against the default ones, or
-    against those of the variant ``base`` (e.g. ``sanity_exposure``); one pair of
-    columns per output in ``keys``."""
-    default = {r["tag"]: r for r in (_halves(base) if base else _sanity())}
-    recs = _halves(name)
-    ref = base or "default"
-    head = "".join(f"| {k} {ref} / variant | rel. diff " for k in keys)
-    lines = [f"| sample | P (W) | v (m/s) | status {ref} / variant {head}"
-             f"| Newton its {ref} / variant | CPU (s) {ref} / variant |",
-             "|---|---|---|---|" + "---|---|" * len(keys) + "---|---|"]
-    diffs: dict[str, list[float]] = {k: [] for k in keys}
-    for r in recs:
-        d = default.get(r["tag"], {})
-        cells = ""
-        for k in keys:
-            spec = ".1f" if k in ("W", "D", "L") else ".3g"
-            rel = float("nan")
-            if r["status"] == "ok" and d.get("status") == "ok":
-                rel = r["outputs"][k] / d["outputs"][k] - 1
-                diffs[k].append(abs(rel))
-            cells += f"| {_fmt(d, k, spec)} / {_fmt(r, k, spec)} | {rel:+.1%} "
-        lines.append(f"| {r['tag'].removeprefix('sample')} | {r['inputs']['P']:g} "
-                     f"| {r['inputs']['v']:g} | {d.get('status')} / {r['status']} {cells}"
-                     f"| {d.get('iterations')} / {r.get('iterations')} "
-                     f"| {d.get('cpu_s', float('nan')):.1f} / {r.get('cpu_s', float('nan')):.1f} |")
-    ok = sum(r["status"] == "ok" for r in recs)
-    cpu = [r["cpu_s"] for r in recs if "cpu_s" in r]
-    base_cpu = [default[r["tag"]]["cpu_s"] for r in recs if "cpu_s" in default.get(r["tag"], {})]
-    nan = float("nan")
-    spread = "; ".join(f"|{k}/{k}_{ref} - 1| median "
-                       f"{statistics.median(v) if v else nan:.1%}, max {max(v) if v else nan:.1%}"
-                       for k, v in diffs.items())
-    lines.append(f"\n{len(recs)} settings run, {ok} converged; {spread}; CPU median "
-                 f"{statistics.median(cpu) if cpu else nan:.1f} s (the same settings' "
-                 f"{ref} runs: {statistics.median(base_cpu) if base_cpu else nan:.1f} s), "
-                 f"max {max(cpu) if cpu else nan:.1f} s.")
-    return "\n".join(lines)
-
-
 def path_table() -> str:
     """Phase ``path``: one setting, the continuation step varied, per consolidation."""
     lines = ["| consolidation | continuation ratio | status | W (um) | D (um) | L (um) | G0 (K/m) "
@@ -185,7 +135,7 @@ def _fmt(r: dict, key: str, spec: str) -> str:
 
 def start_table(name: str = "start") -> str:
     """Rosenthal vs ambient initial field of the first continuation stage (records of
-    phase ``name``: ``start``, or ``exposure`` for ``consolidation="exposure"``)."""
+    phase ``name``)."""
     recs = _load(name)
     pairs: dict[tuple, dict] = {}
     for r in recs:
@@ -248,27 +198,8 @@ if __name__ == "__main__":
     if len(sys.argv) > 1:
         RESULTS = Path(sys.argv[1])
     for title, fn in (("Mesh convergence", convergence_table), ("Speed", speed_table),
-                      ("Start independence", start_table), ("Powder layer", powder_table),
-                      ("consolidation=\"exposure\"", lambda: start_table("exposure")),
-                      ("consolidation=\"exposure\" at the sanity settings",
-                       variant_sanity_table),
-                      ("consolidation=\"exposure\", each cell's update capped alone",
-                       lambda: start_table("exposure_clip")),
-                      ("consolidation=\"exposure\", each cell's update capped alone, at the "
-                       "sanity settings, against consolidation=\"exposure\"",
-                       lambda: variant_sanity_table("sanity_clip", "sanity_exposure")),
-                      ("consolidation=\"exposure\": mesh convergence",
-                       lambda: convergence_table("convergence_exposure")),
-                      ("The solver's path (152 W / 0.32 m/s, refine_outputs=True)",
-                       path_table),
-                      ("consolidation=\"exposure\", refine_outputs=True: mesh convergence",
-                       lambda: convergence_table("convergence_exposure_refined")),
-                      ("consolidation=\"exposure\", refine_outputs=True at the sanity "
-                       "settings", lambda: variant_sanity_table("sanity_exposure_refined",
-                                                                keys=("W", "G0"))),
-                      ("refine_outputs=True: mesh convergence",
-                       lambda: convergence_table("convergence_refined")),
-                      ("refine_outputs=True at the sanity settings",
-                       lambda: variant_sanity_table("sanity_refined", keys=("W", "G0"))),
-                      ("Physical sanity", sanity_table), ("Robustness corners", corners_table)):
+                      ("Start independence", start_table),
+                      ("The solver's path (152 W / 0.32 m/s)", path_table),
+                      ("Powder layer", powder_table), ("Physical sanity", sanity_table),
+                      ("Robustness corners", corners_table)):
         print(f"### {title}\n\n{fn()}\n")

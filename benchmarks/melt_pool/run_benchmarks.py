@@ -10,15 +10,9 @@ Usage (from the repository root)::
         .venv/bin/python benchmarks/melt_pool/run_benchmarks.py convergence sanity corners
 
 Phases ``convergence-res1`` and ``convergence-res2`` run one half of ``convergence``;
-``start`` (start independence), ``powder`` (W with and without the powder layer) and
-``exposure`` (``consolidation="exposure"`` from both starts), ``sanity-exposure`` (and
-``sanity-exposure-reverse``, from the last row, to share the work) and
-``convergence-exposure`` (its mesh convergence at two settings) are further phases.
-``sanity-clip`` and ``sanity-clip-reverse`` run ``sanity-exposure`` with each cell's
-update capped alone (``solver.CLIP_CELLS``), and ``exposure-clip`` the starts of
-``exposure`` with it; ``sanity-clip6``, ``sanity-clip6-reverse`` and ``exposure-clip6``
-the same with the cell cycle test looking for periods up to 6 (``solver.CYCLE_PERIODS``).
-``--help`` lists the phases.
+``start`` (start independence), ``powder`` (W with and without the powder layer),
+``sanity-reverse`` (``sanity`` from the last row, to share the work with a second
+process) and ``path`` (the continuation step) are further phases. ``--help`` lists them.
 """
 
 from __future__ import annotations
@@ -127,11 +121,9 @@ def sanity(reverse: bool = False, options: dict | None = None, name: str | None 
 
     ``reverse`` (phase ``sanity-reverse``): from the last row backwards, into
     ``results/sanity_reverse.json``, so that a second process can share the work;
-    ``report.py`` merges the two files (one record per sample). ``options`` and
-    ``name`` (phase ``sanity-exposure``: ``consolidation="exposure"`` into
-    ``results/sanity_exposure.json``; ``sanity-exposure-reverse`` from the last row) run
-    a variant; ``patch`` sets solver constants (``"solver.CLIP_CELLS=true"``). A stopped
-    phase resumes: records of this version with the same options are reused.
+    ``report.py`` merges the two files (one record per sample). ``options``, ``name``
+    and ``patch`` (solver constants, ``"solver.COLD_MARGIN=0"``) run a variant. A
+    stopped phase resumes: records of this version with the same options are reused.
     """
     from calnet.simulators.melt_pool import VERSION
 
@@ -170,9 +162,9 @@ def corners() -> None:
 
 
 def start() -> None:
-    """Both initial fields of the first continuation stage at five settings, default
-    resolution: run 104 and four of the convergence settings."""
-    cases = [RUN_104] + [{"P": P, "v": v} for P, v in SETTINGS if (P, v) != (90.0, 2.3)]
+    """Both initial fields of the first continuation stage at run 104 and the five
+    convergence settings, default resolution."""
+    cases = [RUN_104] + [{"P": P, "v": v} for P, v in SETTINGS]
     recs = []
     for inputs, first in itertools.product(cases, ("rosenthal", "ambient")):
         recs.append(run_one(inputs, {"start": first}, tag=first))
@@ -195,97 +187,25 @@ def powder() -> None:
         _save("powder", recs)
 
 
-def exposure(patch: list[str] | None = None, name: str = "exposure") -> None:
-    """``consolidation="exposure"`` from both starts at run 104 and the five settings,
-    default resolution, into ``results/exposure.json`` (``patch``: solver constants, as
-    :func:`sanity`, into ``results/<name>.json``)."""
-    cases = [RUN_104] + [{"P": P, "v": v} for P, v in SETTINGS]
-    recs = []
-    for inputs, first in itertools.product(cases, ("rosenthal", "ambient")):
-        recs.append(run_one(inputs, {"start": first, "consolidation": "exposure"},
-                            tag=first, patch=patch))
-        _save(name, recs)
-
-
-def convergence_exposure() -> None:
-    """``consolidation="exposure"`` at ``resolution`` 1 and 2 at 81 W / 1.5 and 152 W /
-    0.32 m/s (the limits of ``convergence``), into ``results/convergence_exposure.json``."""
-    recs = []
-    for (P, v), res in itertools.product([(81.0, 1.5), (152.0, 0.32)], (1.0, 2.0)):
-        opts = {"consolidation": "exposure", "resolution": res, "time_limit": 900.0} | (
-            {"max_iter": 1500, "time_limit": 3600.0} if res > 1 else {})
-        recs.append(run_one({"P": P, "v": v}, opts, tag=f"res{res:g}"))
-        _save("convergence_exposure", recs)
-
-
 def path() -> None:
-    """Does the state depend on the solver's path? 152 W / 0.32 m/s with
-    ``refine_outputs``, the continuation in power in steps of at most 1.5 (default), 1.3
-    and 1.2, for the default consolidation and ``"exposure"``, into
-    ``results/path.json``."""
+    """Does the state depend on the solver's path? 152 W / 0.32 m/s, the continuation in
+    power in steps of at most 1.5 (default), 1.3 and 1.2, for the default consolidation
+    (``"exposure"``) and ``"monotone"``, into ``results/path.json``."""
     recs = []
-    for form, ratio in itertools.product(("monotone", "exposure"), (1.5, 1.3, 1.2)):
+    for form, ratio in itertools.product(("exposure", "monotone"), (1.5, 1.3, 1.2)):
         recs.append(run_one({"P": 152.0, "v": 0.32},
-                            {"refine_outputs": True, "consolidation": form,
+                            {"consolidation": form,
                              "continuation_ratio": ratio, "max_iter": 1500},
                             tag=f"{form}-{ratio:g}"))
         _save("path", recs)
 
 
-def exposure_refined_long() -> None:
-    """``consolidation="exposure"`` with ``refine_outputs`` at ``resolution`` 1 and
-    ``max_iter`` 1500 at the two settings where 500 are too few, into
-    ``results/convergence_exposure_refined_long.json``."""
-    recs = []
-    for P, v in ((243.0, 1.15), (236.0, 0.23)):
-        recs.append(run_one({"P": P, "v": v}, {**EXPOSURE, "refine_outputs": True,
-                                               "resolution": 1.0, "time_limit": 3600.0,
-                                               "max_iter": 1500}, tag="res1-max_iter1500"))
-        _save("convergence_exposure_refined_long", recs)
-
-
-CLIP = ["solver.CLIP_CELLS=true"]
-CLIP6 = [*CLIP, "solver.CYCLE_PERIODS=6"]
-EXPOSURE = {"consolidation": "exposure"}
-
 if __name__ == "__main__":
     PHASES = {"convergence": convergence, "sanity": sanity, "corners": corners,
-             "start": start, "powder": powder, "exposure": exposure,
-             "convergence-exposure": convergence_exposure,
-             "sanity-reverse": lambda: sanity(True),
-             "sanity-exposure": lambda: sanity(options={"consolidation": "exposure"},
-                                               name="sanity_exposure"),
-             "sanity-exposure-reverse": lambda: sanity(
-                 True, options={"consolidation": "exposure"},
-                 name="sanity_exposure_reverse"),
-             "sanity-clip": lambda: sanity(options=EXPOSURE, name="sanity_clip", patch=CLIP),
-             "sanity-clip-reverse": lambda: sanity(True, options=EXPOSURE,
-                                                   name="sanity_clip_reverse", patch=CLIP),
-             "exposure-clip": lambda: exposure(CLIP, "exposure_clip"),
-             "sanity-clip6": lambda: sanity(options=EXPOSURE, name="sanity_clip6", patch=CLIP6),
-             "sanity-clip6-reverse": lambda: sanity(True, options=EXPOSURE,
-                                                    name="sanity_clip6_reverse", patch=CLIP6),
-             "exposure-clip6": lambda: exposure(CLIP6, "exposure_clip6"),
-             "convergence-res1": lambda: convergence((1.0,)),
-             "convergence-res2": lambda: convergence((2.0,)),
-             "sanity-refined": lambda: sanity(options={"refine_outputs": True},
-                                              name="sanity_refined"),
-             "path": path,
-             "convergence-exposure-refined-long": exposure_refined_long,
-             "sanity-exposure-refined": lambda: sanity(
-                 options={**EXPOSURE, "refine_outputs": True}, name="sanity_exposure_refined"),
-             "sanity-exposure-refined-reverse": lambda: sanity(
-                 True, options={**EXPOSURE, "refine_outputs": True},
-                 name="sanity_exposure_refined_reverse"),
-             "convergence-exposure-refined": lambda: convergence(
-                 name="convergence_exposure_refined",
-                 options={**EXPOSURE, "refine_outputs": True}),
-             "convergence-refined": lambda: convergence(name="convergence_refined",
-                                                        options={"refine_outputs": True}),
-             "convergence-refined-res1": lambda: convergence(
-                 (1.0,), name="convergence_refined", options={"refine_outputs": True}),
-             "convergence-refined-res2": lambda: convergence(
-                 (2.0,), name="convergence_refined", options={"refine_outputs": True})}
+              "start": start, "powder": powder, "path": path,
+              "sanity-reverse": lambda: sanity(True),
+              "convergence-res1": lambda: convergence((1.0,)),
+              "convergence-res2": lambda: convergence((2.0,))}
     if len(sys.argv) > 2 and sys.argv[1] == "--worker":
         _worker(sys.argv[2])
     elif len(sys.argv) < 2 or not set(sys.argv[1:]) <= set(PHASES):
