@@ -345,7 +345,7 @@ class Discretization:
         thickness). Otherwise :meth:`density`: the mass flux then grows where powder
         consolidates, and the enthalpy flux ``m H`` of the mass it gains, referred to
         ``T_ambient``, is a heat sink at the consolidation front, as if cold metal were
-        added there (benchmarks/README.md, "Mass flux of the powder layer")."""
+        added there."""
         if not self.conserved_mass:
             return self.density(frac)
         return np.where(self.powder_cells.ravel(), self.mat.powder_packing, 1.0) * self.mat.rho

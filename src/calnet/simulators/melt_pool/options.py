@@ -75,7 +75,7 @@ class MeltPoolOptions:
         period 2-4 (:func:`~.solver._cycle_factor`). ``"field"``: ``frac(T)`` of the
         hottest point upstream in the current iterate, with its coupling; at most
         powder settings of the reference box the iteration cycles at the lateral edge
-        of the consolidation front and does not converge (benchmarks/README.md).
+        of the consolidation front and does not converge.
         ``"monotone"``: the largest upstream-maximum ``frac(T)`` over the solve's
         iterates (each continuation stage starts afresh), so the front only advances;
         it converges, but the state depends on the iteration path by a few per cent.
@@ -85,20 +85,16 @@ class MeltPoolOptions:
         ``rho_p v dH/dx`` of physics.md along each streamline); ``"blended"``, the
         density of each cell's consolidated fraction, so the flux grows where powder
         consolidates and the mass it gains enters at the ambient temperature's enthalpy,
-        a heat sink at the consolidation front (melt_pool 0.8.0 and earlier; widths
-        7-34 % smaller at the 5 benchmark settings, benchmarks/README.md).
+        a heat sink at the consolidation front (narrower pools, most at the small,
+        fast ones).
     refine_outputs : bool, default False
         Refine the final mesh where the outputs are read: the lateral spacing at the
         pool edge 1.25 um instead of 2.5 um (``W``), the pool region's ``x`` spacing
         halved (the tail window of ``G0``) and at least 6 cell layers across the powder
         layer (``L``, ``G0``); all scale with ``resolution``, and the sizing mesh is
-        the default's. 1.7-2.5 times the cells of the default mesh and 2.7 times its
-        CPU (median over the 40 ninb settings). At the keyhole-mode settings the default
-        mesh's ``G0`` differs from this mesh's by up to 31 %; with it ``G0`` is within
-        7 % of the halved mesh's at the 5 benchmark settings, where the default mesh's
-        moves up to 34 %; ``W`` of the largest pools still moves 3.6-3.7 %, as much as
-        the default consolidation's path dependence (benchmarks/README.md, "Mesh
-        convergence with ``refine_outputs=True``").
+        the default's. About twice the cells of the default mesh, and several times its
+        CPU; for studies of the outputs' mesh dependence (benchmarks/README.md, "Mesh
+        convergence").
     start : {"rosenthal", "ambient"}, default "rosenthal"
         Initial field of the first continuation stage: the beam-smeared Rosenthal field
         at that stage's power and ``A_0``, or the ambient temperature everywhere. The

@@ -10,14 +10,15 @@ iteration turns into plain Newton as the residual falls. Cells colder than
 ``T_S - COLD_MARGIN`` carry no pseudo-time term: the laws are linear there (constant
 conductivity and heat capacity; the radiative loss of the top cells is smooth), so Newton
 needs no damping, and a pseudo-transient crawling down the long cold wake of the track
-paced the iteration after every cut of ``dt`` (benchmarks/README.md). Smaller rises are let pass: a
+paced the iteration after every cut of ``dt``. Smaller rises are let pass: a
 pseudo-transient carries heat down the long tail of the pool, and the largest
 residual may grow while it does. After a cut, dt stays below half the step that failed, a cap that
 doubles per successful step: Newton can cycle at the kinks of the monotone and field
 consolidated fractions (a max over the upstream line), and the cap tightens with every
 turn of such a cycle until the pseudo-time term damps it. (A cap relaxing by 20 % per
 step, as slowly, paced the last ten or twenty steps of most solves; with the exposure
-form the converged state does not depend on it, benchmarks/README.md.) Cells crossing ``T_S`` or ``T_L`` stop
+form the converged state does not depend on it: benchmarks/README.md, "The solver's
+path".) Cells crossing ``T_S`` or ``T_L`` stop
 just past the kink. The consolidated fraction of the powder is ``frac(T)``
 (:mod:`~.consolidation`) of the current iterate, with ``dR/dfrac dfrac/dT`` in the
 Newton operator, so a converged state solves ``R(T, frac(T)) = 0`` whatever the path
@@ -34,7 +35,7 @@ halving the update at a 2-cycle of the whole field, and the update of each powde
 cell that cycles with period 2-4 (a column at the beam's edge); and a cell that the kink
 rule left 1 K outside the mushy zone stops at the kink again instead of jumping across
 it. ``GUARD_MONOTONE`` applies both to the monotone form too; off, since they moved its
-``G0`` by 2.5 % at 152 W / 0.32 m/s (benchmarks/README.md).
+``G0`` by 2.5 % at 152 W / 0.32 m/s.
 """
 
 from __future__ import annotations
@@ -69,7 +70,7 @@ LIN_FLOOR = 1e-10  # smallest relative GMRES tolerance (the forcing is 0.1 x sca
 CALM_UPDATE = 0.0  # K; after an update below this, the cap on dt is lifted (0: never)
 CALM_FIXED_FRONT = False  # lift it only if the consolidation front did not move either
 CLIP_CELLS = False  # cap each cell's update at max_update, not the whole update (README)
-CYCLE_STEP = 0.5  # update factor in a short Newton cycle (exposure form; benchmarks/README.md)
+CYCLE_STEP = 0.5  # update factor in a short Newton cycle (exposure form)
 CYCLE_PERIODS = 4  # longest cycle period that _cycle_factor looks for
 CYCLE_CELL = 0.1  # smallest update, relative to the largest, that a cell's cycle test sees
 CYCLE_POWDER = True  # the cell cycle test sees only the cells of the powder layer
@@ -110,9 +111,8 @@ def _stop_at_kinks(T: np.ndarray, dT: np.ndarray, mat, *, from_edge: bool = Fals
     ``from_edge`` a cell sitting exactly 1 K outside a kink, where this rule puts cells
     that cross it downwards out of the mushy zone, stops at the kink too; without it
     such a cell crosses the whole mushy zone in one step, and Newton can 2-cycle between
-    ``T_S - 1`` and ``T_L + 1`` (the exposure form at 235 W / 2.3 m/s,
-    benchmarks/README.md). The monotone form keeps the rule without it, so its Newton
-    path stays the benchmarked one.
+    ``T_S - 1`` and ``T_L + 1`` (the exposure form at 235 W / 2.3 m/s). The monotone
+    form keeps the rule without it.
     """
     new = T + dT
     edge = 1e-9 if from_edge else 0.0  # K, round-off margin on the landing points
@@ -137,7 +137,7 @@ class LinearSolver:
     the coarse-grid correction (pyamg's default is a symmetric sweep on both sides,
     twice the smoothing work): the V-cycle stays symmetric in form, and the Krylov
     iteration counts barely change (measured: the same Newton path at 81 W / 1.5 m/s
-    and 90 W / 2.3 m/s, 21-30 % less time per run; benchmarks/README.md).
+    and 90 W / 2.3 m/s, 21-30 % less time per run).
     """
 
     REBUILD_ITS, MAX_AGE = 12, 4
@@ -200,7 +200,7 @@ def _cycle_factor(dT: np.ndarray, history: tuple[np.ndarray, ...],
     of them in the substrate, while the fine solve at 131 W / 0.774 m/s crossed from
     the conduction to the keyhole branch, and that solve wandered until the run ran
     out of ``max_iter``; requiring also that the cell's update reverse its last one
-    left a period-5 cycle at 236 W / 0.23 m/s unbroken (benchmarks/README.md).
+    left a period-5 cycle at 236 W / 0.23 m/s unbroken.
     """
     if len(history) < 2:
         return 1.0
