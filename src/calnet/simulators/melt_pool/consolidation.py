@@ -56,16 +56,16 @@ if TYPE_CHECKING:
 CONSOLIDATION_RAMP = 100.0  # K, width of the loose -> consolidated powder ramp below T_S
 # m, path length at or above T_S that consolidates fully (exposure form), the beam's
 # radius: a column consolidates within about one beam radius of travel above the
-# solidus. With 15 um the fraction rose from 0 to 1 within one cell of the sizing mesh
-# (x spacings 15-25 um) behind a column crossing the solidus, a near switch on which
-# Newton cycled at keyhole-threshold settings.
+# solidus. It must span at least a cell of the sizing mesh (x spacings 15-25 um): a
+# shorter length turns the fraction behind a column crossing the solidus into a near
+# switch within one cell, on which Newton cycles at keyhole-threshold settings.
 CONSOLIDATION_LENGTH = 40e-6
 # Share of a cell's own path length in its exposure. Zero: a column's fraction depends
-# on the columns strictly upstream only. With half of its own length (the midpoint rule)
-# a top powder cell's fraction rose with its own temperature, and with it the
-# conductance to its hot neighbours: its residual then grew with its temperature (the
-# cell took up more heat the hotter it was), so the steady problem had several
-# solutions at such cells and Newton cycled between them.
+# on the columns strictly upstream only. Any share of its own length makes a top powder
+# cell's fraction rise with its own temperature, and with it the conductance to its hot
+# neighbours: its residual can then grow with its temperature (the cell takes up more
+# heat the hotter it is), the steady problem has several solutions at such cells, and
+# Newton cycles between them.
 OWN_SHARE = 0.0
 
 
