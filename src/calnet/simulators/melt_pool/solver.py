@@ -19,8 +19,8 @@ turn of such a cycle until the pseudo-time term damps it; a slower regrowth woul
 the last ten or twenty steps of most solves (with the exposure form the converged
 state does not depend on it: benchmarks/README.md, "The solver's path"). Cells
 crossing ``T_S`` or ``T_L`` stop just past the kink. The consolidated fraction of the
-powder is ``frac(T)`` (:mod:`~.consolidation`) of the current iterate, with ``dR/dfrac dfrac/dT`` in the
-Newton operator, so a converged state solves ``R(T, frac(T)) = 0`` whatever the path
+powder is ``frac(T)`` (:mod:`~.consolidation`) of the current iterate, with
+``dR/dfrac dfrac/dT`` in the Newton operator, so a converged state solves ``R(T, frac(T)) = 0`` whatever the path
 (``consolidation="exposure"``, the default, and ``"field"``; for the exposure form the
 coupling is applied matrix-free inside GMRES, :func:`_with_exposure`); or, with
 ``"monotone"``, the largest ``frac(T)`` of the solve's iterates: the front only
