@@ -2,25 +2,25 @@
 
 Each step solves ``(V rho c_eff / dt - J) dT = R`` (physics.md: exact Jacobian through
 Kirchhoff potentials, pseudo-transient continuation, temperature updates capped at
-``max_update``). The pseudo time step follows switched evolution relaxation,
-``dt_k = dt_(k-1) clip(1.5 |R_(k-1)| / |R_k|, 2, 3)`` unless the residual rises by
-more than ``RISE`` (50 %), then ``dt_(k-1) / 4`` and at most 1.5x growth on the next
-step (so a Newton 2-cycle shrinks dt until the pseudo-time term damps it), so the
-iteration turns into plain Newton as the residual falls. Cells colder than
-``T_S - COLD_MARGIN`` carry no pseudo-time term: the laws are linear there (constant
-conductivity and heat capacity; the radiative loss of the top cells is smooth), so Newton
-needs no damping, whereas a pseudo-transient crawling down the long cold wake of the
-track would pace the iteration after every cut of ``dt``. Smaller rises are let pass: a
-pseudo-transient carries heat down the long tail of the pool, and the largest
-residual may grow while it does. After a cut, dt stays below half the step that failed, a cap that
-doubles per successful step: Newton can cycle at the kinks of the monotone and field
-consolidated fractions (a max over the upstream line), and the cap tightens with every
-turn of such a cycle until the pseudo-time term damps it; a slower regrowth would pace
-the last ten or twenty steps of most solves (with the exposure form the converged
-state does not depend on it: benchmarks/README.md, "The solver's path"). Cells
-crossing ``T_S`` or ``T_L`` stop just past the kink. The consolidated fraction of the
-powder is ``frac(T)`` (:mod:`~.consolidation`) of the current iterate, with
-``dR/dfrac dfrac/dT`` in the Newton operator, so a converged state solves ``R(T, frac(T)) = 0`` whatever the path
+``max_update``). The pseudo time step follows switched evolution relaxation, ``dt_k =
+dt_(k-1) clip(1.5 |R_(k-1)| / |R_k|, 2, 3)`` unless the residual rises by more than
+``RISE`` (50 %), then ``dt_(k-1) / 4`` and at most 1.5x growth on the next step (so a
+Newton 2-cycle shrinks dt until the pseudo-time term damps it), so the iteration turns
+into plain Newton as the residual falls. Cells colder than ``T_S - COLD_MARGIN`` carry
+no pseudo-time term: the laws are linear there (constant conductivity and heat capacity;
+the radiative loss of the top cells is smooth), so Newton needs no damping, whereas a
+pseudo-transient crawling down the long cold wake of the track would pace the iteration
+after every cut of ``dt``. Smaller rises are let pass: a pseudo-transient carries heat
+down the long tail of the pool, and the largest residual may grow while it does. After a
+cut, dt stays below half the step that failed, a cap that doubles per successful step:
+Newton can cycle at the kinks of the monotone and field consolidated fractions (a max
+over the upstream line), and the cap tightens with every turn of such a cycle until the
+pseudo-time term damps it; a slower regrowth would pace the last ten or twenty steps of
+most solves (with the exposure form the converged state does not depend on it:
+benchmarks/README.md, "The solver's path"). Cells crossing ``T_S`` or ``T_L`` stop just
+past the kink. The consolidated fraction of the powder is ``frac(T)``
+(:mod:`~.consolidation`) of the current iterate, with ``dR/dfrac dfrac/dT`` in the
+Newton operator, so a converged state solves ``R(T, frac(T)) = 0`` whatever the path
 (``consolidation="exposure"``, the default, and ``"field"``; for the exposure form the
 coupling is applied matrix-free inside GMRES, :func:`_with_exposure`); or, with
 ``"monotone"``, the largest ``frac(T)`` of the solve's iterates: the front only
