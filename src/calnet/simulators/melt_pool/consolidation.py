@@ -60,13 +60,6 @@ CONSOLIDATION_RAMP = 100.0  # K, width of the loose -> consolidated powder ramp 
 # shorter length turns the fraction behind a column crossing the solidus into a near
 # switch within one cell, on which Newton cycles at keyhole-threshold settings.
 CONSOLIDATION_LENGTH = 40e-6
-# Share of a cell's own path length in its exposure. Zero: a column's fraction depends
-# on the columns strictly upstream only. Any share of its own length makes a top powder
-# cell's fraction rise with its own temperature, and with it the conductance to its hot
-# neighbours: its residual can then grow with its temperature (the cell takes up more
-# heat the hotter it is), the steady problem has several solutions at such cells, and
-# Newton cycles between them.
-OWN_SHARE = 0.0
 
 
 def consolidated(disc: Discretization, T: np.ndarray, absorb: float, k_powder: float
@@ -123,11 +116,14 @@ def consolidated(disc: Discretization, T: np.ndarray, absorb: float, k_powder: f
 
 
 def _upstream_sum(a: np.ndarray, dx: np.ndarray) -> np.ndarray:
-    """``int_{x' > x_i} a dx'`` per cell (axis 0): the cells upstream of ``i`` in full
-    and ``OWN_SHARE`` of cell ``i`` itself, shape of ``a``."""
+    """``int_{x' > x_i} a dx'`` per cell (axis 0), shape of ``a``: the cells strictly
+    upstream of ``i``, none of cell ``i`` itself. Any share of its own length makes a top
+    powder cell's fraction rise with its own temperature, and with it the conductance to
+    its hot neighbours: its residual can then grow with its temperature (the cell takes
+    up more heat the hotter it is), the steady problem has several solutions at such
+    cells, and Newton cycles between them."""
     w = a * dx[:, None]
-    tot = np.cumsum(w[::-1], axis=0)[::-1]
-    return tot - (1.0 - OWN_SHARE) * w
+    return np.cumsum(w[::-1], axis=0)[::-1] - w
 
 
 @dataclass(frozen=True)
@@ -173,9 +169,9 @@ class Exposure:
         nx, ny, nz = self.shape
         if self.n_powder == 0:
             return sp.csr_matrix((n, n))
-        i, ip, j = np.nonzero((np.arange(nx)[:, None, None] <= np.arange(nx)[None, :, None])
+        i, ip, j = np.nonzero((np.arange(nx)[:, None, None] < np.arange(nx)[None, :, None])
                               & (self.dr[None, :, :] != 0))
-        w = np.where(ip == i, OWN_SHARE, 1.0) * self.dx[ip] * self.g[i, j] * self.dr[ip, j]
+        w = self.dx[ip] * self.g[i, j] * self.dr[ip, j]
         k = np.arange(self.n_powder)
         rows = ((i * ny + j)[:, None] * nz + k).ravel()
         cols = np.repeat((ip * ny + j) * nz, self.n_powder)

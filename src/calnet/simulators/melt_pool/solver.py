@@ -66,15 +66,12 @@ FRAC_TOL = 1e-4  # growth of the monotone consolidated fraction allowed at conve
 RISE = 1.5  # a residual rise by more than this factor cuts the pseudo time step
 CEILING_GROWTH = 2.0  # per step, of the cap on dt (half the step that failed last)
 LIN_FLOOR = 1e-10  # smallest relative GMRES tolerance (the forcing is 0.1 x scaled residual)
-CALM_UPDATE = 0.0  # K; after an update below this, the cap on dt is lifted (0: never)
-CALM_FIXED_FRONT = False  # lift it only if the consolidation front did not move either
-CLIP_CELLS = False  # cap each cell's update at max_update, not the whole update (README)
 CYCLE_STEP = 0.5  # update factor in a short Newton cycle (exposure form)
 CYCLE_PERIODS = 4  # longest cycle period that _cycle_factor looks for
 CYCLE_CELL = 0.1  # smallest update, relative to the largest, that a cell's cycle test sees
 CYCLE_POWDER = True  # the cell cycle test sees only the cells of the powder layer
 COLD_MARGIN = 300.0  # K: cells colder than T_S - COLD_MARGIN carry no pseudo-time term
-GUARD_MONOTONE = False  # the exposure form's cycle test and kink rule for "monotone" too (README)
+GUARD_MONOTONE = False  # the exposure form's cycle test and kink rule for "monotone" too
 
 
 @dataclass(frozen=True)
@@ -303,8 +300,6 @@ def newton_solve(disc: Discretization, laws: MaterialLaws, T0: np.ndarray, *,
             calm = 0 if rising else calm + 1
             if rising:  # the step just taken was too long: remember it
                 ceiling = max(DT_MIN, 0.5 * dt)
-            elif upd < CALM_UPDATE and not (CALM_FIXED_FRONT and front_moved):
-                ceiling = DT_MAX
             else:
                 ceiling = min(DT_MAX, CEILING_GROWTH * ceiling)
             top = 3.0 if calm > 1 else 1.5  # slow regrowth after a rise: no 2-cycles
@@ -329,9 +324,7 @@ def newton_solve(disc: Discretization, laws: MaterialLaws, T0: np.ndarray, *,
         if not np.isfinite(big):
             reason = "non-finite Newton update"
             break
-        if big > max_update and CLIP_CELLS:  # each cell's update capped alone
-            dT = np.clip(dT, -max_update, max_update)
-        elif big > max_update:
+        if big > max_update:
             dT *= max_update / big
         if guarded:
             damp = _cycle_factor(dT, history, powder if CYCLE_POWDER else None)
