@@ -541,3 +541,33 @@ def test_ctrl_c_while_the_chains_run_waits_for_them_then_stops(monkeypatch, caps
     assert len(waits) == 3  # waited until the program ended
     err = capsys.readouterr().err
     assert "two_modes: stopping once the chains in flight end" in err, err
+
+
+def test_a_second_ctrl_c_while_the_note_is_written_still_waits(monkeypatch):
+    """A second Ctrl-C that lands while the sampler writes its "stopping once the chains
+    in flight end" line is the second Ctrl-C of a wait: outside a command the sampler
+    still waits for the program, then raises KeyboardInterrupt."""
+    import jax
+
+    from calnet.calibration import sampling
+
+    waits, written = [], []
+    real = jax.block_until_ready
+
+    def block(x):
+        waits.append(1)
+        if len(waits) == 1:
+            raise KeyboardInterrupt
+        return real(x)
+
+    def write(*args, **kwargs):
+        written.append(args)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(jax, "block_until_ready", block)
+    monkeypatch.setattr(sampling, "print", write, raising=False)
+    with pytest.raises(KeyboardInterrupt):
+        sample_nuts(_TwoModes(), seed=0, num_chains=2, num_warmup=20, num_draws=20,
+                    init=np.array([[0.05], [0.0]]), progress=False)
+    assert len(written) == 1 and "stopping once the chains in flight end" in written[0][0]
+    assert len(waits) == 2  # the program was waited for

@@ -302,7 +302,10 @@ def _wait(pending, name: str, progress):
                 progress.note(text)
                 said = True
         if not said:
-            print(f"{name}: {text}", file=sys.stderr, flush=True)
+            try:
+                print(f"{name}: {text}", file=sys.stderr, flush=True)
+            except KeyboardInterrupt:  # a second Ctrl-C while the line is written
+                end_now(130, "Ctrl-C again while the chains ran")
         while True:
             try:
                 jax.block_until_ready(pending)
