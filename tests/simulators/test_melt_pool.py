@@ -353,9 +353,9 @@ def test_tail_gradient_of_a_kink_is_the_mean_of_both_sides(offset):
 
 @pytest.mark.parametrize("resolution", [1.0, 2.0])
 def test_refined_mesh_is_finer_where_the_outputs_are_read(resolution):
-    """``refine_outputs``: the lateral pool edge at REFINED_H_EDGE / resolution, the pool
-    region's x spacing halved and at least 6 * resolution layers across the powder; the
-    rest of the mesh as the default's."""
+    """``refine_outputs``: the lateral pool edge at REFINED_H_EDGE / resolution and the
+    pool region's x spacing halved; the rest of the mesh as the default's, whose powder
+    layer has at least POWDER_LAYERS * resolution cell layers."""
     from calnet.simulators.melt_pool import mesh as mesh_mod
 
     box = pool_box(2.6e-4, 1.2e-4, 8.1e-5, 8.3e-5 + NI5NB.powder_thickness,
@@ -377,16 +377,20 @@ def test_refined_mesh_is_finer_where_the_outputs_are_read(resolution):
     edge = (0.8 * box.edge, 1.1 * box.edge)
     assert core(plain.yf, *edge).max() == pytest.approx(mesh_mod.H_EDGE / resolution)
     assert core(fine.yf, *edge).max() == pytest.approx(mesh_mod.REFINED_H_EDGE / resolution)
-    # z: the powder layer in at least 6 * resolution layers, the substrate as before
-    assert plain.n_powder == math.ceil(NI5NB.powder_thickness / h) < 6 * resolution
-    assert fine.n_powder == math.ceil(6 * resolution)
-    assert np.allclose(fine.zf[fine.n_powder:], plain.zf[plain.n_powder:])
-    assert fine.zf[fine.n_powder] == pytest.approx(NI5NB.powder_thickness)
+    # z: the powder layer in POWDER_LAYERS * resolution layers (6: finer than h), the
+    # substrate at h; the same for both
+    layers = math.ceil(mesh_mod.POWDER_LAYERS * resolution)
+    assert math.ceil(NI5NB.powder_thickness / h) < layers
+    assert plain.n_powder == fine.n_powder == layers
+    assert np.allclose(fine.zf, plain.zf)
+    assert np.diff(plain.zf[:layers + 1]) == pytest.approx(
+        np.full(layers, NI5NB.powder_thickness / layers))
+    assert plain.zf[layers + 1] - plain.zf[layers] == pytest.approx(h, rel=0.05)
     # a small pool keeps its own (finer) spacings wherever they are already finer
     small = pool_box(6e-5, 3e-5, 2.8e-5, 3.0e-5, resolution=1.0,
                      beam_radius=NI5NB.beam_radius)
     m = build_mesh(small, NI5NB, resolution=1.0, powder=True, refine=True)
-    assert m.n_powder == max(math.ceil(NI5NB.powder_thickness / small.h), 6)
+    assert m.n_powder == math.ceil(NI5NB.powder_thickness / small.h) > 6
 
 
 def test_refine_outputs_option_refines_the_final_mesh_only():

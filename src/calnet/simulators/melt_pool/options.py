@@ -89,12 +89,11 @@ class MeltPoolOptions:
         fast ones).
     refine_outputs : bool, default False
         Refine the final mesh where the outputs are read: the lateral spacing at the
-        pool edge 1.25 um instead of 2.5 um (``W``), the pool region's ``x`` spacing
-        halved (the tail window of ``G0``) and at least 6 cell layers across the powder
-        layer (``L``, ``G0``); all scale with ``resolution``, and the sizing mesh is
-        the default's. About twice the cells of the default mesh, and several times its
-        CPU; for studies of the outputs' mesh dependence (benchmarks/README.md, "Mesh
-        convergence").
+        pool edge 1.25 um instead of 2.5 um (``W``) and the pool region's ``x`` spacing
+        halved (the tail window of ``G0``); both scale with ``resolution``, and the
+        sizing mesh is the default's. More cells than the default mesh and several
+        times its CPU; for studies of the outputs' mesh dependence
+        (benchmarks/README.md, "Mesh convergence").
     start : {"rosenthal", "ambient"}, default "rosenthal"
         Initial field of the first continuation stage: the beam-smeared Rosenthal field
         at that stage's power and ``A_0``, or the ambient temperature everywhere. The
