@@ -99,7 +99,6 @@ def convergence(resolutions: tuple[float, ...] = (1.0, 2.0), name: str = "conver
     tags = {f"res{res:g}" for res in resolutions}
     path = RESULTS / f"{name}.json"
     old = json.loads(path.read_text()) if path.exists() else []
-    kept = [r for r in old if r.get("tag") not in tags]
     done = {(r["inputs"]["P"], r["inputs"]["v"], r["tag"]): r for r in old
             if r.get("tag") in tags and r.get("version") == VERSION
             and r["status"] == "ok"}  # resume a stopped phase
@@ -112,7 +111,11 @@ def convergence(resolutions: tuple[float, ...] = (1.0, 2.0), name: str = "conver
                 {"max_iter": 1500, "time_limit": 3600.0} if res > 1 else {})
             rec = run_one({"P": P, "v": v}, opts, tag=tag)
         recs.append(rec)
-        _save(name, kept + recs)
+        # the other resolutions' records as the file holds them now: the phases
+        # convergence-res1 and convergence-res2 may run at the same time
+        others = [r for r in (json.loads(path.read_text()) if path.exists() else [])
+                  if r.get("tag") not in tags]
+        _save(name, others + recs)
 
 
 def sanity(reverse: bool = False, options: dict | None = None, name: str | None = None,

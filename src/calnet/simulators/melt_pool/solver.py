@@ -65,7 +65,8 @@ DT_MIN = 1e-9  # s
 FRAC_TOL = 1e-4  # growth of the monotone consolidated fraction allowed at convergence
 RISE = 1.5  # a residual rise by more than this factor cuts the pseudo time step
 CEILING_GROWTH = 2.0  # per step, of the cap on dt (half the step that failed last)
-LIN_FLOOR = 1e-10  # smallest relative GMRES tolerance (the forcing is 0.1 x scaled residual)
+LIN_FORCING = 0.1  # relative GMRES tolerance per unit of the scaled residual
+LIN_CAP, LIN_FLOOR = 1e-3, 1e-10  # largest and smallest relative GMRES tolerance
 CYCLE_STEP = 0.5  # update factor in a short Newton cycle (exposure form)
 CYCLE_PERIODS = 4  # longest cycle period that _cycle_factor looks for
 CYCLE_CELL = 0.1  # smallest update, relative to the largest, that a cell's cycle test sees
@@ -317,7 +318,7 @@ def newton_solve(disc: Discretization, laws: MaterialLaws, T0: np.ndarray, *,
             full = M - fraction_coupling(disc, T, frac, laws) @ dfrac
         else:
             full = M
-        dT, n_lin = linear_solve(full, R, rtol=min(1e-3, max(LIN_FLOOR, 0.1 * rnorm)),
+        dT, n_lin = linear_solve(full, R, rtol=min(LIN_CAP, max(LIN_FLOOR, LIN_FORCING * rnorm)),
                                  preconditioner=M)
         lin_total += n_lin
         big = float(np.abs(dT).max())
