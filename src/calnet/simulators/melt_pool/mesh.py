@@ -21,14 +21,15 @@ CELLS_PER_HALF_WIDTH = 7.0  # pool-region spacing h = min(W/2, D) / 7 at resolut
 # finer y spacing than x and z: with h_y = h, W changed by 6-8 % when halving h.
 Y_REFINE = 2.0
 H_EDGE = 2.5e-6  # m, largest lateral spacing at the pool edge (resolution 1)
-# Far-field geometric growth ratio at resolution 1. 1.4 against 1.25: 30 % fewer cells,
-# W and D within 1.3 % at the 5 benchmark settings (benchmarks/README.md, M1).
+# Far-field geometric growth ratio at resolution 1. 1.4 against 1.25: 20-44 % fewer
+# cells, W and D within 1.3 % at 4 of the 5 benchmark settings, W at 243 W / 1.15 m/s
+# 6.5 % apart (benchmarks/README.md, M1).
 STRETCH = 1.4
 H_MIN, H_MAX = 2.5e-6, 12e-6  # bounds on the pool-region spacing (resolution 1)
 POWDER_DEPTH_FLOOR = 30e-6  # m: pools shallower than the powder layer are sized by it
 # Fewest cell layers across the powder layer (times the resolution). The widest pools'
 # lateral edge lies in the powder, and W there follows the layers' thickness: with 3
-# layers (h = 10 um) W at 236 W / 0.23 m/s was 10 % above the halved mesh's, with 6 within
+# layers (h = 10 um) W at 236 W / 0.23 m/s is 12 % above the halved mesh's, with 6 within
 # 1 %. With 12 layers on the default mesh (6 on the sizing mesh) Newton did not converge
 # at 152, 236 and 243 W.
 POWDER_LAYERS = 6
