@@ -28,27 +28,34 @@ import scipy.sparse.linalg as spla
 from calnet.simulators import melt_pool
 from calnet.simulators.melt_pool import solver
 
-SMOOTH = {"presmoother": ("gauss_seidel", {"sweep": "forward"}),
-          "postsmoother": ("gauss_seidel", {"sweep": "backward"})}
+SMOOTH = solver.LinearSolver.SMOOTHERS  # one forward, one backward Gauss-Seidel sweep
 TWICE = {"presmoother": ("gauss_seidel", {"sweep": "forward", "iterations": 2}),
          "postsmoother": ("gauss_seidel", {"sweep": "backward", "iterations": 2})}
 
-PRECONDITIONERS: dict[str, Callable[[sp.csr_matrix], object]] = {
+
+def _ilu(A: sp.csr_matrix) -> spla.LinearOperator:
+    return spla.LinearOperator(A.shape, spla.spilu(A.tocsc(), drop_tol=1e-4,
+                                                   fill_factor=5).solve)
+
+
+# name -> preconditioner (a LinearOperator) built from the matrix
+PRECONDITIONERS: dict[str, Callable[[sp.csr_matrix], spla.LinearOperator]] = {
     "classical AMG (simulator)": lambda A: pyamg.ruge_stuben_solver(
         A, max_coarse=400, coarse_solver=solver.LinearSolver.COARSE_SOLVER,
-        **solver.LinearSolver.SMOOTHERS),
+        **SMOOTH).aspreconditioner(),
     "classical AMG, splu coarse": lambda A: pyamg.ruge_stuben_solver(
-        A, max_coarse=400, coarse_solver="splu", **SMOOTH),
+        A, max_coarse=400, coarse_solver="splu", **SMOOTH).aspreconditioner(),
     "classical AMG, theta 0.5": lambda A: pyamg.ruge_stuben_solver(
         A, strength=("classical", {"theta": 0.5}), max_coarse=400, coarse_solver="splu",
-        **SMOOTH),
+        **SMOOTH).aspreconditioner(),
     "classical AMG, 2 sweeps": lambda A: pyamg.ruge_stuben_solver(
-        A, max_coarse=400, coarse_solver="splu", **TWICE),
+        A, max_coarse=400, coarse_solver="splu", **TWICE).aspreconditioner(),
     "classical AMG, symmetric GS": lambda A: pyamg.ruge_stuben_solver(
-        A, max_coarse=400, coarse_solver="splu"),
-    "AIR": lambda A: pyamg.air_solver(A, max_coarse=400),
+        A, max_coarse=400, coarse_solver="splu").aspreconditioner(),
+    "AIR": lambda A: pyamg.air_solver(A, max_coarse=400).aspreconditioner(),
     "smoothed aggregation, evolution": lambda A: pyamg.smoothed_aggregation_solver(
-        A, strength="evolution", max_coarse=400, smooth=None),
+        A, strength="evolution", max_coarse=400, smooth=None).aspreconditioner(),
+    "ILU (drop 1e-4, fill 5)": _ilu,
 }
 
 
@@ -74,7 +81,9 @@ def capture(P: float, v: float) -> list[tuple[sp.csr_matrix, np.ndarray, int, fl
     return systems
 
 
-def _row(name: str, setup: float, solve: float, its: object, true: float) -> None:
+def _row(name: str, setup: float, solve: float, its: object, M: sp.csr_matrix,
+         b: np.ndarray, x: np.ndarray) -> None:
+    true = np.linalg.norm(b - M @ x) / np.linalg.norm(b)
     print(f"  {name:34s} setup {setup:7.3f}  solve {solve:7.3f}  its {its!s:>4}"
           f"  true rel. residual {true:.1e}", flush=True)
 
@@ -82,31 +91,19 @@ def _row(name: str, setup: float, solve: float, its: object, true: float) -> Non
 def compare(M: sp.csr_matrix, b: np.ndarray, rtol: float, lu: bool) -> None:
     for name, build in PRECONDITIONERS.items():
         t = time.process_time()
-        ml = build(M)
+        pre = build(M)
         setup = time.process_time() - t
         res: list[float] = []
         t = time.process_time()
-        x, _ = pyamg.krylov.gmres(M, b, tol=rtol, maxiter=200, M=ml.aspreconditioner(),
-                                  residuals=res)
-        _row(name, setup, time.process_time() - t, len(res),
-             np.linalg.norm(b - M @ x) / np.linalg.norm(b))
-    t = time.process_time()
-    ilu = spla.spilu(M.tocsc(), drop_tol=1e-4, fill_factor=5)
-    setup = time.process_time() - t
-    res = []
-    t = time.process_time()
-    x, _ = pyamg.krylov.gmres(M, b, tol=rtol, maxiter=200,
-                              M=spla.LinearOperator(M.shape, ilu.solve), residuals=res)
-    _row("ILU (drop 1e-4, fill 5)", setup, time.process_time() - t, len(res),
-         np.linalg.norm(b - M @ x) / np.linalg.norm(b))
+        x, _ = pyamg.krylov.gmres(M, b, tol=rtol, maxiter=200, M=pre, residuals=res)
+        _row(name, setup, time.process_time() - t, len(res), M, b, x)
     if lu:
         t = time.process_time()
         fac = spla.splu(M.tocsc())
         setup = time.process_time() - t
         t = time.process_time()
         x = fac.solve(b)
-        _row("SuperLU (direct)", setup, time.process_time() - t, "-",
-             np.linalg.norm(b - M @ x) / np.linalg.norm(b))
+        _row("SuperLU (direct)", setup, time.process_time() - t, "-", M, b, x)
 
 
 def main() -> None:
