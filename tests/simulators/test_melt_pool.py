@@ -515,6 +515,24 @@ def test_the_state_does_not_depend_on_the_solvers_path_at_a_large_pool():
     _close(a, b, keys=("W", "D", "L", "T0", "G0"), rel=1e-5)
 
 
+def test_the_absorptivity_step_limit_leaves_the_state_alone(monkeypatch):
+    """Limiting how far the absorptivity moves per Newton step changes the path, not the
+    converged state: near the keyhole threshold (run 104's parameters, where A(T_s)
+    swings between the branches) the run takes other iterations and reaches the same
+    outputs, and the reported absorptivity is A(T_s) of the converged surface."""
+    from calnet.simulators.melt_pool import solver
+
+    limited = melt_pool.simulate(RUN_104, **COARSE)
+    monkeypatch.setattr(solver, "A_STEP", 0.0)
+    free = melt_pool.simulate(RUN_104, **COARSE)
+    assert limited.diagnostics["iterations"] != free.diagnostics["iterations"]
+    _close(limited, free, keys=("W", "D", "L", "T0", "G0"), rel=1e-4)
+    d = limited.diagnostics
+    a, _ = absorptivity_of_temperature(np.array(d["surface_temperature_K"]), RUN_104,
+                                       NI5NB, melt_pool.MeltPoolOptions().w_absorb)
+    assert d["absorptivity"] == pytest.approx(float(a), rel=1e-9)
+
+
 def test_a_fine_solve_that_leaves_the_branch_is_redone_by_continuation():
     """Near the keyhole threshold the field interpolated from the sizing mesh can fall
     off the conduction branch on the fine mesh: the run then continues in power on the

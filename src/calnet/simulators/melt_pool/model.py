@@ -94,7 +94,9 @@ def _needs_remesh(g: PoolGeometry, box: PoolBox) -> bool:
 
 COARSE = 0.5  # resolution of the sizing pre-solve relative to the requested one
 G_WINDOW_CELLS = 6.0  # G0 window half-width, in pool spacings of the resolution-1 mesh
-WARM_DT0 = 2e-5  # s, first pseudo time step of a warm-started solve
+# s, first pseudo time step of a warm-started solve (= solver.DT_MAX): it starts as plain
+# Newton, and a residual rise brings the pseudo-time term in (solver.newton_solve)
+WARM_DT0 = 1.0
 COARSE_RTOL = 1e-4  # the sizing pre-solve only needs to place the pool
 STAGE_RTOL, STAGE_TTOL = 1e-4, 1.0  # (-, K) continuation stages below P only stay on the branch
 
