@@ -18,16 +18,17 @@ def _load(name: str) -> list[dict]:
     return json.loads(path.read_text()) if path.exists() else []
 
 
-def convergence_table(name: str = "convergence") -> str:
-    """``resolution`` 1 against 2 (records of phase ``name``)."""
-    recs = _load(name)
+def convergence_table(name: str = "convergence", tag: str = "res1") -> str:
+    """``resolution`` 1 (or the records tagged ``tag``) against 2 (records of phase
+    ``name``)."""
+    recs, wanted = _load(name), tag
     by = {(r["inputs"]["P"], r["inputs"]["v"], r["tag"]): r for r in recs}
     lines = ["| P (W) | v (m/s) | cells h / h/2 | W (um) h / h/2 | dW | D (um) h / h/2 | dD "
              "| G0 (K/m) h / h/2 | dG0 | pass |",
              "|---|---|---|---|---|---|---|---|---|---|"]
     for (P, v, tag), a in by.items():
         b = by.get((P, v, "res2"))
-        if tag != "res1" or b is None:
+        if tag != wanted or b is None:
             continue
         if a["status"] != "ok" or b["status"] != "ok":
             verdict = "not measured" if "stopped" in (a["status"], b["status"]) else "no"
@@ -87,6 +88,23 @@ def speed_table() -> str:
         f"| {statistics.median(five) if five else nan:.1f} / {max(five) if five else nan:.1f} "
         f"| {statistics.median(wall):.0f} / {max(wall):.0f} | {max(rss):.0f} "
         f"| {statistics.median(cells):.0f} | {statistics.median(its):.0f} / {max(its)} |"])
+
+
+def coarse_table(resolution: float) -> str:
+    """Speed and mesh error of the default options at a coarser ``resolution`` (phase
+    ``coarse``): its runs at the 40 sanity settings and the 5 benchmark settings, and
+    the 5 settings against the halved mesh (``resolution=2``)."""
+    tag = f"res{resolution:g}"
+    recs = [r for r in _load("convergence") if r["tag"] == tag] + _load(f"sanity_{tag}")
+    if not recs:
+        return "(no runs)"
+    cpu = sorted(r["cpu_s"] for r in recs if r["status"] == "ok")
+    ok = len(cpu)
+    summary = (f"{len(recs)} runs at `resolution={resolution:g}`, {ok} converged; CPU over "
+               f"the converged ones median {statistics.median(cpu):.1f} s, max {max(cpu):.1f} "
+               f"s, {sum(c <= 5 for c in cpu)} within 5 s, {sum(c <= 2 for c in cpu)} within "
+               f"2 s; cells median {statistics.median(r['n_cells'] for r in recs):.0f}.")
+    return convergence_table(tag=tag) + "\n\n" + summary
 
 
 def sanity_table() -> str:
@@ -201,5 +219,6 @@ if __name__ == "__main__":
                       ("Start independence", start_table),
                       ("The solver's path (152 W / 0.32 m/s)", path_table),
                       ("Powder layer", powder_table), ("Physical sanity", sanity_table),
-                      ("Robustness corners", corners_table)):
+                      ("Robustness corners", corners_table),
+                      ("Coarser default mesh (resolution 0.7)", lambda: coarse_table(0.7))):
         print(f"### {title}\n\n{fn()}\n")

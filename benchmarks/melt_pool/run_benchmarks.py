@@ -12,7 +12,8 @@ Usage (from the repository root)::
 Phases ``convergence-res1`` and ``convergence-res2`` run one half of ``convergence``;
 ``start`` (start independence), ``powder`` (W with and without the powder layer),
 ``sanity-reverse`` (``sanity`` from the last row, to share the work with a second
-process) and ``path`` (the continuation step) are further phases. ``--help`` lists them.
+process), ``path`` (the continuation step) and ``coarse`` (speed and mesh error at
+``resolution=0.7``) are further phases. ``--help`` lists them.
 """
 
 from __future__ import annotations
@@ -203,12 +204,21 @@ def path() -> None:
         _save("path", recs)
 
 
+def coarse(resolution: float) -> None:
+    """The speed and mesh error a coarser default mesh would give: the 5 convergence
+    settings at ``resolution`` (against the halved mesh of ``convergence-res2`` in
+    ``report.py``) and the 40 sanity settings, into ``results/sanity_res<r>.json``."""
+    convergence((resolution,))
+    sanity(options={"resolution": resolution}, name=f"sanity_res{resolution:g}")
+
+
 if __name__ == "__main__":
     PHASES = {"convergence": convergence, "sanity": sanity, "corners": corners,
               "start": start, "powder": powder, "path": path,
               "sanity-reverse": lambda: sanity(True),
               "convergence-res1": lambda: convergence((1.0,)),
-              "convergence-res2": lambda: convergence((2.0,))}
+              "convergence-res2": lambda: convergence((2.0,)),
+              "coarse": lambda: coarse(0.7)}
     if len(sys.argv) > 2 and sys.argv[1] == "--worker":
         _worker(sys.argv[2])
     elif len(sys.argv) < 2 or not set(sys.argv[1:]) <= set(PHASES):
