@@ -677,6 +677,19 @@ def test_corners_converge_or_say_why(P, v, side):
     assert NI5NB.T_liquidus < o["T0"] < 8000.0 and 1e4 < o["G0"] < 1e9
 
 
+@pytest.mark.slow
+def test_the_hot_slow_corner_converges_on_the_default_mesh():
+    """250 W / 0.05 m/s with every parameter at its upper bound: the keyhole forms
+    already in the continuation stage at 50 W, where a warm start without a
+    pseudo-time term wandered for 480 Newton iterations (benchmarks/README.md, "M1
+    melt-pool simulator", robustness corners)."""
+    theta = {k: melt_pool.BOUNDS[k][1] for k in melt_pool.PARAMETERS}
+    res = melt_pool.simulate({"P": 250.0, "v": 0.05, **theta}, time_limit=300.0)
+    assert res.status == "ok", res.message
+    assert res.diagnostics["iterations"] < 250
+    assert res.outputs["T0"] > NI5NB.T_boil
+
+
 def test_progress_reports_every_newton_solve():
     said = []
     res = melt_pool.simulate({"P": 150.0, "v": 0.8}, **COARSE,

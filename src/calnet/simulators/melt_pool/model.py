@@ -96,7 +96,8 @@ COARSE = 0.5  # resolution of the sizing pre-solve relative to the requested one
 G_WINDOW_CELLS = 6.0  # G0 window half-width, in pool spacings of the resolution-1 mesh
 # s, first pseudo time step of a warm-started solve. 1e-2 s against 2e-5: 20 % fewer Newton
 # iterations at the 5 benchmark settings, and 96 W / 0.364 m/s converges; 1.0 (plain
-# Newton) saves 8 % more but wanders at 250 W / 0.05 m/s with the upper parameter bounds
+# Newton) takes 6 % less CPU there but wanders at 250 W / 0.05 m/s with the upper
+# parameter bounds (benchmarks/README.md, "What was tried for speed")
 WARM_DT0 = 1e-2
 COARSE_RTOL = 1e-4  # the sizing pre-solve only needs to place the pool
 STAGE_RTOL, STAGE_TTOL = 1e-4, 1.0  # (-, K) continuation stages below P only stay on the branch
