@@ -39,9 +39,9 @@ it. ``GUARD_MONOTONE`` applies both to the monotone form too; off, since they mo
 The absorptivity moves by at most ``A_STEP`` between Newton steps. Near the vapour
 switch ``A(T_s)`` of consecutive iterates can differ by most of ``A_max - A_0``, and
 Newton then wanders between the conduction and the keyhole branch (77 iterations in the
-105 W stage at 152 W / 0.32 m/s, 33 with the limit). While the limit holds ``A`` back,
-``A`` is not ``A(T_s)``, so its ``dA/dT`` term is left out and the solve cannot
-converge: a converged state solves the unlimited equations.
+105 W stage at 152 W / 0.32 m/s, 33 with the limit, both with warm starts at 2e-5 s).
+While the limit holds ``A`` back, ``A`` is not ``A(T_s)``, so its ``dA/dT`` term is left
+out and the solve cannot converge: a converged state solves the unlimited equations.
 """
 
 from __future__ import annotations
