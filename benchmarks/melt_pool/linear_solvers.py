@@ -28,9 +28,11 @@ import scipy.sparse.linalg as spla
 from calnet.simulators import melt_pool
 from calnet.simulators.melt_pool import solver
 
-SMOOTH = solver.LinearSolver.SMOOTHERS  # one forward, one backward Gauss-Seidel sweep
+AMG = solver.LinearSolver.hierarchy  # the simulator's classical AMG, settings overridable
 TWICE = {"presmoother": ("gauss_seidel", {"sweep": "forward", "iterations": 2}),
          "postsmoother": ("gauss_seidel", {"sweep": "backward", "iterations": 2})}
+SYMMETRIC = {"presmoother": ("gauss_seidel", {"sweep": "symmetric"}),
+             "postsmoother": ("gauss_seidel", {"sweep": "symmetric"})}
 
 
 def _ilu(A: sp.csr_matrix) -> spla.LinearOperator:
@@ -40,18 +42,14 @@ def _ilu(A: sp.csr_matrix) -> spla.LinearOperator:
 
 # name -> preconditioner (a LinearOperator) built from the matrix
 PRECONDITIONERS: dict[str, Callable[[sp.csr_matrix], spla.LinearOperator]] = {
-    "classical AMG (simulator)": lambda A: pyamg.ruge_stuben_solver(
-        A, max_coarse=400, coarse_solver=solver.LinearSolver.COARSE_SOLVER,
-        **SMOOTH).aspreconditioner(),
-    "classical AMG, splu coarse": lambda A: pyamg.ruge_stuben_solver(
-        A, max_coarse=400, coarse_solver="splu", **SMOOTH).aspreconditioner(),
-    "classical AMG, theta 0.5": lambda A: pyamg.ruge_stuben_solver(
-        A, strength=("classical", {"theta": 0.5}), max_coarse=400, coarse_solver="splu",
-        **SMOOTH).aspreconditioner(),
-    "classical AMG, 2 sweeps": lambda A: pyamg.ruge_stuben_solver(
-        A, max_coarse=400, coarse_solver="splu", **TWICE).aspreconditioner(),
-    "classical AMG, symmetric GS": lambda A: pyamg.ruge_stuben_solver(
-        A, max_coarse=400, coarse_solver="splu").aspreconditioner(),
+    "classical AMG (simulator)": lambda A: AMG(A).aspreconditioner(),
+    "classical AMG, splu coarse": lambda A: AMG(A, coarse_solver="splu").aspreconditioner(),
+    "classical AMG, theta 0.5": lambda A: AMG(
+        A, strength=("classical", {"theta": 0.5}), coarse_solver="splu").aspreconditioner(),
+    "classical AMG, 2 sweeps": lambda A: AMG(A, coarse_solver="splu",
+                                              **TWICE).aspreconditioner(),
+    "classical AMG, symmetric GS": lambda A: AMG(A, coarse_solver="splu",
+                                                  **SYMMETRIC).aspreconditioner(),
     "AIR": lambda A: pyamg.air_solver(A, max_coarse=400).aspreconditioner(),
     "smoothed aggregation, evolution": lambda A: pyamg.smoothed_aggregation_solver(
         A, strength="evolution", max_coarse=400, smooth=None).aspreconditioner(),

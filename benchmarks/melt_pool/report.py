@@ -21,14 +21,14 @@ def _load(name: str) -> list[dict]:
 def convergence_table(name: str = "convergence", tag: str = "res1") -> str:
     """``resolution`` 1 (or the records tagged ``tag``) against 2 (records of phase
     ``name``)."""
-    recs, wanted = _load(name), tag
+    recs = _load(name)
     by = {(r["inputs"]["P"], r["inputs"]["v"], r["tag"]): r for r in recs}
     lines = ["| P (W) | v (m/s) | cells h / h/2 | W (um) h / h/2 | dW | D (um) h / h/2 | dD "
              "| G0 (K/m) h / h/2 | dG0 | pass |",
              "|---|---|---|---|---|---|---|---|---|---|"]
-    for (P, v, tag), a in by.items():
+    for (P, v, t), a in by.items():
         b = by.get((P, v, "res2"))
-        if tag != wanted or b is None:
+        if t != tag or b is None:
             continue
         if a["status"] != "ok" or b["status"] != "ok":
             verdict = "not measured" if "stopped" in (a["status"], b["status"]) else "no"
@@ -99,8 +99,9 @@ def coarse_table(resolution: float) -> str:
     if not recs:
         return "(no runs)"
     cpu = sorted(r["cpu_s"] for r in recs if r["status"] == "ok")
-    ok = len(cpu)
-    summary = (f"{len(recs)} runs at `resolution={resolution:g}`, {ok} converged; CPU over "
+    if not cpu:
+        return f"{len(recs)} runs at `resolution={resolution:g}`, none converged."
+    summary = (f"{len(recs)} runs at `resolution={resolution:g}`, {len(cpu)} converged; CPU over "
                f"the converged ones median {statistics.median(cpu):.1f} s, max {max(cpu):.1f} "
                f"s, {sum(c <= 5 for c in cpu)} within 5 s, {sum(c <= 2 for c in cpu)} within "
                f"2 s; cells median {statistics.median(r['n_cells'] for r in recs):.0f}.")

@@ -19,7 +19,7 @@ import pytest
 
 from calnet.simulators import melt_pool
 from calnet.simulators.materials import NI5NB
-from calnet.simulators.melt_pool import model
+from calnet.simulators.melt_pool import model, solver
 from calnet.simulators.melt_pool.assembly import Discretization
 from calnet.simulators.melt_pool.consolidation import (
     CONSOLIDATION_LENGTH,
@@ -520,8 +520,6 @@ def test_the_absorptivity_step_limit_leaves_the_state_alone(monkeypatch):
     converged state: near the keyhole threshold (run 104's parameters, where A(T_s)
     swings between the branches) the run takes other iterations and reaches the same
     outputs, and the reported absorptivity is A(T_s) of the converged surface."""
-    from calnet.simulators.melt_pool import solver
-
     limited = melt_pool.simulate(RUN_104, **COARSE)
     monkeypatch.setattr(solver, "A_STEP", 0.0)
     free = melt_pool.simulate(RUN_104, **COARSE)

@@ -30,8 +30,8 @@ POWDER_DEPTH_FLOOR = 30e-6  # m: pools shallower than the powder layer are sized
 # Fewest cell layers across the powder layer (times the resolution). The widest pools'
 # lateral edge lies in the powder, and W there follows the layers' thickness: with 3
 # layers (h = 10 um) W at 236 W / 0.23 m/s is 12 % above the halved mesh's, with 6 within
-# 1 %. With 12 layers on the default mesh (6 on the sizing mesh) Newton did not converge
-# at 152, 236 and 243 W.
+# 1 %. With 12 layers on the default mesh (6 on the sizing mesh) the run at 152 W /
+# 0.32 m/s does not converge.
 POWDER_LAYERS = 6
 # ``refine=True`` (the simulator's ``refine_outputs``): finer where the outputs are read
 REFINED_H_EDGE = 1.25e-6  # m, lateral spacing at the pool edge (W)

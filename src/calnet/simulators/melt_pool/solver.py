@@ -156,6 +156,13 @@ class LinearSolver:
         self._age = 0
         self._last_its = 0
 
+    @classmethod
+    def hierarchy(cls, A: sp.csr_matrix, **overrides) -> pyamg.MultilevelSolver:
+        """The AMG hierarchy this solver builds on ``A``; ``overrides`` replace its
+        settings (``coarse_solver``, the smoothers, ``strength``; for benchmarks)."""
+        settings = {"max_coarse": 400, "coarse_solver": cls.COARSE_SOLVER, **cls.SMOOTHERS}
+        return pyamg.ruge_stuben_solver(A, **(settings | overrides))
+
     def __call__(self, M: sp.csr_matrix, b: np.ndarray, *, rtol: float,
                  preconditioner: sp.csr_matrix | None = None) -> tuple[np.ndarray, int]:
         """Solve ``M x = b``; the AMG hierarchy is built on ``preconditioner`` (an
@@ -174,9 +181,7 @@ class LinearSolver:
     def _solve(self, M: sp.csr_matrix, Pm: sp.csr_matrix, b: np.ndarray, rtol: float, *,
                rebuild: bool) -> tuple[np.ndarray, int]:
         if rebuild:
-            self._ml = pyamg.ruge_stuben_solver(Pm, max_coarse=400,
-                                                coarse_solver=self.COARSE_SOLVER,
-                                                **self.SMOOTHERS)
+            self._ml = self.hierarchy(Pm)
             self._age = 0
         self._age += 1
         res: list[float] = []
