@@ -55,7 +55,7 @@ class MeltPoolOptions:
         Newton iterations allowed over all stages (the continuation in power, the
         sizing pre-solve and the fine solve).
     max_update : float, default 800.0
-        Cap on the largest temperature update per Newton step (K).
+        Cap on each cell's temperature update per Newton step (K).
     time_limit : float or None, default None
         Wall-clock limit (s); exceeding it returns status ``"timeout"``.
     adapt_mesh : bool, default True

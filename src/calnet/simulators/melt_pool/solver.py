@@ -1,8 +1,20 @@
 """Newton iteration with pseudo-transient continuation and AMG-preconditioned GMRES.
 
 Each step solves ``(V rho c_eff / dt - J) dT = R`` (physics.md: exact Jacobian through
-Kirchhoff potentials, pseudo-transient continuation, temperature updates capped at
-``max_update``). The pseudo time step follows switched evolution relaxation, ``dt_k =
+Kirchhoff potentials, pseudo-transient continuation, each cell's temperature update
+clipped to its own cap, at most ``max_update``). Where the linearisation is poor at a
+few cells (cold powder beside and behind the pool, whose consolidated fraction and
+hence conductivity follow the upstream field, can ask for 1e3-2e5 K), scaling the whole
+update down to ``max_update`` let those cells set every other cell's step, and solves
+near the keyhole threshold stalled for hundreds of iterations at a flat residual.
+Clipped alone, such a cell can 2-cycle at its cap instead (a cell swinging between the
+temperature floor and 400 K above it for 460 iterations at 96 W / 0.364 m/s): a cell
+whose update was clipped and turns back halves its cap (down to ``CAP_MIN``), and a cell
+moving on in the same direction doubles it (up to ``max_update``), a bisection on the
+cells Newton cannot place. benchmarks/README.md, "What was tried for speed" and
+"Robustness", has the runs.
+
+The pseudo time step follows switched evolution relaxation, ``dt_k =
 dt_(k-1) clip(1.5 |R_(k-1)| / |R_k|, 2, 3)`` unless the residual rises by more than
 ``RISE`` (50 %), then ``dt_(k-1) / 4`` and at most 1.5x growth on the next step (so a
 Newton 2-cycle shrinks dt until the pseudo-time term damps it), so the iteration turns
@@ -81,6 +93,8 @@ CYCLE_CELL = 0.1  # smallest update, relative to the largest, that a cell's cycl
 CYCLE_POWDER = True  # the cell cycle test sees only the cells of the powder layer
 COLD_MARGIN = 300.0  # K: cells colder than T_S - COLD_MARGIN carry no pseudo-time term
 GUARD_MONOTONE = False  # the exposure form's cycle test and kink rule for "monotone" too
+CELL_CAPS = True  # per-cell caps on the update, halved on a turn (False: max_update for all)
+CAP_MIN = 1.0  # K, smallest per-cell cap
 A_STEP = 0.05  # largest change of the absorptivity between Newton steps (0: no limit)
 
 
@@ -286,6 +300,8 @@ def newton_solve(disc: Discretization, laws: MaterialLaws, T0: np.ndarray, *,
     damp = 1.0
     powder = disc.powder_cells.ravel()
     a_prev: float | None = None
+    cap = np.full(T.shape, float(max_update))
+    last: np.ndarray | None = None
     for it in range(1, max_iter + 1):
         if deadline is not None and time.monotonic() > deadline:
             reason = "time limit reached"
@@ -344,12 +360,16 @@ def newton_solve(disc: Discretization, laws: MaterialLaws, T0: np.ndarray, *,
         if not np.isfinite(big):
             reason = "non-finite Newton update"
             break
-        if big > max_update:
-            dT *= max_update / big
+        if CELL_CAPS and last is not None:  # a clipped cell that turns back: halve its cap
+            turned = (dT * last < 0) & (np.abs(dT) > cap)
+            cap = np.where(turned, np.maximum(0.5 * cap, CAP_MIN),
+                           np.where(dT * last > 0, np.minimum(2.0 * cap, max_update), cap))
+        dT = np.clip(dT, -cap, cap)
         if guarded:
             damp = _cycle_factor(dT, history, powder if CYCLE_POWDER else None)
             dT *= damp
             history = (dT, *history[:CYCLE_PERIODS - 1])
+        last = dT
         T = np.maximum(_stop_at_kinks(T, dT, disc.mat, from_edge=guarded),
                        0.5 * disc.mat.T_ambient)
         upd = min(big, max_update)
