@@ -12,7 +12,7 @@ temperature floor and 400 K above it for 460 iterations at 96 W / 0.364 m/s): a 
 whose update was clipped and turns back halves its cap (down to ``CAP_MIN``), and a cell
 moving on in the same direction doubles it (up to ``max_update``), a bisection on the
 cells Newton cannot place. benchmarks/README.md, "What was tried for speed" and
-"Robustness", has the runs.
+"Known weaknesses", has the runs.
 
 The pseudo time step follows switched evolution relaxation, ``dt_k =
 dt_(k-1) clip(1.5 |R_(k-1)| / |R_k|, 2, 3)`` unless the residual rises by more than
