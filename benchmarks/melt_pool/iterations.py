@@ -1,7 +1,9 @@
 """Newton iterations and CPU per continuation stage of the M1 melt-pool simulator.
 
 Runs the 5 benchmark settings (``run_benchmarks.SETTINGS``, mid-range parameters,
-default options; ``--case P v`` names other settings), each in a fresh process, one at
+default options; ``--case P v`` names other settings, ``--run N ...`` rows of a campaign
+table with their parameters: by default the ninb melt_pool store, e.g. the runs that did
+not converge there), each in a fresh process, one at
 a time, and prints per run one row per Newton solve (the continuation stages on the
 sizing mesh, then the fine solve): mesh, power, cells, Newton iterations, CPU seconds;
 then the run's outputs. With ``--starts`` it also runs RUN_104 and both first-stage
@@ -22,6 +24,7 @@ Usage (repository root)::
 from __future__ import annotations
 
 import argparse
+import csv
 import importlib
 import json
 import subprocess
@@ -33,6 +36,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from run_benchmarks import RUN_104, SETTINGS  # noqa: E402
 
 KEYS = ("W", "D", "G0")
+STORE_TABLE = Path(__file__).resolve().parents[2] / "examples/ninb/campaigns/melt_pool.csv"
 
 
 def _worker(spec: str) -> None:
@@ -67,7 +71,7 @@ def run_one(inputs: dict, options: dict, patch: list[str]) -> dict:
 
 def _label(rec: dict) -> str:
     i = rec["inputs"]
-    tag = " run104" if "K_S" in i else ""
+    tag = " run104" if i == RUN_104 else (" own parameters" if "K_S" in i else "")
     return f"{i['P']:g} W / {i['v']:g} m/s{tag} {rec['options'].get('start', 'rosenthal')}"
 
 
@@ -82,6 +86,18 @@ def _print(rec: dict) -> None:
           + "".join(f"  {k} {o.get(k, float('nan')):.6g}" for k in KEYS), flush=True)
 
 
+def _table_inputs(table: Path, runs: list[int]) -> list[dict]:
+    """Inputs (P, v and the parameters) of the rows ``runs`` of a campaign CSV table."""
+    from calnet.simulators.melt_pool import INPUTS, PARAMETERS
+
+    with table.open() as fh:
+        rows = {int(r["run"]): r for r in csv.DictReader(fh)}
+    missing = [n for n in runs if n not in rows]
+    if missing:
+        sys.exit(f"{table}: no run {', '.join(map(str, missing))}")
+    return [{k: float(rows[n][k]) for k in (*INPUTS, *PARAMETERS)} for n in runs]
+
+
 def _rel(a: dict, b: dict) -> float:
     return max(abs(a["outputs"][k] / b["outputs"][k] - 1) for k in KEYS)
 
@@ -94,6 +110,10 @@ def main() -> None:
     ap.add_argument("--only", type=int, nargs="*", help="indices into SETTINGS")
     ap.add_argument("--case", type=float, nargs=2, action="append", metavar=("P", "V"),
                     help="a setting (W, m/s) at mid parameters instead of SETTINGS")
+    ap.add_argument("--run", type=int, nargs="+", metavar="N",
+                    help="rows of a campaign table (run numbers) instead of SETTINGS")
+    ap.add_argument("--table", type=Path, default=STORE_TABLE,
+                    help="the campaign table --run reads (default: the ninb melt_pool store)")
     ap.add_argument("--save", type=Path)
     ap.add_argument("--compare", type=Path)
     args = ap.parse_args()
@@ -101,6 +121,8 @@ def main() -> None:
     picked = [SETTINGS[i] for i in (args.only if args.only else range(len(SETTINGS)))]
     picked = [tuple(c) for c in args.case] if args.case else picked
     cases = [{"P": P, "v": v} for P, v in picked] + ([RUN_104] if args.starts else [])
+    if args.run:
+        cases = _table_inputs(args.table, args.run)
     starts = ("rosenthal", "ambient") if args.starts else ("rosenthal",)
     records = []
     for inputs in cases:
@@ -110,8 +132,8 @@ def main() -> None:
             _print(records[-1])
     ok = [r for r in records if r["status"] == "ok"]
     main_runs = [r for r in records if r["options"].get("start", "rosenthal") == "rosenthal"
-                 and "K_S" not in r["inputs"]]
-    print(f"\n5-setting totals: its {sum(r.get('iterations') or 0 for r in main_runs)}"
+                 and r["inputs"] != RUN_104]
+    print(f"\ntotals: its {sum(r.get('iterations') or 0 for r in main_runs)}"
           f"  CPU {sum(r.get('cpu_s', 0) for r in main_runs):.1f} s"
           f"  ok {len(ok)} of {len(records)}")
     if args.starts:
