@@ -120,9 +120,10 @@ def main() -> None:
     base = json.loads(args.options)
     picked = [SETTINGS[i] for i in (args.only if args.only else range(len(SETTINGS)))]
     picked = [tuple(c) for c in args.case] if args.case else picked
-    cases = [{"P": P, "v": v} for P, v in picked] + ([RUN_104] if args.starts else [])
     if args.run:
         cases = _table_inputs(args.table, args.run)
+    else:
+        cases = [{"P": P, "v": v} for P, v in picked] + ([RUN_104] if args.starts else [])
     starts = ("rosenthal", "ambient") if args.starts else ("rosenthal",)
     records = []
     for inputs in cases:
