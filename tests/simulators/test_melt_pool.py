@@ -713,6 +713,29 @@ def test_a_few_poorly_linearised_cells_do_not_stall_the_solve(inputs):
     assert res.diagnostics["iterations"] < 200
 
 
+# two runs whose Newton iteration cycles without the stall mode: store row 197 (a
+# period-11 cycle of a few top cells, their caps and dt in the 33 W sizing stage) and
+# store row 151 with its inputs rounded to 6 digits (which the full-precision inputs
+# escape: see NEAR_THRESHOLD)
+CYCLING = [
+    {"P": 166.04583993638113, "v": 0.08438111358233903, "K_S": 76.29301737863194,
+     "K_L": 162.71217447403112, "K_Lz": 0.7861615488113403, "K_V": 8.624173192562946,
+     "K_Vz": 1175.726690673565, "A_0": 0.37956423508432247, "A_max": 0.6368876358013134},
+    {k: float(f"{x:.6g}") for k, x in NEAR_THRESHOLD[0].items()},
+]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("inputs", CYCLING, ids=["store_row_197", "row_151_rounded"])
+def test_a_cycling_newton_iteration_is_broken_by_the_stall_mode(inputs):
+    """Without the stall mode both run to the 500-iteration limit (scaled residual 0.11
+    and 2.8e-3); with it, the pseudo-time term on every cell and a small, slowly
+    regrowing dt end the cycle."""
+    res = melt_pool.simulate(inputs, time_limit=300.0)
+    assert res.status == "ok", res.message
+    assert res.diagnostics["iterations"] < 250
+
+
 def test_progress_reports_every_newton_solve():
     said = []
     res = melt_pool.simulate({"P": 150.0, "v": 0.8}, **COARSE,

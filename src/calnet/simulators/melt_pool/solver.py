@@ -95,6 +95,9 @@ COLD_MARGIN = 300.0  # K: cells colder than T_S - COLD_MARGIN carry no pseudo-ti
 GUARD_MONOTONE = False  # the exposure form's cycle test and kink rule for "monotone" too
 CELL_CAPS = True  # per-cell caps on the update, halved on a turn (False: max_update for all)
 CAP_MIN = 1.0  # K, smallest per-cell cap
+STALL_ITS = 20  # iterations without a new lowest residual that switch on the stall mode
+STALL_DT = 1e-4  # s, dt and its ceiling when the stall mode switches on
+STALL_GROWTH = 1.2  # per calm step, growth of the ceiling on dt in the stall mode
 A_STEP = 0.05  # largest change of the absorptivity between Newton steps (0: no limit)
 
 
@@ -286,7 +289,13 @@ def newton_solve(disc: Discretization, laws: MaterialLaws, T0: np.ndarray, *,
     ``frac(T)`` of the solve's iterates (it never decreases; convergence requires it to
     have stopped growing); ``"field"``: the upstream-maximum ``frac(T)`` of the current
     iterate, ``"exposure"``: the cumulative-exposure ``frac(T)`` of the current iterate,
-    both with their coupling in the Newton operator (:mod:`~.consolidation`)."""
+    both with their coupling in the Newton operator (:mod:`~.consolidation`).
+
+    A solve that goes ``STALL_ITS`` iterations without a new lowest scaled residual
+    (a cycle of the update, the caps and ``dt`` near the keyhole threshold) enters a
+    stall mode for the rest of the solve: every cell carries the pseudo-time term
+    (also the cold ones), ``dt`` and its ceiling drop to ``STALL_DT`` and the ceiling
+    regrows by ``STALL_GROWTH`` per calm step."""
     T = T0.copy()
     rho_c = None
     dt, r0_norm, upd, lin_total, calm = dt0, None, np.inf, 0, 10
@@ -295,6 +304,7 @@ def newton_solve(disc: Discretization, laws: MaterialLaws, T0: np.ndarray, *,
     A, Ts = np.nan, np.nan
     linear_solve = LinearSolver()
     ceiling = DT_MAX
+    best, best_it, stalled = np.inf, 0, False
     guarded = consolidation == "exposure" or GUARD_MONOTONE
     history: tuple[np.ndarray, ...] = ()  # the last CYCLE_PERIODS updates, latest first
     damp = 1.0
@@ -331,20 +341,27 @@ def newton_solve(disc: Discretization, laws: MaterialLaws, T0: np.ndarray, *,
         if rnorm <= rtol and upd <= ttol and not front_moved and not clipped:
             return SolveReport(T, True, "", it - 1, rnorm, upd, lin_total, A, Ts, frac)
         r2 = float(np.linalg.norm(R))
+        if rnorm < best - 1e-12:
+            best, best_it = rnorm, it
+        elif STALL_ITS and not stalled and it - best_it >= STALL_ITS:
+            stalled = True
+            dt, ceiling, calm = min(dt, STALL_DT), STALL_DT, 0
+            if _DEBUG:
+                print(f"stalled at it {it}: dt {dt:.1e}", flush=True)
         if r0_norm is not None:  # grow dt while the residual falls (SER-like)
             rising = r2 > RISE * r0_norm
             calm = 0 if rising else calm + 1
             if rising:  # the step just taken was too long: remember it
                 ceiling = max(DT_MIN, 0.5 * dt)
             else:
-                ceiling = min(DT_MAX, CEILING_GROWTH * ceiling)
+                ceiling = min(DT_MAX, (STALL_GROWTH if stalled else CEILING_GROWTH) * ceiling)
             top = 3.0 if calm > 1 else 1.5  # slow regrowth after a rise: no 2-cycles
             grow = 0.25 if rising else float(np.clip(1.5 * r0_norm / r2, min(2.0, top), top))
             dt = float(np.clip(dt * grow, DT_MIN, ceiling))
         r0_norm = r2
         _, c = laws.enthalpy(T)
         rho_c = disc.density(frac) * c
-        pseudo = np.where(T < disc.mat.T_solidus - COLD_MARGIN, 0.0,
+        pseudo = np.where((T < disc.mat.T_solidus - COLD_MARGIN) & (not stalled), 0.0,
                           disc.volume * rho_c / dt)
         M = disc.system(J, pseudo, coupled=dA is not None)
         if cons is not None:
