@@ -6,8 +6,14 @@ import pytest
 from campaign_helpers import store_rows, toy_network
 
 from calnet.campaign import run_campaign
-from calnet.campaign.executors import ProcessExecutor, WorkerDied, make_executor
+from calnet.campaign.executors import (
+    THREAD_VARIABLES,
+    ProcessExecutor,
+    WorkerDied,
+    make_executor,
+)
 from calnet.errors import CampaignError
+from calnet.parallel import usable_cores
 
 
 @pytest.mark.slow
@@ -149,3 +155,27 @@ def test_a_string_that_is_no_scheduler_address_is_a_usage_error(address):
 
     with pytest.raises(UsageError, match="give tcp://HOST:PORT"):
         executor_kind("auto", scheduler=address)
+
+
+def test_worker_processes_share_the_cores_among_their_blas_threads(monkeypatch):
+    """Without a thread count in the environment each of 2 workers runs BLAS on half
+    the cores (at least one thread), also SciPy's OpenBLAS, loaded after the start."""
+    from toy_sims import blas_threads
+
+    for name in THREAD_VARIABLES:
+        monkeypatch.delenv(name, raising=False)
+    share = max(1, usable_cores() // 2)
+    with ProcessExecutor(2) as executor:
+        out = dict(executor.run(blas_threads, [(i,) for i in range(4)]))
+    assert sorted(out.values()) == [(str(share), share)] * 4
+
+
+def test_a_thread_count_in_the_environment_is_left_to_the_user(monkeypatch):
+    from toy_sims import blas_threads
+
+    for name in THREAD_VARIABLES:
+        monkeypatch.delenv(name, raising=False)
+    monkeypatch.setenv("OPENBLAS_NUM_THREADS", "3")
+    with ProcessExecutor(2) as executor:
+        out = dict(executor.run(blas_threads, [(0,)]))
+    assert out[(0,)][0] == "3"

@@ -274,3 +274,13 @@ def moves(inputs, *, to):
     """``quadratic``, after changing the working directory to ``to``."""
     os.chdir(to)
     return quadratic(inputs)
+
+
+def blas_threads(_):
+    """The OPENBLAS_NUM_THREADS this worker sees and its BLAS libraries' largest thread
+    count (NumPy's and SciPy's OpenBLAS, loaded here)."""
+    import scipy.linalg  # noqa: F401  (loads SciPy's BLAS)
+    from threadpoolctl import threadpool_info
+
+    return (os.environ.get("OPENBLAS_NUM_THREADS"),
+            max(lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"))

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import logging
 import multiprocessing
+import os
 import re
 import signal
 import time
@@ -26,7 +27,10 @@ from concurrent.futures.process import BrokenProcessPool
 from multiprocessing.connection import wait as wait_ended
 from typing import Any, Protocol
 
+from threadpoolctl import threadpool_limits
+
 from calnet.errors import CampaignError, UsageError
+from calnet.parallel import usable_cores
 
 Task = tuple[Any, ...]
 
@@ -41,6 +45,9 @@ WATCH_INTERVAL = 1.0
 START_POLL = 0.1
 """Seconds between looks for the runs a process pool's workers have started, while one
 handed to the pool has not started yet (:meth:`ProcessExecutor._note_starts`)."""
+THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+"""The environment variables that set a worker process's BLAS and OpenMP threads: where
+none is set, :func:`_init_worker` sets each to the worker's share of the cores."""
 STOP_GRACE = 1.0
 """Seconds the workers of an interrupted process pool have to end on SIGTERM before they
 are killed (:meth:`ProcessExecutor.close`)."""
@@ -121,8 +128,9 @@ class ProcessExecutor:
         self._starts = context.SimpleQueue()  # each worker announces the runs it starts
         self._serials = {}
         self._alone = False
-        return ProcessPoolExecutor(self.workers, mp_context=context,
-                                   initializer=_init_worker, initargs=(self._starts,))
+        threads = max(1, usable_cores() // self.workers)
+        return ProcessPoolExecutor(self.workers, mp_context=context, initializer=_init_worker,
+                                   initargs=(self._starts, threads))
 
     def run(self, fn, tasks, on_submit=None, on_died=None):
         pending: dict[Future, Task] = {}
@@ -340,14 +348,25 @@ _STARTS: list[Any] = []  # in a worker process: the queue it announces its runs 
 _REPLACE = [False]  # in a worker process: its run asked for a fresh worker
 
 
-def _init_worker(starts: Any) -> None:
+def _init_worker(starts: Any, threads: int) -> None:
     """Set up a worker process: it dies with its parent (:func:`_die_with_parent`),
-    announces its runs on ``starts``, and ignores SIGINT. Ctrl-C reaches the whole
-    process group; the campaign decides what it means and stops the workers itself, so
-    a KeyboardInterrupt in a worker is always the simulator's own."""
+    announces its runs on ``starts``, ignores SIGINT, and runs BLAS and OpenMP on
+    ``threads`` threads (its share of the cores) unless the environment sets any of
+    :data:`THREAD_VARIABLES`. Ctrl-C reaches the whole process group; the campaign
+    decides what it means and stops the workers itself, so a KeyboardInterrupt in a
+    worker is always the simulator's own.
+
+    Each BLAS library starts a thread per core by default; with two workers on two
+    cores their threads spin against each other, and the ninb melt_pool runs took 4-5
+    times their CPU time in wall time. The variables reach libraries loaded later
+    (SciPy's own OpenBLAS) and the subprocesses of command simulators;
+    ``threadpool_limits`` the ones already loaded."""
     _die_with_parent()
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     _STARTS[:] = [starts]
+    if not any(name in os.environ for name in THREAD_VARIABLES):
+        os.environ.update(dict.fromkeys(THREAD_VARIABLES, str(threads)))
+        threadpool_limits(limits=threads)
 
 
 class _Spent:
