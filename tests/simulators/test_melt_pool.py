@@ -747,3 +747,27 @@ def test_progress_reports_every_newton_solve():
     assert fractions == sorted(fractions) and 0 < fractions[-1] <= 1
     assert said[0][1].startswith("sizing mesh (") and said[-1][1].startswith("fine mesh (")
     assert said[-1][1].endswith(f"{stages[-1]['iterations']} Newton iterations, converged")
+
+
+@pytest.mark.slow
+def test_a_fine_solve_that_leaves_its_branch_is_given_up_early(monkeypatch):
+    """Store row 188: the fine solve from the interpolated sizing field falls onto the
+    other branch. Ended once its absorptivity has stayed past the branch threshold for
+    ``ABANDON_ITS`` iterations, it is redone by continuation to the same state as when
+    it is first run to convergence, in fewer iterations."""
+    from calnet.simulators.melt_pool import solver
+
+    inputs = {"P": 135.0909255822429, "v": 1.7893907618121496, "K_S": 84.49946977711672,
+              "K_L": 125.76222938284263, "K_Lz": 1.2936519098194017,
+              "K_V": 10.436219057504113, "K_Vz": 1435.5136790850097,
+              "A_0": 0.32305000051197197, "A_max": 0.6069945970875105}
+    early = melt_pool.simulate(inputs, time_limit=300.0)
+    monkeypatch.setattr(solver, "ABANDON_ITS", 0)
+    late = melt_pool.simulate(inputs, time_limit=300.0)
+    assert early.status == late.status == "ok"
+    left = [[s for s in r.diagnostics["stages"] if s.get("left_branch")] for r in (early, late)]
+    assert len(left[0]) == len(left[1]) == 1
+    assert left[0][0]["iterations"] < left[1][0]["iterations"]
+    assert early.diagnostics["iterations"] < late.diagnostics["iterations"]
+    for name in ("W", "D", "G0"):
+        assert early.outputs[name] == pytest.approx(late.outputs[name], rel=1e-9)

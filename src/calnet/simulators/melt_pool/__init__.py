@@ -31,7 +31,7 @@ from calnet.simulators.melt_pool.model import run
 from calnet.simulators.melt_pool.options import MeltPoolOptions
 
 NAME = "melt_pool"
-VERSION = "0.14.0"
+VERSION = "0.15.0"
 INPUTS = ("P", "v")
 PARAMETERS = ("K_S", "K_L", "K_Lz", "K_V", "K_Vz", "A_0", "A_max")
 OUTPUTS = ("D", "W", "L", "T0", "S0", "G0")

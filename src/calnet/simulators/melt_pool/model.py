@@ -195,6 +195,9 @@ def run(P: float, v: float, theta: dict[str, float], opts: MeltPoolOptions,
                                   max_iter=opts.max_iter - iterations,
                                   max_update=opts.max_update, deadline=deadline,
                                   consolidation=opts.consolidation,
+                                  abandon=(lambda a, a0=a_before: _left_branch(a, a0, theta))
+                                  if (p_stage == P and not retried and below is not None
+                                      and a_before is not None) else None,
                                   **({} if dt0 is None else {"dt0": dt0}))
             iterations += report.iterations
             stages.append({"mesh": "fine" if final_stage else "sizing", "P": p_stage,
@@ -206,6 +209,11 @@ def run(P: float, v: float, theta: dict[str, float], opts: MeltPoolOptions,
                          f"{stages[-1]['mesh']} mesh ({mesh.size} cells) at {p_stage:.0f} W: "
                          f"{report.iterations} Newton iterations, "
                          + ("converged" if report.converged else "not converged"))
+            if not report.converged and report.reason == "left branch":
+                stages[-1]["left_branch"] = retried = True
+                T0, dt0 = _interpolate(below[1], below[2], mesh), WARM_DT0
+                queue = [below[0], P]
+                continue
             if not report.converged:
                 break
             if p_stage < P:

@@ -98,6 +98,7 @@ CAP_MIN = 1.0  # K, smallest per-cell cap
 STALL_ITS = 20  # iterations without a new lowest residual that switch on the stall mode
 STALL_DT = 1e-4  # s, dt and its ceiling when the stall mode switches on
 STALL_GROWTH = 1.2  # per calm step, growth of the ceiling on dt in the stall mode
+ABANDON_ITS = 3  # iterations in a row past ``abandon`` that end a solve as "left branch"
 A_STEP = 0.05  # largest change of the absorptivity between Newton steps (0: no limit)
 
 
@@ -282,7 +283,8 @@ def _with_exposure(M: sp.csr_matrix, disc: Discretization, T: np.ndarray,
 def newton_solve(disc: Discretization, laws: MaterialLaws, T0: np.ndarray, *,
                  absorptivity: AbsorptivityLaw, k_powder: float, rtol: float, ttol: float,
                  max_iter: int, max_update: float, deadline: float | None,
-                 dt0: float = DT0, consolidation: str = "exposure") -> SolveReport:
+                 dt0: float = DT0, consolidation: str = "exposure",
+                 abandon: Callable[[float], bool] | None = None) -> SolveReport:
     """Drive the residual to ``max|R| <= rtol * A P / 2`` from the initial field ``T0``.
 
     ``consolidation="monotone"``: the consolidated fraction is the largest upstream-maximum
@@ -295,7 +297,11 @@ def newton_solve(disc: Discretization, laws: MaterialLaws, T0: np.ndarray, *,
     (a cycle of the update, the caps and ``dt`` near the keyhole threshold) enters a
     stall mode for the rest of the solve: every cell carries the pseudo-time term
     (also the cold ones), ``dt`` and its ceiling drop to ``STALL_DT`` and the ceiling
-    regrows by ``STALL_GROWTH`` per calm step."""
+    regrows by ``STALL_GROWTH`` per calm step.
+
+    ``abandon``, when given, is asked of every iterate's absorptivity whether the solve
+    has left the branch it should stay on; after ``ABANDON_ITS`` yeses in a row the
+    solve ends unconverged with the reason ``"left branch"``."""
     T = T0.copy()
     rho_c = None
     dt, r0_norm, upd, lin_total, calm = dt0, None, np.inf, 0, 10
@@ -312,6 +318,7 @@ def newton_solve(disc: Discretization, laws: MaterialLaws, T0: np.ndarray, *,
     a_prev: float | None = None
     cap = np.full(T.shape, float(max_update))
     last: np.ndarray | None = None
+    away = 0
     for it in range(1, max_iter + 1):
         if deadline is not None and time.monotonic() > deadline:
             reason = "time limit reached"
@@ -321,6 +328,10 @@ def newton_solve(disc: Discretization, laws: MaterialLaws, T0: np.ndarray, *,
         if clipped:  # relax towards A(T), lagged: no dA/dT for a value not on the law
             A, dA = a_prev + math.copysign(A_STEP, A - a_prev), None
         a_prev = A
+        away = away + 1 if abandon is not None and abandon(A) else 0
+        if ABANDON_ITS and away >= ABANDON_ITS:
+            reason = "left branch"
+            break
         cons = None
         if consolidation == "exposure":
             cons = exposure(disc, T, A, k_powder)
