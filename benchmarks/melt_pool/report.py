@@ -77,14 +77,17 @@ def speed_table() -> str:
     five = [r["cpu_s"] for r in five_recs if "cpu_s" in r]
     rss = [r["peak_rss_mib"] for r in recs if "peak_rss_mib" in r]
     cpu = [r["cpu_s"] for r in recs if "cpu_s" in r]
+    sim = [r["sim_cpu_s"] for r in recs if "sim_cpu_s" in r]
     cells = [r["n_cells"] for r in recs if r.get("n_cells")]
     its = [r["iterations"] for r in recs if r.get("iterations")]
     nan = float("nan")
     return "\n".join([
-        "| runs | converged | CPU median / max (s) | 5-setting CPU median / max (s) "
+        "| runs | converged | CPU median / max (s) | simulation CPU median / max (s) "
+        "| 5-setting CPU median / max (s) "
         "| wall median / max (s) | peak RSS max (MiB) | cells median | Newton its median / max |",
-        "|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|",
         f"| {len(recs)} | {len(ok)} | {statistics.median(cpu):.1f} / {max(cpu):.1f} "
+        f"| {statistics.median(sim) if sim else nan:.1f} / {max(sim) if sim else nan:.1f} "
         f"| {statistics.median(five) if five else nan:.1f} / {max(five) if five else nan:.1f} "
         f"| {statistics.median(wall):.0f} / {max(wall):.0f} | {max(rss):.0f} "
         f"| {statistics.median(cells):.0f} | {statistics.median(its):.0f} / {max(its)} |"])
