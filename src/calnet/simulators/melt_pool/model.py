@@ -186,6 +186,9 @@ def run(P: float, v: float, theta: dict[str, float], opts: MeltPoolOptions,
             p_stage = queue.pop(0)
             last = p_stage == P and final_stage
             d = disc.with_power(p_stage)
+            # the solve at P on a new mesh, from the coarser mesh's field interpolated
+            # onto it: it must stay on the branch the coarser mesh was on
+            watch = p_stage == P and not retried and below is not None and a_before is not None
             cpu = time.process_time()
             report = newton_solve(d, laws, T0, absorptivity=_absorptivity(d, laws, theta,
                                   opts, mat), k_powder=k_p,
@@ -196,8 +199,7 @@ def run(P: float, v: float, theta: dict[str, float], opts: MeltPoolOptions,
                                   max_update=opts.max_update, deadline=deadline,
                                   consolidation=opts.consolidation,
                                   abandon=(lambda a, a0=a_before: _left_branch(a, a0, theta))
-                                  if (p_stage == P and not retried and below is not None
-                                      and a_before is not None) else None,
+                                  if watch else None,
                                   **({} if dt0 is None else {"dt0": dt0}))
             iterations += report.iterations
             stages.append({"mesh": "fine" if final_stage else "sizing", "P": p_stage,
@@ -209,7 +211,10 @@ def run(P: float, v: float, theta: dict[str, float], opts: MeltPoolOptions,
                          f"{stages[-1]['mesh']} mesh ({mesh.size} cells) at {p_stage:.0f} W: "
                          f"{report.iterations} Newton iterations, "
                          + ("converged" if report.converged else "not converged"))
-            if not report.converged and report.reason == "left branch":
+            if (report.reason == "left branch" if not report.converged
+                    else watch and _left_branch(report.absorptivity, a_before, theta)):
+                # it fell off that branch (given up, or converged on the other one):
+                # reach P on this mesh by continuation instead
                 stages[-1]["left_branch"] = retried = True
                 T0, dt0 = _interpolate(below[1], below[2], mesh), WARM_DT0
                 queue = [below[0], P]
@@ -218,14 +223,6 @@ def run(P: float, v: float, theta: dict[str, float], opts: MeltPoolOptions,
                 break
             if p_stage < P:
                 below = (p_stage, report.T, mesh)
-            elif (not retried and below is not None and a_before is not None
-                  and _left_branch(report.absorptivity, a_before, theta)):
-                # the field interpolated onto the new mesh fell off the branch the
-                # coarser mesh was on: reach P on this mesh by continuation instead
-                stages[-1]["left_branch"] = retried = True
-                T0, dt0 = _interpolate(below[1], below[2], mesh), WARM_DT0
-                queue = [below[0], P]
-                continue
             T0, dt0 = report.T, WARM_DT0
         if not report.converged:
             break
